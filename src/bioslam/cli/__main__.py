@@ -1,0 +1,5 @@
+import sys
+
+from bioslam.cli import main
+
+sys.exit(main())

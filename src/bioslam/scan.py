@@ -1,0 +1,93 @@
+"""The LaserScan record every reader yields and every module consumes (no I/O here)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass(frozen=True, eq=False)
+class LaserScan:
+    """One 2D LiDAR scan.
+
+    Attributes:
+        stamp: time of the first beam, seconds.
+        ranges: measured distances in metres, one per beam; NaN, inf, 0 and values outside
+            ``[range_min, range_max]`` mean "no return".
+        angles: beam angles in the sensor frame, radians, counter-clockwise, 0 = forward.
+        range_min, range_max: the sensor's valid range interval, metres.
+        time_increment: seconds between consecutive beams (0 when the sensor does not say);
+            beam ``k`` was measured at ``stamp + k * time_increment``.
+    """
+
+    stamp: float
+    ranges: NDArray[np.float64]
+    angles: NDArray[np.float64]
+    range_min: float = 0.0
+    range_max: float = np.inf
+    time_increment: float = 0.0
+    _valid: NDArray[np.bool_] | None = field(default=None, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        ranges = np.asarray(self.ranges, dtype=np.float64)
+        angles = np.asarray(self.angles, dtype=np.float64)
+        if ranges.ndim != 1 or ranges.shape != angles.shape:
+            raise ValueError(
+                f"ranges {ranges.shape} and angles {angles.shape} must be 1-D of equal length"
+            )
+        object.__setattr__(self, "ranges", ranges)
+        object.__setattr__(self, "angles", angles)
+
+    @classmethod
+    def from_angle_min(
+        cls,
+        stamp: float,
+        ranges: NDArray[np.float64],
+        angle_min: float,
+        angle_increment: float,
+        range_min: float = 0.0,
+        range_max: float = np.inf,
+        time_increment: float = 0.0,
+    ) -> LaserScan:
+        """Build a scan from ROS-style ``angle_min`` + ``angle_increment``."""
+        ranges = np.asarray(ranges, dtype=np.float64)
+        angles = angle_min + angle_increment * np.arange(ranges.size, dtype=np.float64)
+        return cls(stamp, ranges, angles, range_min, range_max, time_increment)
+
+    @property
+    def num_beams(self) -> int:
+        return int(self.ranges.size)
+
+    @property
+    def fov(self) -> float:
+        """Angular span from the first to the last beam, radians."""
+        if self.angles.size < 2:
+            return 0.0
+        return float(abs(self.angles[-1] - self.angles[0]))
+
+    @property
+    def valid_mask(self) -> NDArray[np.bool_]:
+        """Beams with a usable return: finite, non-zero and within the range limits."""
+        if self._valid is None:
+            r = self.ranges
+            with np.errstate(invalid="ignore"):
+                valid = np.isfinite(r) & (r > 0.0) & (r >= self.range_min) & (r <= self.range_max)
+            object.__setattr__(self, "_valid", valid)
+        return self._valid  # type: ignore[return-value]
+
+    def valid_polar(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``(ranges, angles)`` of the valid returns."""
+        m = self.valid_mask
+        return self.ranges[m], self.angles[m]
+
+    def endpoints(self) -> NDArray[np.float64]:
+        """Valid endpoints ``(N, 2)`` in the sensor frame (the paper's Eq. 2)."""
+        r, a = self.valid_polar()
+        return np.column_stack([r * np.cos(a), r * np.sin(a)])
+
+    def beam_times(self) -> NDArray[np.float64]:
+        """Time offsets of the valid beams from ``stamp``, seconds."""
+        idx = np.flatnonzero(self.valid_mask)
+        return idx * self.time_increment
