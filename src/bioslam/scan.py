@@ -14,8 +14,8 @@ class LaserScan:
 
     Attributes:
         stamp: time of the first beam, seconds.
-        ranges: measured distances in metres, one per beam; NaN, inf, 0 and values outside
-            ``[range_min, range_max]`` mean "no return".
+        ranges: measured distances in metres (float32 or float64), one per beam; NaN, inf, 0
+            and values outside ``[range_min, range_max]`` mean "no return".
         angles: beam angles in the sensor frame, radians, counter-clockwise, 0 = forward.
         range_min, range_max: the sensor's valid range interval, metres.
         time_increment: seconds between consecutive beams (0 when the sensor does not say);
@@ -31,7 +31,10 @@ class LaserScan:
     _valid: NDArray[np.bool_] | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
-        ranges = np.asarray(self.ranges, dtype=np.float64)
+        # float32 ranges are kept as they are: long logs held in memory stay half the size.
+        ranges = np.asarray(self.ranges)
+        if not np.issubdtype(ranges.dtype, np.floating):
+            ranges = ranges.astype(np.float64)
         angles = np.asarray(self.angles, dtype=np.float64)
         if ranges.ndim != 1 or ranges.shape != angles.shape:
             raise ValueError(
@@ -85,6 +88,7 @@ class LaserScan:
     def endpoints(self) -> NDArray[np.float64]:
         """Valid endpoints ``(N, 2)`` in the sensor frame (the paper's Eq. 2)."""
         r, a = self.valid_polar()
+        r = r.astype(np.float64, copy=False)
         return np.column_stack([r * np.cos(a), r * np.sin(a)])
 
     def beam_times(self) -> NDArray[np.float64]:

@@ -1,0 +1,38 @@
+"""A timestamped sequence of SE(2) poses: what readers, the simulator, the pipeline and the
+evaluation exchange."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass
+class Trajectory:
+    """``stamps`` (N,) in seconds, strictly increasing; ``poses`` (N, 3) as (x, y, theta)."""
+
+    stamps: NDArray[np.float64]
+    poses: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        self.stamps = np.asarray(self.stamps, dtype=np.float64).reshape(-1)
+        self.poses = np.asarray(self.poses, dtype=np.float64).reshape(-1, 3)
+        if self.stamps.shape[0] != self.poses.shape[0]:
+            raise ValueError(
+                f"{self.stamps.shape[0]} stamps but {self.poses.shape[0]} poses in a trajectory"
+            )
+
+    def __len__(self) -> int:
+        return int(self.stamps.shape[0])
+
+    @classmethod
+    def empty(cls) -> Trajectory:
+        return cls(np.zeros(0), np.zeros((0, 3)))
+
+    def path_length(self) -> float:
+        """Distance travelled along the positions, metres."""
+        if len(self) < 2:
+            return 0.0
+        return float(np.sum(np.hypot(*np.diff(self.poses[:, :2], axis=0).T)))
