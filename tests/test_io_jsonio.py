@@ -1,0 +1,56 @@
+"""JSON writer: numpy types, non-finite floats, atomic replacement."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bioslam.io import jsonio
+from bioslam.io.jsonio import read_json, write_json
+
+
+@dataclass
+class _Node:
+    id: int
+    pose: tuple[float, float, float]
+
+
+def test_numpy_and_dataclasses_become_plain_json(tmp_path):
+    value = {
+        "n": np.int64(3), "x": np.float32(0.5), "ok": np.bool_(True),
+        "arr": np.arange(3), "nan": float("nan"), "node": _Node(1, (0.0, 1.0, np.pi)),
+        "path": Path("a/b"), 7: "int key",
+    }
+    path = write_json(tmp_path / "s.json", value)
+    back = json.loads(path.read_text())
+    assert back == {
+        "n": 3, "x": 0.5, "ok": True, "arr": [0, 1, 2], "nan": None,
+        "node": {"id": 1, "pose": [0.0, 1.0, pytest.approx(np.pi)]}, "path": "a/b",
+        "7": "int key",
+    }
+
+
+def test_failed_write_keeps_the_previous_file(tmp_path, monkeypatch):
+    path = write_json(tmp_path / "s.json", {"a": 1})
+    with pytest.raises(TypeError):
+        write_json(path, {"a": object()})
+    assert read_json(path) == {"a": 1}
+
+    def boom(*_args):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(jsonio.os, "replace", boom)
+    with pytest.raises(OSError, match="disk full"):
+        write_json(path, {"a": 2})
+    assert read_json(path) == {"a": 1}
+    assert [p.name for p in tmp_path.iterdir()] == ["s.json"]
+
+
+def test_read_json_names_file_and_line(tmp_path):
+    (tmp_path / "bad.json").write_text('{\n  "a": 1,\n}\n')
+    with pytest.raises(ValueError, match=r"bad.json:3:"):
+        read_json(tmp_path / "bad.json")
