@@ -1,0 +1,277 @@
+"""ATE / RPE: known answers on synthetic trajectories, and agreement with evo on TUM files."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from bioslam.evaluation import (
+    EvalConfig,
+    align_se2,
+    apply_se2,
+    associate,
+    ate,
+    evaluate,
+    position_errors,
+    rpe_distance,
+    rpe_time,
+)
+from bioslam.geometry import between, compose, wrap_angle
+from bioslam.io.tum import read_tum, write_tum
+from bioslam.trajectory import Trajectory
+
+
+def _route(n: int = 400, period: float = 0.1, seed: int = 0) -> Trajectory:
+    """A smooth wandering route at ~0.6 m/s with turns, like a robot in a corridor loop."""
+    rng = np.random.default_rng(seed)
+    v = 0.6 + 0.2 * np.sin(np.arange(n) * 0.05)
+    w = 0.4 * np.sin(np.arange(n) * 0.03) + 0.05 * rng.standard_normal(n)
+    steps = np.column_stack([v * period, np.zeros(n), w * period])
+    poses = np.zeros((n, 3))
+    for k in range(1, n):
+        poses[k] = compose(poses[k - 1], steps[k - 1])
+    return Trajectory(100.0 + period * np.arange(n), poses)
+
+
+def _drifting_estimate(gt: Trajectory, seed: int = 1, jitter: float = 0.003) -> Trajectory:
+    """Odometry-like estimate: noisy, biased increments, then an arbitrary rigid offset."""
+    rng = np.random.default_rng(seed)
+    est = np.zeros_like(gt.poses)
+    for k in range(1, len(gt)):
+        rel = between(gt.poses[k - 1], gt.poses[k])
+        rel = rel * np.array([1.03, 1.0, 1.0]) + rng.normal(0, [0.01, 0.005, 0.01])
+        est[k] = compose(est[k - 1], rel)
+    est = np.asarray(compose(np.array([2.0, -1.0, 0.7]), est))
+    stamps = gt.stamps + rng.uniform(-jitter, jitter, len(gt))
+    return Trajectory(stamps, est)
+
+
+# --- association ---------------------------------------------------------------------------
+
+
+def test_associate_picks_nearest_within_max_dt_and_drops_the_rest():
+    gt = Trajectory(np.array([0.0, 1.0, 2.0, 3.0]), np.zeros((4, 3)))
+    est = Trajectory(np.array([0.005, 0.985, 2.5, 3.01]), np.zeros((4, 3)))
+    est_idx, gt_idx = associate(est, gt, max_dt=0.02)
+    assert est_idx.tolist() == [0, 1, 3]
+    assert gt_idx.tolist() == [0, 1, 3]
+
+
+def test_associate_breaks_ties_towards_the_earlier_stamp_like_evo():
+    gt = Trajectory(np.array([0.0, 1.0, 2.0, 3.0, 4.0]), np.zeros((5, 3)))
+    est = Trajectory(np.array([1.5, 2.5]), np.zeros((2, 3)))
+    est_idx, gt_idx = associate(est, gt, max_dt=0.5)
+    assert gt_idx.tolist() == [1, 2]
+    assert est_idx.tolist() == [0, 1]
+
+
+@pytest.mark.parametrize("n_est, n_gt", [(300, 300), (300, 200), (150, 300)])
+def test_associate_matches_evo(n_est, n_gt):
+    from evo.core.sync import matching_time_indices
+
+    rng = np.random.default_rng(n_est + n_gt)
+    gt_t = np.sort(rng.uniform(0, 30, n_gt))
+    est_t = np.sort(rng.uniform(0, 30, n_est))
+    est = Trajectory(est_t, np.zeros((n_est, 3)))
+    gt = Trajectory(gt_t, np.zeros((n_gt, 3)))
+    est_idx, gt_idx = associate(est, gt, max_dt=0.05)
+    # evo_ape calls associate_trajectories(ref, est): the shorter one (est on a tie) drives.
+    if n_est > n_gt:
+        ev_gt, ev_est = matching_time_indices(gt_t, est_t, 0.05)
+    else:
+        ev_est, ev_gt = matching_time_indices(est_t, gt_t, 0.05)
+    assert est_idx.tolist() == list(ev_est)
+    assert gt_idx.tolist() == list(ev_gt)
+    assert est_idx.size > 0
+
+
+def test_associate_rejects_disjoint_and_empty_trajectories():
+    gt = Trajectory(np.arange(10.0), np.zeros((10, 3)))
+    est = Trajectory(np.arange(10.0) + 100.0, np.zeros((10, 3)))
+    with pytest.raises(ValueError, match="no matching stamps"):
+        associate(est, gt)
+    with pytest.raises(ValueError, match="0 poses"):
+        associate(Trajectory.empty(), gt)
+    unsorted = Trajectory(np.array([0.0, 2.0, 1.0]), np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="not sorted"):
+        associate(unsorted, gt)
+
+
+# --- alignment and ATE ---------------------------------------------------------------------
+
+
+def test_align_se2_recovers_a_known_rigid_motion():
+    rng = np.random.default_rng(3)
+    p = rng.uniform(-5, 5, (50, 2))
+    angle = 2.5
+    R_true = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    t_true = np.array([3.0, -7.0])
+    R, t = align_se2(p, p @ R_true.T + t_true)
+    np.testing.assert_allclose(R, R_true, atol=1e-12)
+    np.testing.assert_allclose(t, t_true, atol=1e-12)
+    assert np.linalg.det(R) == pytest.approx(1.0)
+
+
+def test_ate_of_a_rigidly_moved_copy_is_zero_and_of_an_offset_is_the_offset():
+    gt = _route()
+    quarter_turn = np.array([[0.0, -1.0], [1.0, 0.0]])
+    moved = Trajectory(gt.stamps, apply_se2(quarter_turn, np.array([1.0, 2.0]), gt.poses))
+    assert ate(moved, gt)["rmse"] < 1e-9
+    assert ate(moved, gt, align=False)["rmse"] > 1.0
+    shifted = Trajectory(gt.stamps, gt.poses + np.array([0.3, -0.4, 0.0]))
+    res = ate(shifted, gt, align=False)
+    assert res["rmse"] == pytest.approx(0.5)
+    assert res["max"] == pytest.approx(0.5)
+    assert res["pairs"] == len(gt)
+
+
+def test_position_errors_follow_the_associated_estimate_stamps():
+    gt = _route(n=50)
+    est = Trajectory(gt.stamps + 0.004, gt.poses + np.array([0.0, 0.2, 0.0]))
+    stamps, err = position_errors(est, gt, align=False)
+    np.testing.assert_allclose(stamps, est.stamps)
+    np.testing.assert_allclose(err, 0.2, atol=1e-12)
+    _, err_aligned = position_errors(est, gt, align=True)
+    assert np.max(err_aligned) < 1e-9
+
+
+# --- RPE known answers ---------------------------------------------------------------------
+
+
+def test_rpe_time_of_a_scale_error_is_the_extra_distance_per_interval():
+    period = 0.125
+    n = 81
+    x = 0.5 * period * np.arange(n)  # 0.5 m/s straight line along x
+    gt = Trajectory(period * np.arange(n), np.column_stack([x, np.zeros(n), np.zeros(n)]))
+    est = Trajectory(gt.stamps, np.column_stack([1.1 * x, np.zeros(n), np.zeros(n)]))
+    res = rpe_time(est, gt, delta_s=1.0)
+    assert res["pairs"] == 10
+    assert res["trans_rmse_m"] == pytest.approx(0.05, rel=1e-9)
+    assert res["rot_rmse_deg"] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_rpe_distance_sees_a_heading_bias_per_metre():
+    n = 201
+    x = 0.05 * np.arange(n)  # 0.05 m steps, 10 m
+    gt = Trajectory(0.1 * np.arange(n), np.column_stack([x, np.zeros(n), np.zeros(n)]))
+    est_theta = wrap_angle(np.radians(2.0) * x)  # 2 degrees of heading drift per metre
+    est = Trajectory(gt.stamps, np.column_stack([x, np.zeros(n), est_theta]))
+    res = rpe_distance(est, gt, delta_m=1.0)
+    assert res["pairs"] == 10
+    assert res["rot_rmse_deg"] == pytest.approx(2.0, rel=1e-6)
+
+
+def test_rpe_of_a_too_short_path_is_nan_with_no_pairs():
+    gt = Trajectory(np.arange(3.0) * 0.1, np.column_stack([np.arange(3) * 0.1, np.zeros((3, 2))]))
+    res = rpe_distance(gt, gt, delta_m=1.0)
+    assert res["pairs"] == 0
+    assert np.isnan(res["trans_rmse_m"])
+
+
+def test_evaluate_returns_exactly_the_summary_keys():
+    gt = _route(n=120)
+    summary = evaluate(_drifting_estimate(gt), gt)
+    assert list(summary) == [
+        "ate_rmse_m",
+        "ate_mean_m",
+        "ate_max_m",
+        "rpe_1m_trans_m",
+        "rpe_1m_rot_deg",
+        "rpe_1s_trans_m",
+        "rpe_1s_rot_deg",
+        "pairs",
+    ]
+    assert summary["pairs"] == 120
+    assert 0 < summary["ate_mean_m"] <= summary["ate_rmse_m"] <= summary["ate_max_m"]
+
+
+# --- cross-check against evo on the same TUM files -----------------------------------------
+
+
+@pytest.fixture
+def tum_pair(tmp_path):
+    gt = _route(n=400, period=0.125)
+    est = _drifting_estimate(gt)
+    # An estimate with a few more poses than the reference exercises the association.
+    est = Trajectory(
+        np.append(est.stamps, est.stamps[-1] + [0.125, 0.25]),
+        np.vstack([est.poses, est.poses[-1], est.poses[-1]]),
+    )
+    est_path, gt_path = tmp_path / "est.tum", tmp_path / "gt.tum"
+    write_tum(est_path, est)
+    write_tum(gt_path, gt)
+    return est_path, gt_path
+
+
+def _evo_inputs(est_path, gt_path, max_dt):
+    from evo.core import sync
+    from evo.tools import file_interface
+
+    ref = file_interface.read_tum_trajectory_file(str(gt_path))
+    est = file_interface.read_tum_trajectory_file(str(est_path))
+    return sync.associate_trajectories(ref, est, max_diff=max_dt)
+
+
+def test_ate_matches_evo_ape_with_alignment(tum_pair):
+    from evo.core.metrics import PoseRelation
+    from evo.main_ape import ape
+
+    est_path, gt_path = tum_pair
+    ref, est = _evo_inputs(est_path, gt_path, 0.01)
+    stats = ape(ref, est, PoseRelation.translation_part, align=True).stats
+    ours = ate(read_tum(est_path), read_tum(gt_path), max_dt=0.01)
+    for key in ("rmse", "mean", "median", "std", "min", "max"):
+        assert ours[key] == pytest.approx(stats[key], rel=1e-6), key
+    assert ours["pairs"] == ref.num_poses
+
+
+@pytest.mark.parametrize("pairs_from_reference", [False, True])
+def test_rpe_per_metre_matches_evo_rpe(tum_pair, pairs_from_reference):
+    from evo.core.metrics import PoseRelation, Unit
+    from evo.main_rpe import rpe
+
+    est_path, gt_path = tum_pair
+    ours = rpe_distance(read_tum(est_path), read_tum(gt_path), 1.0, 0.01, pairs_from_reference)
+    for relation, key in [
+        (PoseRelation.translation_part, "trans_rmse_m"),
+        (PoseRelation.rotation_angle_deg, "rot_rmse_deg"),
+    ]:
+        ref, est = _evo_inputs(est_path, gt_path, 0.01)
+        result = rpe(
+            copy.deepcopy(ref),
+            copy.deepcopy(est),
+            relation,
+            delta=1.0,
+            delta_unit=Unit.meters,
+            align=True,
+            pairs_from_reference=pairs_from_reference,
+        )
+        assert ours[key] == pytest.approx(result.stats["rmse"], rel=1e-6), key
+        assert ours["pairs"] == result.np_arrays["error_array"].size
+
+
+def test_rpe_per_second_matches_evo_rpe_per_frames_on_even_stamps(tum_pair):
+    from evo.core.metrics import PoseRelation, Unit
+    from evo.main_rpe import rpe
+
+    est_path, gt_path = tum_pair
+    gt = read_tum(gt_path)
+    # Even stamps (0.125 s, exact in binary): 1 s is exactly 8 frames.
+    est = Trajectory(gt.stamps, read_tum(est_path).poses[: len(gt)])
+    write_tum(est_path, est)
+    ours = rpe_time(est, gt, delta_s=1.0, max_dt=0.01)
+    for relation, key in [
+        (PoseRelation.translation_part, "trans_rmse_m"),
+        (PoseRelation.rotation_angle_deg, "rot_rmse_deg"),
+    ]:
+        ref, ev_est = _evo_inputs(est_path, gt_path, 0.01)
+        result = rpe(ref, ev_est, relation, delta=8, delta_unit=Unit.frames, align=True)
+        assert ours[key] == pytest.approx(result.stats["rmse"], rel=1e-6), key
+        assert ours["pairs"] == result.np_arrays["error_array"].size
+
+
+def test_eval_config_defaults_are_the_documented_ones():
+    cfg = EvalConfig()
+    assert (cfg.rpe_delta_m, cfg.rpe_delta_s, cfg.pairs_from_reference) == (1.0, 1.0, False)
