@@ -1,0 +1,362 @@
+"""Log-odds occupancy grids, their multi-resolution pyramid and the continuous map function M*.
+
+The map function is the one of Hector SLAM (Kohlbrecher et al. 2011, Sec. IV-A), which the paper
+cites for the upsampled local map M* of its Eq. 3: cell values are occupancy probabilities at
+the cell centres, M* interpolates them bilinearly and its gradient is the analytic derivative of
+that interpolation.
+
+Array layout: ``logodds[row, col]`` with row 0 at the lowest y; cell ``(row, col)`` covers
+``[origin_x + col * res, origin_x + (col + 1) * res) x [origin_y + row * res, ...)``.
+
+No file or terminal I/O here.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class LogOddsConfig:
+    """How one observation changes a cell's log-odds.
+
+    Defaults follow the ROS ``hector_mapping`` parameters ``update_factor_occupied = 0.9`` and
+    ``update_factor_free = 0.4`` (log-odds of 0.9 and 0.4). The clamps are ours: a cell never
+    gets so certain that a moved object (a door, a person) could not be erased again by a few
+    dozen observations.
+    """
+
+    l_hit: float = math.log(0.9 / 0.1)
+    l_miss: float = math.log(0.4 / 0.6)
+    l_min: float = -8.0
+    l_max: float = 8.0
+
+
+# --------------------------------------------------------------------------------------------
+# Numba kernels
+
+
+@numba.njit(cache=True)
+def _cell_of(x: float, y: float, ox: float, oy: float, res: float) -> tuple[int, int]:
+    return math.floor((y - oy) / res), math.floor((x - ox) / res)
+
+
+@numba.njit(cache=True)
+def _add_clamped(grid, r, c, delta, lo, hi) -> None:
+    v = grid[r, c] + delta
+    if v < lo:
+        v = lo
+    elif v > hi:
+        v = hi
+    grid[r, c] = v
+
+
+@numba.njit(cache=True)
+def _insert_scan_kernel(
+    logodds, stamps, stamp, ox, oy, res, sx, sy, world_pts, l_hit, l_miss, l_min, l_max
+) -> None:
+    rows, cols = logodds.shape
+    n = world_pts.shape[0]
+    # Hits first and stamped, so that a ray grazing a wall cell in the same scan does not erase
+    # it, and every cell gets at most one update per scan (Hector's update index).
+    for k in range(n):
+        r, c = _cell_of(world_pts[k, 0], world_pts[k, 1], ox, oy, res)
+        if 0 <= r < rows and 0 <= c < cols and stamps[r, c] != stamp:
+            stamps[r, c] = stamp
+            _add_clamped(logodds, r, c, l_hit, l_min, l_max)
+    r0, c0 = _cell_of(sx, sy, ox, oy, res)
+    for k in range(n):
+        r1, c1 = _cell_of(world_pts[k, 0], world_pts[k, 1], ox, oy, res)
+        # Bresenham from the sensor cell to the endpoint cell, the endpoint excluded.
+        dc = abs(c1 - c0)
+        dr = -abs(r1 - r0)
+        sc = 1 if c0 < c1 else -1
+        sr = 1 if r0 < r1 else -1
+        err = dc + dr
+        r, c = r0, c0
+        while not (r == r1 and c == c1):
+            if 0 <= r < rows and 0 <= c < cols:
+                if stamps[r, c] != stamp:
+                    stamps[r, c] = stamp
+                    _add_clamped(logodds, r, c, l_miss, l_min, l_max)
+            elif (r < 0 and sr < 0) or (r >= rows and sr > 0) or (c < 0 and sc < 0) or (
+                c >= cols and sc > 0
+            ):
+                break  # left the grid for good
+            e2 = 2 * err
+            if e2 >= dr:
+                err += dr
+                c += sc
+            if e2 <= dc:
+                err += dc
+                r += sr
+
+
+@numba.njit(cache=True)
+def _prob(logodd: float) -> float:
+    return 1.0 / (1.0 + math.exp(-logodd))
+
+
+@numba.njit(cache=True)
+def interpolate_point(logodds, ox: float, oy: float, res: float, x: float, y: float):
+    """M*(x, y) and its gradient (Eq. 3's M*, Hector SLAM's Eq. 4-6).
+
+    Returns ``(value, d/dx, d/dy, inside)``; outside the grid the value is 0.5 (unknown) with a
+    zero gradient and ``inside`` False.
+    """
+    rows, cols = logodds.shape
+    u = (x - ox) / res - 0.5
+    v = (y - oy) / res - 0.5
+    c0 = math.floor(u)
+    r0 = math.floor(v)
+    if c0 < 0 or r0 < 0 or c0 + 1 >= cols or r0 + 1 >= rows:
+        return 0.5, 0.0, 0.0, False
+    fu = u - c0
+    fv = v - r0
+    m00 = _prob(logodds[r0, c0])
+    m01 = _prob(logodds[r0, c0 + 1])
+    m10 = _prob(logodds[r0 + 1, c0])
+    m11 = _prob(logodds[r0 + 1, c0 + 1])
+    bottom = m00 + fu * (m01 - m00)
+    top = m10 + fu * (m11 - m10)
+    value = bottom + fv * (top - bottom)
+    dx = ((1.0 - fv) * (m01 - m00) + fv * (m11 - m10)) / res
+    dy = (top - bottom) / res
+    return value, dx, dy, True
+
+
+@numba.njit(cache=True)
+def _interpolate_many(logodds, ox, oy, res, pts):
+    n = pts.shape[0]
+    out = np.empty((n, 3))
+    for k in range(n):
+        val, dx, dy, _ = interpolate_point(logodds, ox, oy, res, pts[k, 0], pts[k, 1])
+        out[k, 0] = val
+        out[k, 1] = dx
+        out[k, 2] = dy
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# Grid
+
+
+def _as_points(points: ArrayLike) -> FloatArray:
+    pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64))
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise ValueError(f"points must have shape (N, 2), got {pts.shape}")
+    return pts
+
+
+class OccupancyGrid:
+    """A log-odds occupancy grid with hit/miss ray updates.
+
+    Args:
+        resolution: cell size, metres.
+        size: width and height in metres (one number for a square); rounded up to whole cells.
+        origin: world coordinates of the lower-left corner of cell (0, 0); by default the grid
+            is centred on (0, 0).
+        update: the log-odds increments and clamps.
+        auto_grow: grow the grid (by whole blocks) when a scan reaches beyond it, for global maps
+            of unknown extent; a local map leaves it off and scrolls with :meth:`recenter`.
+    """
+
+    def __init__(
+        self,
+        resolution: float,
+        size: float | tuple[float, float],
+        origin: ArrayLike | None = None,
+        update: LogOddsConfig | None = None,
+        auto_grow: bool = False,
+    ) -> None:
+        if not resolution > 0:
+            raise ValueError(f"grid resolution must be positive, got {resolution}")
+        width, height = (size, size) if np.isscalar(size) else size  # type: ignore[misc]
+        cols = max(2, math.ceil(float(width) / resolution - 1e-9))
+        rows = max(2, math.ceil(float(height) / resolution - 1e-9))
+        self.resolution = float(resolution)
+        self.update = update or LogOddsConfig()
+        self.auto_grow = auto_grow
+        if origin is None:
+            origin = (-0.5 * cols * resolution, -0.5 * rows * resolution)
+        self.origin = np.array(origin, dtype=np.float64).reshape(2)
+        self.logodds = np.zeros((rows, cols), dtype=np.float64)
+        self._stamps = np.zeros((rows, cols), dtype=np.int64)
+        self._stamp = 0
+
+    @classmethod
+    def from_extent(
+        cls,
+        resolution: float,
+        extent: tuple[float, float, float, float],
+        update: LogOddsConfig | None = None,
+        auto_grow: bool = False,
+    ) -> OccupancyGrid:
+        """A grid covering ``(xmin, ymin, xmax, ymax)``."""
+        xmin, ymin, xmax, ymax = extent
+        if not (xmax > xmin and ymax > ymin):
+            raise ValueError(f"empty grid extent {extent}")
+        return cls(resolution, (xmax - xmin, ymax - ymin), (xmin, ymin), update, auto_grow)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.logodds.shape  # type: ignore[return-value]
+
+    @property
+    def extent(self) -> tuple[float, float, float, float]:
+        """``(xmin, ymin, xmax, ymax)`` in metres."""
+        rows, cols = self.shape
+        x0, y0 = self.origin
+        return (x0, y0, x0 + cols * self.resolution, y0 + rows * self.resolution)
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.logodds.nbytes + self._stamps.nbytes)
+
+    def probability(self, unknown: float = 0.5) -> FloatArray:
+        """Occupancy probabilities ``(H, W)`` in [0, 1]; never-observed cells get ``unknown``."""
+        prob = 1.0 / (1.0 + np.exp(-self.logodds))
+        if unknown != 0.5:
+            prob[self._stamps == 0] = unknown
+        return prob
+
+    def known_mask(self) -> NDArray[np.bool_]:
+        """Cells observed at least once."""
+        return self._stamps != 0
+
+    def world_to_cell(self, points: ArrayLike) -> NDArray[np.int64]:
+        """``(N, 2)`` world points to integer ``(row, col)`` indices (possibly out of range)."""
+        pts = _as_points(points)
+        return np.floor((pts[:, ::-1] - self.origin[::-1]) / self.resolution).astype(np.int64)
+
+    def insert_scan(self, pose: ArrayLike, endpoints: ArrayLike, max_range: float = np.inf) -> None:
+        """Fuse one scan: a hit at every endpoint, a miss in every cell its beam crosses.
+
+        Args:
+            pose: sensor pose ``(x, y, theta)`` in the grid's frame.
+            endpoints: ``(N, 2)`` beam endpoints in the sensor frame (valid returns only).
+            max_range: endpoints farther than this are ignored (their rays too).
+        """
+        pose = np.asarray(pose, dtype=np.float64).reshape(3)
+        pts = _as_points(endpoints)
+        if np.isfinite(max_range):
+            pts = pts[np.einsum("ij,ij->i", pts, pts) <= max_range * max_range]
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        world = np.ascontiguousarray(pts @ np.array([[c, s], [-s, c]]) + pose[:2])
+        if self.auto_grow and world.size:
+            lo = np.minimum(world.min(axis=0), pose[:2])
+            hi = np.maximum(world.max(axis=0), pose[:2])
+            self.grow_to_include((lo[0], lo[1], hi[0], hi[1]))
+        self._stamp += 1
+        u = self.update
+        _insert_scan_kernel(
+            self.logodds, self._stamps, self._stamp, self.origin[0], self.origin[1],
+            self.resolution, pose[0], pose[1], world, u.l_hit, u.l_miss, u.l_min, u.l_max,
+        )  # fmt: skip
+
+    def value_and_gradient(self, points: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """M* at world points ``(N, 2)`` and its gradient ``(N, 2)`` (Eq. 3's M*)."""
+        pts = _as_points(points)
+        out = _interpolate_many(self.logodds, self.origin[0], self.origin[1], self.resolution, pts)
+        return out[:, 0], out[:, 1:]
+
+    def shift_cells(self, drow: int, dcol: int) -> None:
+        """Scroll the window by whole cells: the origin moves by ``(dcol, drow) * res`` and
+        what falls outside is forgotten, so memory stays constant."""
+        if drow == 0 and dcol == 0:
+            return
+        for name in ("logodds", "_stamps"):
+            old = getattr(self, name)
+            new = np.zeros_like(old)
+            rows, cols = old.shape
+            if abs(drow) < rows and abs(dcol) < cols:
+                src_r = slice(max(drow, 0), rows + min(drow, 0))
+                dst_r = slice(max(-drow, 0), rows + min(-drow, 0))
+                src_c = slice(max(dcol, 0), cols + min(dcol, 0))
+                dst_c = slice(max(-dcol, 0), cols + min(-dcol, 0))
+                new[dst_r, dst_c] = old[src_r, src_c]
+            setattr(self, name, new)
+        self.origin = self.origin + self.resolution * np.array([dcol, drow], dtype=np.float64)
+
+    def recenter(self, x: float, y: float, quantum: int = 1) -> None:
+        """Scroll so that ``(x, y)`` is near the centre, by a multiple of ``quantum`` cells."""
+        rows, cols = self.shape
+        cx, cy = self.origin + 0.5 * self.resolution * np.array([cols, rows])
+        dcol = round((x - cx) / (self.resolution * quantum)) * quantum
+        drow = round((y - cy) / (self.resolution * quantum)) * quantum
+        self.shift_cells(drow, dcol)
+
+    def grow_to_include(self, extent: tuple[float, float, float, float], block: float = 10.0):
+        """Enlarge the grid (keeping its content and cell alignment) to cover ``extent``,
+        rounding each enlargement up to ``block`` metres so growth is amortised."""
+        xmin, ymin, xmax, ymax = self.extent
+        res = self.resolution
+        nblk = max(1, round(block / res))
+
+        def cells_needed(gap: float) -> int:
+            return 0 if gap <= 0 else nblk * math.ceil(gap / res / nblk)
+
+        left = cells_needed(xmin - extent[0])
+        right = cells_needed(extent[2] - xmax)
+        below = cells_needed(ymin - extent[1])
+        above = cells_needed(extent[3] - ymax)
+        if left == right == below == above == 0:
+            return
+        pad = ((below, above), (left, right))
+        self.logodds = np.pad(self.logodds, pad)
+        self._stamps = np.pad(self._stamps, pad)
+        self.origin = self.origin - res * np.array([left, below], dtype=np.float64)
+
+
+class MapPyramid:
+    """Several grids of the same area, each twice as coarse as the previous (finest first),
+    all updated with every inserted scan (Hector SLAM, Sec. IV-C)."""
+
+    def __init__(
+        self,
+        resolution: float,
+        size: float,
+        levels: int,
+        update: LogOddsConfig | None = None,
+        origin: ArrayLike | None = None,
+    ) -> None:
+        if levels < 1:
+            raise ValueError(f"a map pyramid needs at least one level, got {levels}")
+        coarsest = resolution * 2 ** (levels - 1)
+        # Every level spans the same whole number of coarsest cells, so they stay aligned.
+        size = coarsest * math.ceil(size / coarsest)
+        if origin is None:
+            origin = (-0.5 * size, -0.5 * size)
+        self.grids = [
+            OccupancyGrid(resolution * 2**k, size, origin, update) for k in range(levels)
+        ]
+
+    @property
+    def finest(self) -> OccupancyGrid:
+        return self.grids[0]
+
+    @property
+    def nbytes(self) -> int:
+        return sum(g.nbytes for g in self.grids)
+
+    def insert_scan(self, pose: ArrayLike, endpoints: ArrayLike, max_range: float = np.inf):
+        for grid in self.grids:
+            grid.insert_scan(pose, endpoints, max_range)
+
+    def recenter(self, x: float, y: float) -> None:
+        """Scroll every level by the same distance (whole coarsest cells)."""
+        top = self.grids[-1]
+        rows, cols = top.shape
+        cx, cy = top.origin + 0.5 * top.resolution * np.array([cols, rows])
+        dcol = round((x - cx) / top.resolution)
+        drow = round((y - cy) / top.resolution)
+        for k, grid in enumerate(self.grids):
+            factor = 2 ** (len(self.grids) - 1 - k)
+            grid.shift_cells(drow * factor, dcol * factor)

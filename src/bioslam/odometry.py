@@ -1,0 +1,558 @@
+"""LiDAR odometry (paper Sec. III-A, Eq. 1-4): scan-to-local-map Gauss-Newton matching.
+
+Follows Hector SLAM (Kohlbrecher et al. 2011), the method the paper cites: every scan is
+matched against a local log-odds occupancy grid by maximising the summed map function M* at the
+scan endpoints (Eq. 3), coarse to fine over a map pyramid, starting from a constant-velocity
+prediction. The map is a window that scrolls with the robot, so memory is constant however long
+the run.
+
+Frames: the sensor frame is taken as the robot frame (no extrinsic offset). The pose of a scan
+is the pose at ``scan.stamp`` (the first beam, as in ROS); with per-beam timing the endpoints
+are de-skewed to that instant with the current constant-velocity estimate.
+
+No file or terminal I/O here.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from bioslam.geometry import between, compose, transform_points, wrap_angle
+from bioslam.occupancy_grid import LogOddsConfig, MapPyramid, interpolate_point
+from bioslam.scan import LaserScan
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class OdometryConfig:
+    """Parameters of :class:`LidarOdometry` (defaults and where they come from).
+
+    Attributes:
+        resolution: finest map cell, metres. Hector SLAM's default ``map_resolution`` (0.05 m).
+        levels: map pyramid levels, each twice as coarse. Hector's ``map_multi_res_levels``
+            (3); the coarsest cell (0.2 m) sets the capture range of the matcher.
+        map_size: side of the square local window, metres. Larger than the usable range of
+            most indoor 2D LiDARs (Hector's 1024 cells x 0.05 m = 51 m is of the same order).
+        recenter_distance: the window scrolls when the robot is this far from its centre,
+            metres; a quarter of the window keeps at least ``map_size / 4`` of map around it.
+        max_range: endpoints farther than this are not used, metres (beyond it a 0.25° beam
+            spacing leaves gaps of more than a finest cell; also bounded by the window).
+        min_range: endpoints closer than this are dropped (the robot's own body), metres.
+        insert_distance, insert_angle: a scan is fused into the map when the pose has moved
+            this far (metres, radians) from the last fused pose. Hector fuses at 0.4 m / 0.9
+            rad; we fuse more often because a small field of view needs the map refreshed
+            when turning (measured in ``benchmarks/bench_odometry.py``).
+        point_spacing: matching uses endpoints at least this far apart along the scan, per
+            level multiplied by the level's coarseness (2^k); keeps the cost bounded for dense
+            scans at no measurable accuracy cost (benchmark). Metres.
+        max_iterations: Gauss-Newton iterations per level, coarsest first (Hector runs a few
+            per level; more are cheap because a converged level stops early).
+        step_tolerance: stop a level when the step is below this, metres (and this divided by
+            ``length_scale``, radians).
+        length_scale: metres that make a radian commensurate with a metre when judging how
+            well-conditioned the problem is (a typical indoor endpoint distance).
+        degeneracy_ratio: a direction whose curvature is below this fraction of the strongest
+            is unconstrained (a featureless corridor): the step keeps the prediction along it
+            instead of letting noise move the pose, and the report flags it.
+        deskew: correct per-beam motion when ``scan.time_increment > 0``.
+        min_points: fewer valid endpoints than this give a prediction-only update.
+        log_odds: hit/miss increments of the map cells.
+    """
+
+    resolution: float = 0.05
+    levels: int = 3
+    map_size: float = 48.0
+    recenter_distance: float = 10.0
+    max_range: float = 30.0
+    min_range: float = 0.05
+    insert_distance: float = 0.2
+    insert_angle: float = 0.15
+    point_spacing: float = 0.05
+    max_iterations: tuple[int, ...] = (10, 10, 15)
+    step_tolerance: float = 1e-4
+    length_scale: float = 3.0
+    degeneracy_ratio: float = 0.01
+    deskew: bool = True
+    min_points: int = 20
+    log_odds: LogOddsConfig = field(default_factory=LogOddsConfig)
+
+    def __post_init__(self) -> None:
+        if self.levels < 1 or len(self.max_iterations) != self.levels:
+            raise ValueError(
+                f"max_iterations needs one entry per level ({self.levels}), "
+                f"got {self.max_iterations}"
+            )
+        if not (self.resolution > 0 and self.map_size > 4 * self.recenter_distance > 0):
+            raise ValueError("need resolution > 0 and map_size > 4 * recenter_distance > 0")
+
+
+@dataclass
+class MatchReport:
+    """What the last :meth:`LidarOdometry.update` did.
+
+    Attributes:
+        iterations: Gauss-Newton iterations summed over the levels.
+        degenerate: some direction was unconstrained by the scan (e.g. a long corridor).
+        degenerate_direction: unit vector (x, y, theta * length_scale) in the map frame of the
+            least constrained direction (zeros when not degenerate).
+        condition: smallest / largest curvature (scaled Hessian eigenvalues), 1 = isotropic.
+        score: mean M* over the matched endpoints at the finest level (1 = all on walls).
+        num_points: endpoints used for matching (after subsampling).
+        inserted: the scan was fused into the map.
+        predicted_only: no usable scan; the pose is the constant-velocity prediction.
+    """
+
+    iterations: int = 0
+    degenerate: bool = False
+    degenerate_direction: FloatArray = field(default_factory=lambda: np.zeros(3))
+    condition: float = 1.0
+    score: float = 0.0
+    num_points: int = 0
+    inserted: bool = False
+    predicted_only: bool = False
+
+
+# --------------------------------------------------------------------------------------------
+# Numba kernels
+
+
+@numba.njit(cache=True)
+def _subsample_by_spacing(pts, spacing):
+    """Keep endpoints at least ``spacing`` from the previously kept one (scan order)."""
+    n = pts.shape[0]
+    keep = np.zeros(n, dtype=np.bool_)
+    if n == 0:
+        return keep
+    keep[0] = True
+    lx, ly = pts[0, 0], pts[0, 1]
+    s2 = spacing * spacing
+    for k in range(1, n):
+        dx = pts[k, 0] - lx
+        dy = pts[k, 1] - ly
+        if dx * dx + dy * dy >= s2:
+            keep[k] = True
+            lx, ly = pts[k, 0], pts[k, 1]
+    return keep
+
+
+@numba.njit(cache=True)
+def _normal_equations(logodds, ox, oy, res, pts, pose):
+    """Gauss-Newton normal equations of Eq. 3 linearised at ``pose``.
+
+    Residual ``1 - M*(S_i(p))`` with ``S_i(p) = R_p e_i + T_p`` (Eq. 4); its Jacobian is
+    ``∇M* · ∂S_i/∂p``. Returns ``(H, b, mean M*, points inside the map)``.
+    """
+    c = math.cos(pose[2])
+    s = math.sin(pose[2])
+    H = np.zeros((3, 3))
+    b = np.zeros(3)
+    total = 0.0
+    inside = 0
+    for k in range(pts.shape[0]):
+        px = pts[k, 0]
+        py = pts[k, 1]
+        wx = c * px - s * py + pose[0]
+        wy = s * px + c * py + pose[1]
+        m, gx, gy, ok = interpolate_point(logodds, ox, oy, res, wx, wy)
+        if not ok:
+            continue
+        inside += 1
+        total += m
+        j2 = gx * (-s * px - c * py) + gy * (c * px - s * py)
+        r = 1.0 - m
+        b[0] += gx * r
+        b[1] += gy * r
+        b[2] += j2 * r
+        H[0, 0] += gx * gx
+        H[0, 1] += gx * gy
+        H[0, 2] += gx * j2
+        H[1, 1] += gy * gy
+        H[1, 2] += gy * j2
+        H[2, 2] += j2 * j2
+    H[1, 0] = H[0, 1]
+    H[2, 0] = H[0, 2]
+    H[2, 1] = H[1, 2]
+    mean = total / inside if inside > 0 else 0.0
+    return H, b, mean, inside
+
+
+@numba.njit(cache=True)
+def _guarded_step(H, b, length, ratio):
+    """Solve ``H dp = b`` in the eigenbasis of the scaled Hessian, leaving out directions with
+    curvature below ``ratio`` of the largest (they keep the prediction).
+
+    Returns ``(dp, condition, weakest unit direction, degenerate)``.
+    """
+    scale = np.array([1.0, 1.0, 1.0 / length])
+    Hs = H * np.outer(scale, scale)
+    bs = b * scale
+    w, v = np.linalg.eigh(Hs)
+    step = np.zeros(3)
+    top = w[2]
+    if top <= 1e-12:
+        return step, 0.0, v[:, 0].copy(), True
+    degenerate = False
+    for k in range(3):
+        if w[k] < ratio * top:
+            degenerate = True
+            continue
+        step += v[:, k] * (v[:, k] @ bs) / w[k]
+    return step * scale, max(w[0], 0.0) / top, v[:, 0].copy(), degenerate
+
+
+@numba.njit(cache=True)
+def _gauss_newton_level(logodds, ox, oy, res, pts, pose, max_iter, tol, length, ratio):
+    pose = pose.copy()
+    iterations = 0
+    for _ in range(max_iter):
+        H, b, _, inside = _normal_equations(logodds, ox, oy, res, pts, pose)
+        if inside < 3:
+            break
+        step, _, _, _ = _guarded_step(H, b, length, ratio)
+        pose += step
+        iterations += 1
+        if math.hypot(step[0], step[1]) < tol and abs(step[2]) * length < tol:
+            break
+    H, b, mean, inside = _normal_equations(logodds, ox, oy, res, pts, pose)
+    return pose, H, mean, inside, iterations
+
+
+@numba.njit(cache=True)
+def _correlative_search(logodds, ox, oy, res, pts, pose, half_xy, half_th, step_xy, step_th):
+    """Exhaustive search of the Eq. 3 objective (summed M*) on a (x, y, theta) lattice."""
+    best = pose.copy()
+    best_score = -1.0
+    nt = int(half_th / step_th)
+    nx = int(half_xy / step_xy)
+    for it in range(-nt, nt + 1):
+        th = pose[2] + it * step_th
+        c = math.cos(th)
+        s = math.sin(th)
+        for ix in range(-nx, nx + 1):
+            for iy in range(-nx, nx + 1):
+                tx = pose[0] + ix * step_xy
+                ty = pose[1] + iy * step_xy
+                score = 0.0
+                for k in range(pts.shape[0]):
+                    wx = c * pts[k, 0] - s * pts[k, 1] + tx
+                    wy = s * pts[k, 0] + c * pts[k, 1] + ty
+                    m, _, _, _ = interpolate_point(logodds, ox, oy, res, wx, wy)
+                    score += m
+                if score > best_score:
+                    best_score = score
+                    best[0] = tx
+                    best[1] = ty
+                    best[2] = th
+    return best
+
+
+# --------------------------------------------------------------------------------------------
+# SE(2) with a constant twist
+
+
+def se2_exp(twist: ArrayLike, t: ArrayLike = 1.0) -> FloatArray:
+    """The relative pose reached after time ``t`` (array) moving with body twist (vx, vy, w)."""
+    vx, vy, w = np.asarray(twist, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64)
+    th = w * t
+    small = abs(w) < 1e-9
+    a = t if small else np.sin(th) / w
+    bb = 0.5 * w * t * t if small else (1.0 - np.cos(th)) / w
+    return np.stack([vx * a - vy * bb, vx * bb + vy * a, th], axis=-1)
+
+
+def se2_log(delta: ArrayLike) -> FloatArray:
+    """The constant body twist that reaches relative pose ``delta`` in unit time."""
+    x, y, th = np.asarray(delta, dtype=np.float64)
+    if abs(th) < 1e-9:
+        return np.array([x, y, th])
+    a = math.sin(th) / th
+    bb = (1.0 - math.cos(th)) / th
+    det = a * a + bb * bb
+    return np.array([(a * x + bb * y) / det, (-bb * x + a * y) / det, th])
+
+
+def deskew_points(points: ArrayLike, beam_times: ArrayLike, twist: ArrayLike) -> FloatArray:
+    """Move each endpoint ``(N, 2)``, measured ``beam_times`` after the scan stamp, into the
+    sensor frame at the stamp, assuming a constant body twist (vx, vy, w)."""
+    pts = np.asarray(points, dtype=np.float64)
+    motion = se2_exp(twist, np.asarray(beam_times, dtype=np.float64))
+    c, s = np.cos(motion[:, 2]), np.sin(motion[:, 2])
+    return np.column_stack(
+        [c * pts[:, 0] - s * pts[:, 1] + motion[:, 0], s * pts[:, 0] + c * pts[:, 1] + motion[:, 1]]
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Matching
+
+
+def _level_points(points: FloatArray, spacing: float, levels: int) -> list[FloatArray]:
+    return [
+        np.ascontiguousarray(points[_subsample_by_spacing(points, spacing * 2**k)])
+        for k in range(levels)
+    ]
+
+
+def match_scan_to_map(
+    pyramid: MapPyramid,
+    level_points: list[FloatArray],
+    initial_pose: ArrayLike,
+    max_iterations: tuple[int, ...],
+    step_tolerance: float = 1e-4,
+    length_scale: float = 3.0,
+    degeneracy_ratio: float = 0.01,
+) -> tuple[FloatArray, MatchReport]:
+    """Eq. 3: the pose maximising Σ M*(R_p e_i + T_p) (Eq. 4 transform), by Gauss-Newton.
+
+    As in Hector SLAM, maximising Σ M* is done by minimising Σ (1 - M*)², linearised at the
+    current estimate; the pose goes through the pyramid coarsest level first, each level
+    starting where the previous stopped. ``level_points[k]`` are the sensor-frame endpoints
+    used at level ``k`` (finest first). The report's conditioning refers to the finest level.
+    """
+    pose = np.asarray(initial_pose, dtype=np.float64).copy()
+    report = MatchReport(num_points=int(level_points[0].shape[0]))
+    iters = max_iterations[::-1]
+    for k in range(len(pyramid.grids) - 1, -1, -1):
+        grid = pyramid.grids[k]
+        pose, H, mean, _, n = _gauss_newton_level(
+            grid.logodds, grid.origin[0], grid.origin[1], grid.resolution, level_points[k],
+            pose, iters[len(pyramid.grids) - 1 - k], step_tolerance, length_scale,
+            degeneracy_ratio,
+        )  # fmt: skip
+        report.iterations += int(n)
+    pose[2] = wrap_angle(pose[2])
+    _, cond, weakest, degenerate = _guarded_step(H, np.zeros(3), length_scale, degeneracy_ratio)
+    report.score = float(mean)
+    report.condition = float(cond)
+    report.degenerate = bool(degenerate)
+    if degenerate:
+        report.degenerate_direction = np.asarray(weakest, dtype=np.float64)
+    return pose, report
+
+
+class LidarOdometry:
+    """Pose change from consecutive LiDAR scans alone (paper Sec. III-A).
+
+    ``update(scan)`` returns Δp, the motion since the previous scan in the previous robot
+    frame (``geometry.between(prev_pose, pose)``); ``pose`` is the pose in the odometry frame
+    (the first scan's pose is ``initial_pose``); ``last_report`` says how the match went.
+    """
+
+    def __init__(self, config: OdometryConfig | None = None, initial_pose: ArrayLike = (0, 0, 0)):
+        self.config = config or OdometryConfig()
+        c = self.config
+        self.pose = np.asarray(initial_pose, dtype=np.float64).reshape(3).copy()
+        self.pyramid = MapPyramid(
+            c.resolution, c.map_size, c.levels, c.log_odds, origin=None
+        )
+        self.pyramid.recenter(self.pose[0], self.pose[1])
+        self.last_report = MatchReport()
+        self.num_scans = 0
+        self.num_predicted_only = 0
+        self._twist = np.zeros(3)
+        self._last_stamp: float | None = None
+        self._last_inserted: FloatArray | None = None
+
+    # -- steps of one update ------------------------------------------------------------------
+
+    def _time_step(self, stamp: float) -> float:
+        if self._last_stamp is None:
+            return 0.0
+        dt = stamp - self._last_stamp
+        return dt if dt > 0 else 0.0
+
+    def _sensor_points(self, scan: LaserScan) -> FloatArray:
+        c = self.config
+        ranges, _ = scan.valid_polar()
+        keep = (ranges >= c.min_range) & (ranges <= c.max_range)
+        pts = scan.endpoints()[keep]
+        if c.deskew and scan.time_increment > 0 and pts.shape[0]:
+            pts = deskew_points(pts, scan.beam_times()[keep], self._twist)
+        return np.ascontiguousarray(pts)
+
+    def _should_insert(self) -> bool:
+        if self._last_inserted is None:
+            return True
+        d = between(self._last_inserted, self.pose)
+        c = self.config
+        return bool(math.hypot(d[0], d[1]) >= c.insert_distance or abs(d[2]) >= c.insert_angle)
+
+    def _insert(self, pts: FloatArray) -> None:
+        c = self.config
+        centre = self.pyramid.finest.origin + 0.5 * c.map_size
+        if np.max(np.abs(self.pose[:2] - centre)) > c.recenter_distance:
+            self.pyramid.recenter(self.pose[0], self.pose[1])
+        self.pyramid.insert_scan(self.pose, pts, c.max_range)
+        self._last_inserted = self.pose.copy()
+
+    # -- public -------------------------------------------------------------------------------
+
+    def update(self, scan: LaserScan) -> FloatArray:
+        """Match one scan and return Δp (3,) since the previous scan (zeros on the first)."""
+        c = self.config
+        dt = self._time_step(scan.stamp)
+        previous = self.pose.copy()
+        predicted = compose(previous, se2_exp(self._twist, dt)) if self.num_scans else previous
+        pts = self._sensor_points(scan)
+        first = self.num_scans == 0
+        self.num_scans += 1
+        if pts.shape[0] < c.min_points:
+            self.pose = predicted
+            self.num_predicted_only += 1
+            self.last_report = MatchReport(predicted_only=True, num_points=int(pts.shape[0]))
+        elif first:
+            self.last_report = MatchReport(num_points=int(pts.shape[0]))
+        else:
+            level_pts = _level_points(pts, c.point_spacing, c.levels)
+            self.pose, self.last_report = match_scan_to_map(
+                self.pyramid, level_pts, predicted, c.max_iterations, c.step_tolerance,
+                c.length_scale, c.degeneracy_ratio,
+            )  # fmt: skip
+        if not self.last_report.predicted_only and self._should_insert():
+            self._insert(pts)
+            self.last_report.inserted = True
+        delta = between(previous, self.pose)
+        if dt > 0:
+            self._twist = se2_log(delta) / dt
+        self._last_stamp = scan.stamp
+        return delta
+
+
+# --------------------------------------------------------------------------------------------
+# Pairwise registration (for loop-closure refinement)
+
+
+@dataclass
+class RegistrationQuality:
+    """How trustworthy a :func:`register_scans` result is; ``float(q)`` is ``q.score``.
+
+    Attributes:
+        score: fraction of query points (inside the reference map) whose M* ≥ ``hit_level``
+            after convergence, i.e. that land on cells the reference scan saw occupied. Wrong
+            registrations of real scenes typically score well below 0.5; good ones above 0.7.
+        mean_value: mean M* over those points.
+        overlap: fraction of query points that fall inside the reference map at all.
+        converged: the finest level stopped on a small step before its iteration limit.
+        degenerate: some direction was unconstrained (corridor): ``rel`` is then only
+            reliable across that direction.
+        condition: smallest / largest scaled curvature.
+        iterations: Gauss-Newton iterations summed over the levels.
+    """
+
+    score: float
+    mean_value: float
+    overlap: float
+    converged: bool
+    degenerate: bool
+    condition: float
+    iterations: int
+
+    def __float__(self) -> float:
+        return float(self.score)
+
+
+@dataclass(frozen=True)
+class RegistrationConfig:
+    """Parameters of :func:`register_scans`.
+
+    Attributes:
+        resolution, levels: the reference map pyramid (as :class:`OdometryConfig`).
+        search_distance, search_angle: half-widths of the exhaustive search on the coarsest
+            level around the initial guess (metres, radians); they set the convergence basin
+            (a view cell's place match can be half a metre and tens of degrees off).
+        max_range: reference/query endpoints beyond this are ignored, metres.
+        max_iterations, step_tolerance, length_scale, degeneracy_ratio: as in OdometryConfig.
+        hit_level: M* at or above which a query point counts as landing on an occupied cell
+            (0.5 = more likely occupied than not).
+    """
+
+    resolution: float = 0.05
+    levels: int = 3
+    search_distance: float = 0.6
+    search_angle: float = math.radians(25.0)
+    max_range: float = 30.0
+    max_iterations: tuple[int, ...] = (10, 10, 20)
+    step_tolerance: float = 1e-4
+    length_scale: float = 3.0
+    degeneracy_ratio: float = 0.01
+    hit_level: float = 0.5
+
+
+def _check_points(points: ArrayLike, name: str) -> FloatArray:
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise ValueError(f"{name} must have shape (N, 2), got {pts.shape}")
+    return pts[np.all(np.isfinite(pts), axis=1)]
+
+
+def register_scans(
+    reference_points: ArrayLike,
+    query_points: ArrayLike,
+    initial_guess: ArrayLike = (0.0, 0.0, 0.0),
+    config: RegistrationConfig | None = None,
+) -> tuple[FloatArray, RegistrationQuality]:
+    """The pose of the query scan's frame in the reference scan's frame.
+
+    Both point sets are ``(N, 2)`` endpoints in their own sensor frames. The reference scan is
+    fused into a small map pyramid; the query is placed by an exhaustive search of the Eq. 3
+    objective on the coarsest level around ``initial_guess`` followed by Gauss-Newton (Eq. 3-4)
+    down the pyramid. See :class:`RegistrationQuality` for how to reject a bad result.
+    """
+    c = config or RegistrationConfig()
+    ref = _check_points(reference_points, "reference_points")
+    qry = _check_points(query_points, "query_points")
+    ref = ref[np.hypot(ref[:, 0], ref[:, 1]) <= c.max_range]
+    qry = np.ascontiguousarray(qry[np.hypot(qry[:, 0], qry[:, 1]) <= c.max_range])
+    guess = np.asarray(initial_guess, dtype=np.float64).reshape(3)
+    if ref.shape[0] < 3 or qry.shape[0] < 3:
+        raise ValueError(
+            f"register_scans needs at least 3 finite points in each scan, got "
+            f"{ref.shape[0]} reference and {qry.shape[0]} query points"
+        )
+    reach = float(np.max(np.abs(ref))) + 1.0
+    pyramid = MapPyramid(c.resolution, 2.0 * reach, c.levels, LogOddsConfig())
+    pyramid.insert_scan(np.zeros(3), ref)
+    level_pts = _level_points(qry, c.resolution, c.levels)
+    top = pyramid.grids[-1]
+    radius = max(float(np.max(np.hypot(qry[:, 0], qry[:, 1]))), top.resolution)
+    seed = _correlative_search(
+        top.logodds, top.origin[0], top.origin[1], top.resolution, level_pts[-1], guess,
+        c.search_distance, c.search_angle, 0.5 * top.resolution, 0.5 * top.resolution / radius,
+    )  # fmt: skip
+    rel, report = match_scan_to_map(
+        pyramid, level_pts, seed, c.max_iterations, c.step_tolerance, c.length_scale,
+        c.degeneracy_ratio,
+    )  # fmt: skip
+    fine = pyramid.finest
+    world = transform_points(rel, qry)
+    values, _ = fine.value_and_gradient(world)
+    inside = _inside(fine, world)
+    n_in = int(inside.sum())
+    quality = RegistrationQuality(
+        score=float(np.mean(values[inside] >= c.hit_level)) if n_in else 0.0,
+        mean_value=float(np.mean(values[inside])) if n_in else 0.0,
+        overlap=n_in / qry.shape[0],
+        converged=report.iterations < sum(c.max_iterations),
+        degenerate=report.degenerate,
+        condition=report.condition,
+        iterations=report.iterations,
+    )
+    return rel, quality
+
+
+def _inside(grid, world: FloatArray) -> NDArray[np.bool_]:
+    xmin, ymin, xmax, ymax = grid.extent
+    half = grid.resolution
+    return (
+        (world[:, 0] >= xmin + half)
+        & (world[:, 0] < xmax - half)
+        & (world[:, 1] >= ymin + half)
+        & (world[:, 1] < ymax - half)
+    )
