@@ -1,0 +1,252 @@
+"""Robot routes through a world: a seeded tour of the roadmap, smoothed and timed.
+
+The tour walks the roadmap preferring the directed edges driven least often, so it covers every
+corridor, then drives them again, in the other direction too: loops get closed both ways. The
+corners of the tour are rounded with circular arcs no wider than the clearance at the corner
+allows, the path is lightly low-pass filtered so that curvature (and with it the yaw rate) has
+no jumps, and the speed along it is the fastest profile within the speed, yaw-rate and
+acceleration limits. Deterministic for a given world, duration and seed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.ndimage import gaussian_filter1d
+
+from bioslam.geometry import wrap_angle
+from bioslam.sim.world import Roadmap, World
+from bioslam.trajectory import Trajectory
+
+
+@dataclass(frozen=True)
+class RouteConfig:
+    """Limits and shape of a route.
+
+    Attributes:
+        max_speed: m/s; 0.5 is the issue's limit (an indoor robot driven by hand).
+        max_yaw_rate: rad/s; 0.8 is a careful driver's cornering rate (ours).
+        max_accel: m/s^2, for speeding up and braking; 0.5 is typical of small indoor robots.
+        clearance: the route never gets closer than this to a wall, metres (the issue: 0.3).
+        turn_radius: radius of the arcs that round corners, metres, reduced where the corner
+            is too tight; 0.6 m is about half a corridor.
+        fast_turns: odometry stress test: corners taken on 0.25 m arcs at 1 rad/s.
+        smoothing: standard deviation of the low-pass filter along the path, metres; 0.1 m
+            makes the curvature continuous while moving the path by a few centimetres.
+        step: spacing of the path samples, metres.
+        corner_margin: extra distance kept from walls when sizing corner arcs, metres (room
+            for the smoothing).
+    """
+
+    max_speed: float = 0.5
+    max_yaw_rate: float = 0.8
+    max_accel: float = 0.5
+    clearance: float = 0.3
+    turn_radius: float = 0.6
+    fast_turns: bool = False
+    smoothing: float = 0.1
+    step: float = 0.01
+    corner_margin: float = 0.1
+
+    def __post_init__(self) -> None:
+        for name in ("max_speed", "max_yaw_rate", "max_accel", "turn_radius", "step"):
+            if not getattr(self, name) > 0.0:
+                raise ValueError(f"route {name} must be positive, got {getattr(self, name)}")
+        if self.clearance < 0.0:
+            raise ValueError(f"route clearance must be >= 0, got {self.clearance}")
+
+    @property
+    def effective_yaw_rate(self) -> float:
+        return 1.0 if self.fast_turns else self.max_yaw_rate
+
+    @property
+    def effective_turn_radius(self) -> float:
+        return 0.25 if self.fast_turns else self.turn_radius
+
+
+@dataclass(frozen=True, eq=False)
+class Route:
+    """A timed path: ``times`` (M,) from 0, ``poses`` (M, 3) with unwrapped heading.
+
+    ``tour`` lists the roadmap nodes visited, in order.
+    """
+
+    times: NDArray[np.float64]
+    poses: NDArray[np.float64]
+    duration: float
+    tour: NDArray[np.int64]
+
+    def pose_at(self, t: ArrayLike) -> NDArray[np.float64]:
+        """Poses ``(..., 3)`` at times ``t`` (seconds, clamped to ``[0, duration]``)."""
+        tt = np.clip(np.asarray(t, dtype=np.float64), 0.0, self.duration)
+        flat = tt.reshape(-1)
+        out = np.empty((flat.size, 3))
+        for k in range(3):
+            out[:, k] = np.interp(flat, self.times, self.poses[:, k])
+        out[:, 2] = wrap_angle(out[:, 2])
+        return out.reshape(*tt.shape, 3)
+
+    def trajectory(self, stamps: ArrayLike) -> Trajectory:
+        """Ground truth at the given stamps."""
+        stamps = np.asarray(stamps, dtype=np.float64).reshape(-1)
+        return Trajectory(stamps, self.pose_at(stamps))
+
+    def path_length(self) -> float:
+        """Distance driven within ``[0, duration]``, metres."""
+        keep = self.times <= self.duration
+        return float(np.sum(np.hypot(*np.diff(self.poses[keep, :2], axis=0).T)))
+
+
+def coverage_walk(roadmap: Roadmap, rng: np.random.Generator, min_length: float) -> list[int]:
+    """A walk over the roadmap of at least ``min_length`` metres that always takes the exit
+    driven least often in that direction (ties broken at random), never turning back unless a
+    node is a dead end."""
+    adj = roadmap.neighbours()
+    if not any(adj):
+        raise ValueError("the world's roadmap has no edges to drive along")
+    start = int(rng.choice([i for i, a in enumerate(adj) if a]))
+    driven: dict[tuple[int, int], int] = {}
+    tour, prev, length = [start], -1, 0.0
+    while length < min_length:
+        cur = tour[-1]
+        options = [n for n in adj[cur] if n != prev] or adj[cur]
+        keys = [(driven.get((cur, n), 0), driven.get((n, cur), 0), rng.random()) for n in options]
+        nxt = options[min(range(len(options)), key=keys.__getitem__)]
+        driven[(cur, nxt)] = driven.get((cur, nxt), 0) + 1
+        length += float(np.hypot(*(roadmap.nodes[nxt] - roadmap.nodes[cur])))
+        prev = cur
+        tour.append(nxt)
+    return tour
+
+
+def _drop_straight_vertices(points: NDArray, slack: NDArray) -> tuple[NDArray, NDArray]:
+    d = np.diff(points, axis=0)
+    cross = d[:-1, 0] * d[1:, 1] - d[:-1, 1] * d[1:, 0]
+    dot = np.einsum("ij,ij->i", d[:-1], d[1:])
+    keep = np.ones(len(points), dtype=bool)
+    keep[1:-1] = (np.abs(cross) > 1e-9 * np.hypot(*d[:-1].T) * np.hypot(*d[1:].T)) | (dot < 0)
+    return points[keep], slack[keep]
+
+
+def _line(p: NDArray, q: NDArray, step: float) -> NDArray:
+    n = max(int(np.ceil(np.hypot(*(q - p)) / step)), 1)
+    return p + (q - p) * (np.arange(n)[:, None] / n)
+
+
+def _rounded_polyline(points: NDArray, slack: NDArray, radius: float, step: float) -> NDArray:
+    """Dense samples of the polyline with each corner replaced by a tangent circular arc whose
+    radius is ``radius`` at most, small enough that neighbouring arcs do not overlap and that
+    the arc stays within ``slack[i]`` of corner ``i``."""
+    pieces = []
+    cursor = points[0]
+    for i in range(1, len(points) - 1):
+        a, p, b = points[i - 1], points[i], points[i + 1]
+        u, v = p - a, b - p
+        lu, lv = np.hypot(*u), np.hypot(*v)
+        u, v = u / lu, v / lv
+        phi = float(np.arctan2(u[0] * v[1] - u[1] * v[0], u @ v))
+        half = 0.5 * abs(phi)
+        if half > np.deg2rad(89.0):
+            raise ValueError(f"the route turns back at {p.tolist()}: cannot round a U-turn")
+        r = min(
+            radius,
+            0.5 * min(lu, lv) / np.tan(half),
+            max(slack[i], 0.0) / (1.0 / np.cos(half) - 1.0),
+        )
+        tangent = r * np.tan(half)
+        start, end = p - u * tangent, p + v * tangent
+        pieces.append(_line(cursor, start, step))
+        normal = np.array([-u[1], u[0]]) * np.sign(phi)
+        centre = start + normal * r
+        a0 = np.arctan2(*(start - centre)[::-1])
+        n = max(int(np.ceil(r * abs(phi) / step)), 1)
+        ang = a0 + phi * np.arange(n) / n
+        pieces.append(centre + r * np.column_stack([np.cos(ang), np.sin(ang)]))
+        cursor = end
+    pieces.append(_line(cursor, points[-1], step))
+    pieces.append(points[-1][None])
+    return np.vstack(pieces)
+
+
+def _speed_profile(s: NDArray, curvature: NDArray, cfg: RouteConfig) -> NDArray:
+    """Fastest speeds along the path under the speed, yaw-rate and acceleration limits,
+    starting from rest."""
+    with np.errstate(divide="ignore"):
+        v = np.minimum(cfg.max_speed, cfg.effective_yaw_rate / np.abs(curvature))
+    ds = np.diff(s)
+    v[0] = 0.0
+    two_a = 2.0 * cfg.max_accel
+    for i in range(1, len(v)):
+        v[i] = min(v[i], np.sqrt(v[i - 1] ** 2 + two_a * ds[i - 1]))
+    for i in range(len(v) - 2, 0, -1):
+        v[i] = min(v[i], np.sqrt(v[i + 1] ** 2 + two_a * ds[i]))
+    return v
+
+
+def _timed_path(dense: NDArray, cfg: RouteConfig) -> tuple[NDArray, NDArray]:
+    xy = gaussian_filter1d(dense, cfg.smoothing / cfg.step, axis=0, mode="nearest")
+    seg = np.hypot(*np.diff(xy, axis=0).T)
+    keep = np.concatenate([[True], seg > 1e-9])
+    xy = xy[keep]
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
+    grad = np.gradient(xy, s, axis=0)
+    heading = np.unwrap(np.arctan2(grad[:, 1], grad[:, 0]))
+    curvature = np.gradient(heading, s)
+    v = _speed_profile(s, curvature, cfg)
+    dt = 2.0 * np.diff(s) / (v[1:] + v[:-1])
+    times = np.concatenate([[0.0], np.cumsum(dt)])
+    return times, np.column_stack([xy, heading])
+
+
+def make_route(
+    world: World,
+    duration: float = 600.0,
+    seed: int = 0,
+    max_speed: float = 0.5,
+    max_yaw_rate: float = 0.8,
+    clearance: float = 0.3,
+    fast_turns: bool = False,
+    config: RouteConfig | None = None,
+) -> Route:
+    """A smooth route of ``duration`` seconds that explores ``world`` and revisits it.
+
+    The keyword limits override the matching fields of ``config``. Raises ``ValueError`` when
+    the world has no roadmap or the route would come closer than ``clearance`` to a wall.
+    """
+    if not duration > 0.0:
+        raise ValueError(f"route duration must be positive, got {duration}")
+    base = config or RouteConfig()
+    cfg = RouteConfig(
+        **{
+            **base.__dict__,
+            "max_speed": max_speed,
+            "max_yaw_rate": max_yaw_rate,
+            "clearance": clearance,
+            "fast_turns": fast_turns,
+        }
+    )
+    roadmap = world.roadmap
+    if roadmap is None:
+        raise ValueError(f"world {world.name!r} has no roadmap to build a route on")
+    rng = np.random.default_rng(seed)
+    # Driving is never faster than max_speed, so duration * max_speed metres of driving last
+    # long enough; the margin pays for the length that rounding the corners cuts off.
+    tour = coverage_walk(roadmap, rng, 1.2 * duration * cfg.max_speed + 5.0)
+    points = roadmap.nodes[tour]
+    slack = roadmap.clearance[tour] - cfg.clearance - cfg.corner_margin
+    points, slack = _drop_straight_vertices(points, slack)
+    dense = _rounded_polyline(points, slack, cfg.effective_turn_radius, cfg.step)
+    times, poses = _timed_path(dense, cfg)
+    if times[-1] < duration:
+        raise ValueError(f"route too short: {times[-1]:.1f} s of {duration:.1f} s")
+    cut = int(np.searchsorted(times, duration)) + 1
+    times, poses = times[: cut + 1], poses[: cut + 1]
+    nearest = float(world.distance_to_walls(poses[:, :2]).min())
+    if nearest < cfg.clearance:
+        raise ValueError(
+            f"route in world {world.name!r} comes {nearest:.3f} m from a wall "
+            f"(clearance {cfg.clearance} m); the roadmap is too close to the walls"
+        )
+    return Route(times, poses, float(duration), np.asarray(tour, dtype=np.int64))
