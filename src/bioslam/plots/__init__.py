@@ -1,0 +1,7 @@
+"""Figures of a bioslam run (matplotlib, written as PNG files without a display).
+
+``figures`` holds the pipeline's pictures (cognitive map, active view over time, position error
+over time, mapping progress as the paper's Fig. 5, occupancy map); ``boundary`` the boundary-cell
+pictures. Plot functions take plain data, write one file and return its path; they never compute
+SLAM state themselves.
+"""

@@ -1,0 +1,379 @@
+"""The pipeline's figures: cognitive map, active view and position error over time (the paper's
+Fig. 6), mapping progress (Fig. 5) and the occupancy map with the trajectory.
+
+Each public function takes plain arrays, writes one PNG (atomically, so an interrupted run never
+leaves a truncated picture) and returns its path. Figures are built on ``matplotlib.figure.Figure``
+with the Agg canvas, never through ``pyplot``: no display, no global figure state, safe to call
+from any thread.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+from matplotlib import colormaps
+from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import LineCollection
+from matplotlib.figure import Figure
+from numpy.typing import ArrayLike, NDArray
+
+from bioslam.io.jsonio import atomic_write_bytes
+
+FloatArray = NDArray[np.float64]
+Link = tuple[int, int, Any]
+"""A cognitive-map link ``(from_node, to_node, kind)``; ``kind`` in ``LOOP_KINDS`` marks a
+loop closure (a link to an experience created long before), anything else an ordinary link."""
+
+LOOP_KINDS = frozenset({"loop", "loop_closure", "closure"})
+
+
+@dataclass
+class FigureConfig:
+    """Look of the figures.
+
+    dpi: 120 gives ~1000 px wide panels, readable on screen and small on disk.
+    panel_size: inches per map panel; the paper's Fig. 5 panels are square.
+    """
+
+    dpi: int = 120
+    panel_size: float = 4.5
+    node_colour: str = "tab:blue"
+    link_colour: str = "0.55"
+    loop_colour: str = "tab:red"
+    truth_colour: str = "0.2"
+    odometry_colour: str = "tab:orange"
+    unknown_colour: str = "#a7b4c2"
+
+
+CONFIG = FigureConfig()
+
+
+class OccupancyLike(Protocol):
+    """What :func:`plot_occupancy` reads from ``bioslam.io.mapfile.OccupancyImage``."""
+
+    occupancy: FloatArray
+    resolution: float
+    origin: tuple[float, float, float]
+
+
+# --- helpers -------------------------------------------------------------------------------
+
+
+def _save(fig: Figure, path: str | Path, dpi: int) -> Path:
+    FigureCanvasAgg(fig)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=dpi)
+    return atomic_write_bytes(path, buffer.getvalue())
+
+
+def _xy(points: ArrayLike | None, what: str) -> FloatArray:
+    arr = np.asarray(points if points is not None else np.zeros((0, 2)), dtype=np.float64)
+    if arr.size == 0:
+        return np.zeros((0, 2))
+    if arr.ndim != 2 or arr.shape[1] < 2:
+        raise ValueError(f"{what} must be an (N, 2) array of x, y, got shape {arr.shape}")
+    return arr[:, :2]
+
+
+def _split_links(links: Sequence[Link], n_nodes: int) -> tuple[NDArray[np.intp], NDArray[np.bool_]]:
+    """Link endpoints as (M, 2) indices and a loop-closure mask; bad indices name the link."""
+    if len(links) == 0:
+        return np.zeros((0, 2), dtype=np.intp), np.zeros(0, dtype=bool)
+    ends = np.array([(int(a), int(b)) for a, b, _ in links], dtype=np.intp)
+    bad = np.flatnonzero((ends < 0).any(axis=1) | (ends >= n_nodes).any(axis=1))
+    if bad.size:
+        k = int(bad[0])
+        raise ValueError(
+            f"link {k} {tuple(ends[k].tolist())} refers to a node outside 0..{n_nodes - 1}"
+        )
+    loops = np.array([kind in LOOP_KINDS for _, _, kind in links], dtype=bool)
+    return ends, loops
+
+
+def _draw_map(
+    ax: Axes, nodes_xy: FloatArray, links: Sequence[Link], gt_xy: FloatArray | None = None
+) -> None:
+    """Experience nodes, ordinary links, loop links on top, and the ground truth underneath."""
+    cfg = CONFIG
+    if gt_xy is not None and len(gt_xy):
+        ax.plot(*gt_xy.T, color=cfg.truth_colour, lw=0.8, ls="--", alpha=0.6, label="ground truth")
+    ends, loops = _split_links(links, len(nodes_xy))
+    segments = nodes_xy[ends] if len(ends) else np.zeros((0, 2, 2))
+    ax.add_collection(LineCollection(segments[~loops], colors=cfg.link_colour, linewidths=0.8))
+    ax.add_collection(
+        LineCollection(
+            segments[loops],
+            colors=cfg.loop_colour,
+            linewidths=1.6,
+            label=f"loop links ({int(loops.sum())})",
+        )
+    )
+    ax.scatter(*nodes_xy.T, s=6, color=cfg.node_colour, zorder=3, label=f"{len(nodes_xy)} nodes")
+    _finish_map_axes(ax)
+
+
+def _finish_map_axes(ax: Axes, adjustable: str = "datalim") -> None:
+    ax.set_aspect("equal", adjustable=adjustable)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.grid(True, lw=0.3, alpha=0.5)
+    ax.autoscale_view()
+
+
+def _limits(*point_sets: FloatArray) -> tuple[tuple[float, float], tuple[float, float]] | None:
+    pts = [p for p in point_sets if len(p)]
+    if not pts:
+        return None
+    allp = np.vstack(pts)
+    lo, hi = allp.min(axis=0), allp.max(axis=0)
+    margin = 0.05 * max(float(np.max(hi - lo)), 1.0)
+    return (lo[0] - margin, hi[0] + margin), (lo[1] - margin, hi[1] + margin)
+
+
+def _elapsed(stamps: ArrayLike, t0: float | None) -> tuple[FloatArray, float]:
+    t = np.asarray(stamps, dtype=np.float64).reshape(-1)
+    start = float(t[0]) if t0 is None and t.size else float(t0 or 0.0)
+    return t - start, start
+
+
+def _legend_above(ax: Axes, **kwargs: Any) -> None:
+    """Legend in a row above the axes, where it cannot hide data points."""
+    ax.legend(
+        loc="lower left",
+        bbox_to_anchor=(0.0, 1.0),
+        ncol=2,
+        frameon=False,
+        fontsize="small",
+        **kwargs,
+    )
+
+
+def _draw_active_view(
+    ax: Axes, stamps: ArrayLike, view_ids: ArrayLike, new_mask: ArrayLike, t0: float | None
+) -> None:
+    t, _ = _elapsed(stamps, t0)
+    ids = np.asarray(view_ids).reshape(-1)
+    new = np.asarray(new_mask, dtype=bool).reshape(-1)
+    if not (t.size == ids.size == new.size):
+        raise ValueError(
+            f"stamps, view_ids and new_mask differ in length: {t.size}, {ids.size}, {new.size}"
+        )
+    ax.scatter(t[new], ids[new], s=4, color=CONFIG.node_colour, label=f"new view ({new.sum()})")
+    ax.scatter(
+        t[~new], ids[~new], s=4, color=CONFIG.loop_colour, label=f"recognised view ({(~new).sum()})"
+    )
+    ax.set_ylabel("active view ID")
+    _legend_above(ax, markerscale=3)
+    ax.grid(True, lw=0.3, alpha=0.5)
+
+
+def _draw_errors(
+    ax: Axes,
+    stamps: ArrayLike,
+    errors: ArrayLike,
+    odometry: tuple[ArrayLike, ArrayLike] | None,
+    t0: float | None,
+) -> None:
+    t, start = _elapsed(stamps, t0)
+    err = np.asarray(errors, dtype=np.float64).reshape(-1)
+    if t.size != err.size:
+        raise ValueError(f"stamps and errors differ in length: {t.size}, {err.size}")
+    mean = float(np.nanmean(err)) if err.size else float("nan")
+    ax.plot(t, err, color=CONFIG.node_colour, lw=1.0, label=f"bioslam (mean {mean:.3f} m)")
+    if odometry is not None:
+        odo_t, _ = _elapsed(odometry[0], start)
+        odo_err = np.asarray(odometry[1], dtype=np.float64).reshape(-1)
+        odo_mean = float(np.nanmean(odo_err)) if odo_err.size else float("nan")
+        ax.plot(
+            odo_t,
+            odo_err,
+            color=CONFIG.odometry_colour,
+            lw=1.0,
+            label=f"odometry only (mean {odo_mean:.3f} m)",
+        )
+    ax.set_ylabel("position error [m]")
+    ax.set_ylim(bottom=0.0)
+    _legend_above(ax)
+    ax.grid(True, lw=0.3, alpha=0.5)
+
+
+# --- public figures ------------------------------------------------------------------------
+
+
+def plot_cognitive_map(
+    path: str | Path,
+    nodes_xy: ArrayLike,
+    links: Sequence[Link],
+    gt_xy: ArrayLike | None = None,
+    title: str = "Cognitive map",
+) -> Path:
+    """The cognitive map: experience nodes (Eq. 12), their links, loop links highlighted.
+
+    ``nodes_xy`` (N, 2) experience positions; ``links`` ``(from, to, kind)`` node indices;
+    ``gt_xy`` (M, 2) an optional ground-truth path drawn underneath.
+    """
+    nodes = _xy(nodes_xy, "nodes_xy")
+    fig = Figure(figsize=(CONFIG.panel_size * 1.4, CONFIG.panel_size * 1.2))
+    ax = fig.add_subplot()
+    _draw_map(ax, nodes, links, _xy(gt_xy, "gt_xy") if gt_xy is not None else None)
+    ax.set_title(title)
+    ax.legend(loc="best", fontsize="small", markerscale=2)
+    fig.tight_layout()
+    return _save(fig, path, CONFIG.dpi)
+
+
+def plot_active_view(
+    path: str | Path,
+    stamps: ArrayLike,
+    view_ids: ArrayLike,
+    new_mask: ArrayLike,
+    t0: float | None = None,
+) -> Path:
+    """Active view ID over time (top of the paper's Fig. 6).
+
+    ``new_mask`` marks scans whose view was new; the others re-recognised an older view (the
+    off-diagonal points that mean loop closures). Times are shown from ``t0`` (default: first
+    stamp).
+    """
+    fig = Figure(figsize=(8.0, 3.2))
+    ax = fig.add_subplot()
+    _draw_active_view(ax, stamps, view_ids, new_mask, t0)
+    ax.set_xlabel("time [s]")
+    fig.tight_layout()
+    return _save(fig, path, CONFIG.dpi)
+
+
+def plot_error_over_time(
+    path: str | Path,
+    stamps: ArrayLike,
+    errors: ArrayLike,
+    odometry_errors: tuple[ArrayLike, ArrayLike] | None = None,
+    t0: float | None = None,
+) -> Path:
+    """Position error against ground truth over time (bottom of the paper's Fig. 6).
+
+    ``odometry_errors`` is an optional ``(stamps, errors)`` of the odometry-only trajectory,
+    drawn over the SLAM curve on the same time axis.
+    """
+    fig = Figure(figsize=(8.0, 3.2))
+    ax = fig.add_subplot()
+    _draw_errors(ax, stamps, errors, odometry_errors, t0)
+    ax.set_xlabel("time [s]")
+    fig.tight_layout()
+    return _save(fig, path, CONFIG.dpi)
+
+
+def plot_views_and_errors(
+    path: str | Path,
+    stamps: ArrayLike,
+    view_ids: ArrayLike,
+    new_mask: ArrayLike,
+    error_stamps: ArrayLike,
+    errors: ArrayLike,
+    odometry_errors: tuple[ArrayLike, ArrayLike] | None = None,
+) -> Path:
+    """The paper's Fig. 6 in one picture: active view ID above, position error below, on a
+    shared time axis starting at the first scan."""
+    t0 = float(np.asarray(stamps, dtype=np.float64).reshape(-1)[0])
+    fig = Figure(figsize=(8.0, 5.6))
+    top, bottom = fig.subplots(2, 1, sharex=True)
+    _draw_active_view(top, stamps, view_ids, new_mask, t0)
+    _draw_errors(bottom, error_stamps, errors, odometry_errors, t0)
+    bottom.set_xlabel("time [s]")
+    fig.tight_layout()
+    return _save(fig, path, CONFIG.dpi)
+
+
+def plot_mapping_progress(
+    path: str | Path,
+    snapshots: Sequence[tuple[float, ArrayLike, Sequence[Link]]],
+    gt_xy: ArrayLike | None,
+) -> Path:
+    """The paper's Fig. 5: the cognitive map at several times beside the ground-truth path.
+
+    ``snapshots`` ``[(t, nodes_xy, links), ...]`` with ``t`` in seconds since the start (one
+    panel each, titled ``t = …``); a last panel shows ``gt_xy`` when given. All panels share
+    the same axes limits so the growth of the map is comparable.
+    """
+    maps = [(float(t), _xy(nodes, f"nodes_xy at t = {t}"), links) for t, nodes, links in snapshots]
+    truth = _xy(gt_xy, "gt_xy") if gt_xy is not None else None
+    n_panels = len(maps) + (truth is not None)
+    if n_panels == 0:
+        raise ValueError("plot_mapping_progress needs at least one snapshot or a ground truth")
+    fig = Figure(figsize=(CONFIG.panel_size * n_panels, CONFIG.panel_size + 0.4))
+    axes = np.atleast_1d(fig.subplots(1, n_panels))
+    for ax, (t, nodes, links) in zip(axes, maps, strict=False):
+        _draw_map(ax, nodes, links)
+        ax.set_title(f"t = {t:.0f} s ({len(nodes)} nodes)")
+    if truth is not None:
+        ax = axes[-1]
+        ax.plot(*truth.T, color=CONFIG.truth_colour, lw=1.0)
+        _finish_map_axes(ax)
+        ax.set_title("ground truth")
+    limits = _limits(*(nodes for _, nodes, _ in maps), *([truth] if truth is not None else []))
+    if limits is not None:
+        # Fixed, shared limits: the box (not the data range) gives way to keep metres square.
+        for ax in axes:
+            ax.set_aspect("equal", adjustable="box")
+            ax.set_xlim(*limits[0])
+            ax.set_ylim(*limits[1])
+    fig.tight_layout()
+    return _save(fig, path, CONFIG.dpi)
+
+
+def plot_occupancy(
+    path: str | Path,
+    grid: OccupancyLike | tuple[ArrayLike, float, Sequence[float]],
+    trajectory_xy: ArrayLike | None = None,
+    gt_xy: ArrayLike | None = None,
+) -> Path:
+    """The occupancy map (black occupied, white free, grey unknown) with the trajectory.
+
+    ``grid`` is a ``bioslam.io.mapfile.OccupancyImage`` or ``(probability, resolution,
+    origin)`` with the same convention: row 0 is the lowest y, NaN is unknown, ``origin`` the
+    (x, y[, yaw]) of the lower-left corner (a non-zero yaw is not drawn).
+    """
+    if hasattr(grid, "occupancy"):
+        prob, resolution, origin = grid.occupancy, grid.resolution, grid.origin
+    else:
+        prob, resolution, origin = grid
+    prob = np.asarray(prob, dtype=np.float64)
+    if prob.ndim != 2 or prob.size == 0:
+        raise ValueError(f"occupancy must be a non-empty 2-D array, got shape {prob.shape}")
+    rows, cols = prob.shape
+    x0, y0 = float(origin[0]), float(origin[1])
+    extent = (x0, x0 + cols * resolution, y0, y0 + rows * resolution)
+    aspect = rows / cols
+    width = CONFIG.panel_size * 1.6
+    fig = Figure(figsize=(width, max(3.0, min(width * aspect, 2.5 * width)) + 0.6))
+    ax = fig.add_subplot()
+    cmap = colormaps["gray"].with_extremes(bad=CONFIG.unknown_colour)
+    ax.imshow(
+        np.ma.masked_invalid(1.0 - prob),
+        cmap=cmap,
+        vmin=0.0,
+        vmax=1.0,
+        origin="lower",
+        extent=extent,
+        interpolation="nearest",
+    )
+    paths = [
+        (gt_xy, "ground truth", CONFIG.truth_colour),
+        (trajectory_xy, "trajectory", CONFIG.loop_colour),
+    ]
+    for xy, label, colour in paths:
+        if xy is not None:
+            ax.plot(*_xy(xy, label).T, color=colour, lw=0.9, label=label)
+    if gt_xy is not None or trajectory_xy is not None:
+        ax.legend(loc="best", fontsize="small")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"Occupancy map ({cols} x {rows} cells, {resolution:g} m)")
+    fig.tight_layout()
+    return _save(fig, path, CONFIG.dpi)
