@@ -1,0 +1,197 @@
+"""The benchmark cases: what each one feeds the SLAM systems and what it is judged against.
+
+A case is prepared once per run into a work folder: the input file that ``bioslam run`` reads,
+the scans in memory (for the peer's conversion and the loop check), and a reference TUM file
+when one exists (the simulator's ground truth, or the corrected poses a CARMEN log carries).
+Real logs are never copied into the repository; ``--quick`` reads only their first scans, by
+writing a shortened copy into the (untracked) work folder.
+"""
+
+from __future__ import annotations
+
+import gzip
+import subprocess
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bioslam.io.tum import write_tum
+from bioslam.scan import LaserScan
+from bioslam.trajectory import Trajectory
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+DATA_DIR = REPO_ROOT.parent / "shared" / "data"
+CARMEN_SCAN_MESSAGES = ("FLASER", "RLASER", "ROBOTLASER", "RAWLASER")
+
+
+@dataclass(frozen=True)
+class Case:
+    """One benchmark input.
+
+    ``source``: ``"sim"`` (generated with ``bioslam sim``) or a file name in ``../shared/data``.
+    ``lidar`` / ``duration_s`` / ``seed``: the simulator's settings (sim cases).
+    ``max_scans``: read only the first scans of a real log (quick runs); ``None`` = all.
+    ``repeats``: the most timed repetitions worth spending on this case (long cases run once).
+    """
+
+    name: str
+    source: str
+    description: str
+    lidar: str = ""
+    duration_s: float = 0.0
+    seed: int = 1
+    max_scans: int | None = None
+    repeats: int = 3
+
+
+@dataclass
+class PreparedCase:
+    """A case ready to run: ``input_path`` for ``bioslam run``, scans, optional reference."""
+
+    case: Case
+    input_path: Path
+    scans: list[LaserScan]
+    reference_tum: Path | None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def stamps(self) -> np.ndarray:
+        return np.array([s.stamp for s in self.scans])
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.scans[-1].stamp - self.scans[0].stamp) if self.scans else 0.0
+
+
+def full_cases() -> list[Case]:
+    """The issue's cases at full length (the full run, < 30 min)."""
+    return [
+        Case("sim-maze-utm30lx", "sim", "simulated maze of the demo, 600 s, Hokuyo UTM-30LX",
+             lidar="utm30lx", duration_s=600.0, repeats=1),
+        Case("sim-long-rplidar", "sim", "simulated maze, 20 min route, 360° RPLIDAR A1",
+             lidar="rplidar", duration_s=1200.0, seed=2, repeats=1),
+        Case("freiburg-079", "freiburg-079-corrected.log.gz",
+             "CARMEN, Freiburg bldg 079, SICK 180°/0.5°; reference = corrected poses"),
+        Case("intel", "intel-corrected.log.gz",
+             "CARMEN, Intel Seattle (thinned), SICK 180°/1°; reference = corrected poses"),
+        Case("exp1", "exp1.dat", "BreezySLAM exp1, URG-04LX 240°; no reference"),
+        Case("ros1-bag", "laser_scan_matcher_demo.bag", "ROS 1 bag, handheld Hokuyo; no reference"),
+    ]  # fmt: skip
+
+
+def quick_cases() -> list[Case]:
+    """Short versions of the same cases (``--quick``, < 5 min)."""
+    short = {"sim-maze-utm30lx": 60.0, "sim-long-rplidar": 180.0}
+    heads = {"freiburg-079": 600, "intel": 300, "exp1": None, "ros1-bag": None}
+    out = []
+    for c in full_cases():
+        if c.source == "sim":
+            out.append(
+                Case(c.name, c.source, c.description, c.lidar, short[c.name], c.seed, repeats=1)
+            )
+        else:
+            out.append(Case(c.name, c.source, c.description, max_scans=heads[c.name], repeats=1))
+    return out
+
+
+def bioslam_cli() -> list[str]:
+    """The ``bioslam`` command of the interpreter running the benchmark."""
+    return [sys.executable, "-m", "bioslam.cli"]
+
+
+def _find_bag(folder: Path) -> Path:
+    for pattern in ("**/metadata.yaml", "**/*.bag", "**/*.mcap", "**/*.db3"):
+        hits = sorted(folder.glob(pattern))
+        if hits:
+            return hits[0].parent if hits[0].name == "metadata.yaml" else hits[0]
+    raise FileNotFoundError(f"{folder}: bioslam sim wrote no bag")
+
+
+def _simulate(case: Case, folder: Path) -> tuple[Path, Path]:
+    gt = folder / "gt.tum"
+    if not gt.exists():
+        cmd = [
+            *bioslam_cli(),
+            "sim",
+            "--world",
+            "maze",
+            "--lidar",
+            case.lidar,
+            "--duration",
+            f"{case.duration_s:g}",
+            "--seed",
+            str(case.seed),
+            "--out",
+            str(folder),
+        ]
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise RuntimeError(f"{' '.join(cmd[2:])} failed: {proc.stderr.strip()[-400:]}")
+    return _find_bag(folder), gt
+
+
+def _is_scan_line(line: str, fmt: str) -> bool:
+    if fmt == "breezyslam":
+        return bool(line.strip())
+    return line.startswith(CARMEN_SCAN_MESSAGES)
+
+
+def shorten_text_log(src: Path, dst: Path, max_scans: int, fmt: str) -> Path:
+    """Copy ``src`` up to its ``max_scans``-th scan line (header and parameters kept)."""
+    opener = gzip.open if src.suffix == ".gz" else open
+    count = 0
+    with opener(src, "rt") as fin, dst.open("w") as fout:
+        for line in fin:
+            if _is_scan_line(line, fmt):
+                if count >= max_scans:
+                    break
+                count += 1
+            fout.write(line)
+    return dst
+
+
+def _real_log(case: Case, folder: Path) -> Path:
+    from bioslam.io.logs import detect_format
+
+    src = DATA_DIR / case.source
+    if not src.exists():
+        raise FileNotFoundError(f"{src}: real log not found (../shared/data is absent)")
+    if case.max_scans is None:
+        return src
+    fmt = detect_format(src)
+    if fmt not in ("carmen", "breezyslam"):
+        return src  # binary logs are short enough to run whole
+    name = src.name.removesuffix(".gz")
+    return shorten_text_log(src, folder / f"head{case.max_scans}-{name}", case.max_scans, fmt)
+
+
+def prepare(case: Case, work: Path) -> PreparedCase:
+    """Generate or locate the input, load its scans and write the reference TUM if any."""
+    from bioslam.io.logs import open_log
+
+    folder = work / "cases" / case.name
+    folder.mkdir(parents=True, exist_ok=True)
+    notes: list[str] = []
+    if case.source == "sim":
+        input_path, reference = _simulate(case, folder)
+    else:
+        input_path, reference = _real_log(case, folder), None
+    log = open_log(input_path)
+    scans = list(log)
+    if not scans:
+        raise ValueError(f"{input_path}: no usable scans")
+    skipped = log.skipped
+    if skipped:
+        notes.append(f"skipped records: {skipped}")
+    if reference is None and log.reference is not None and len(log.reference):
+        reference = folder / "reference.tum"
+        write_tum(reference, log.reference)
+    return PreparedCase(case, Path(input_path), scans, reference, notes)
+
+
+def read_reference(prepared: PreparedCase) -> Trajectory | None:
+    from bioslam.io.tum import read_tum
+
+    return read_tum(prepared.reference_tum) if prepared.reference_tum else None
