@@ -1,0 +1,557 @@
+"""The pose cell network (Sec. III-C, Eq. 10-11): a 3-D continuous attractor network.
+
+``PC[x', y', θ']`` holds one activity packet whose centre encodes the robot pose in cell units.
+The three dimensions wrap around, so a small network represents an unbounded space; the
+cognitive map (``cognitive_map.py``) resolves the resulting aliasing with the view ids.
+
+One update, as in RatSLAM (Milford 2008; OpenRatSLAM, Ball et al. 2013):
+
+1. ``path_integrate(dp)``  shifts the activity by the odometry (Eq. 10),
+2. ``inject_view(...)``    adds the calibration activity of a known view (Eq. 11), or links a
+                           new view to the current packet,
+3. ``step()``              local excitation, local inhibition (3-D Gaussians), global
+                           inhibition and normalisation,
+4. ``centre()``            reads the packet centre out (population vector around the peak).
+
+Design choices where the paper is silent, and the OpenRatSLAM pitfalls avoided:
+
+* Kernel variances are floats in cells² (OpenRatSLAM truncates them to integers); the kernels are
+  3-D Gaussians ``exp(-d²/2σ²)`` normalised to sum 1, truncated at a configurable radius.
+* Path integration works for any step size: each active cell's activity is moved by the real
+  shift ``k·Δ`` and spread over the 2x2x2 cube by the fractional residue (Eq. 10 in scatter form);
+  OpenRatSLAM's quadrant rotation only supports shifts below one cell per update.
+* Updates are sparse: after global inhibition most cells are exactly zero, so every operation
+  iterates over the list of active cells only (Numba), never over the whole network.
+* Every constant is a named, documented field of ``PoseCellConfig``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+from numpy.typing import ArrayLike, NDArray
+
+FloatArray = NDArray[np.float64]
+
+TWO_PI = 2.0 * math.pi
+
+
+@dataclass
+class PoseCellConfig:
+    """Parameters of the pose cell network.
+
+    Defaults follow OpenRatSLAM (Ball et al. 2013, ``config_*.txt.in`` and
+    ``posecell_network.cpp``) unless noted; the cell size is chosen for indoor LiDAR.
+    """
+
+    #: (n_x, n_y, n_θ) cells; every dimension wraps. OpenRatSLAM: pc_dim_xy = 21, pc_dim_th = 36.
+    dims: tuple[int, int, int] = (21, 21, 36)
+    #: Edge of a place cell in metres (1/k_x = 1/k_y of Eq. 10). OpenRatSLAM uses 1 m outdoors;
+    #: 0.25 m resolves corridors and rooms for an indoor LiDAR robot (a few cells per view change).
+    cell_size_xy: float = 0.25
+    #: Width of a head-direction layer in radians (1/k_θ of Eq. 10). It must be 2π / n_θ, so that
+    #: a full turn brings the packet back to the same layer; ``None`` derives it from ``dims``.
+    cell_size_theta: float | None = None
+    #: Variance of the excitatory Gaussian in cells² (OpenRatSLAM pc_w_e_var = 1).
+    excite_var: float = 1.0
+    #: Half-width of the excitatory kernel in cells (OpenRatSLAM pc_w_e_dim = 7 -> 3).
+    excite_radius: int = 3
+    #: Variance of the inhibitory Gaussian in cells² (OpenRatSLAM pc_w_i_var = 2).
+    inhibit_var: float = 2.0
+    #: Half-width of the inhibitory kernel in cells (OpenRatSLAM pc_w_i_dim = 5 -> 2).
+    inhibit_radius: int = 2
+    #: Global inhibition subtracted from every cell after local inhibition; activity below it
+    #: becomes exactly zero, which keeps the network sparse (OpenRatSLAM pc_global_inhib).
+    global_inhibition: float = 2e-5
+    #: k_V of Eq. 11: energy injected by a fully active known view. OpenRatSLAM's
+    #: pc_vt_inject_energy = 0.15 (x0.89 for a fresh template); tuned with
+    #: ``consecutive_matches_to_shift`` so that one match never moves the packet and a short
+    #: run of consecutive matches does (see ``benchmarks/bench_pose_cells.py``).
+    view_energy: float = 0.1
+    #: Half-width, in cells, of the window around the peak used for the population-vector
+    #: read-out of the packet centre (OpenRatSLAM PC_CELLS_TO_AVG = 3).
+    centre_radius: int = 3
+    #: Initial packet centre in cell units; ``None`` = middle of the x/y plane, layer 0 (θ = 0).
+    start: tuple[float, float, float] | None = None
+
+    def __post_init__(self) -> None:
+        dims = tuple(int(d) for d in self.dims)
+        if len(dims) != 3 or min(dims) < 4:
+            raise ValueError(f"pose cell dims must be three sizes >= 4, got {self.dims}")
+        self.dims = dims  # type: ignore[assignment]
+        if self.cell_size_xy <= 0.0:
+            raise ValueError(f"cell_size_xy must be positive, got {self.cell_size_xy}")
+        if self.cell_size_theta is None:
+            self.cell_size_theta = TWO_PI / dims[2]
+        elif not math.isclose(self.cell_size_theta * dims[2], TWO_PI, rel_tol=1e-9):
+            raise ValueError(
+                f"cell_size_theta ({self.cell_size_theta}) x n_θ ({dims[2]}) must be 2π so that "
+                "the heading dimension wraps with the angle"
+            )
+        if self.excite_var <= 0.0 or self.inhibit_var <= 0.0:
+            raise ValueError("kernel variances must be positive")
+        if min(self.excite_radius, self.inhibit_radius, self.centre_radius) < 1:
+            raise ValueError("kernel and read-out radii must be at least 1 cell")
+        if 2 * max(self.excite_radius, self.inhibit_radius, self.centre_radius) + 1 > min(dims):
+            raise ValueError(f"kernels wider than the network {dims}")
+        if self.global_inhibition < 0.0 or self.view_energy < 0.0:
+            raise ValueError("global_inhibition and view_energy must be non-negative")
+
+    @property
+    def cell_size(self) -> tuple[float, float, float]:
+        """Cell edges (m, m, rad): 1 / (k_x, k_y, k_θ) of Eq. 10."""
+        return (self.cell_size_xy, self.cell_size_xy, float(self.cell_size_theta))
+
+
+def gaussian_kernel_1d(var: float, radius: int) -> FloatArray:
+    """``exp(-d²/2σ²)`` on ``2r+1`` cells, normalised to sum 1: one factor of the separable
+    3-D excitation / inhibition weights of Sec. III-C (see ``gaussian_kernel``)."""
+    offsets = np.arange(-radius, radius + 1, dtype=np.float64)
+    w = np.exp(-(offsets**2) / (2.0 * var))
+    return w / w.sum()
+
+
+def gaussian_kernel(var: float, radius: int) -> FloatArray:
+    """The 3-D isotropic Gaussian ``exp(-|d|²/2σ²)`` on ``(2r+1)³`` cells, normalised to sum 1:
+    the local excitation and inhibition weights of Sec. III-C (RatSLAM's ε and ψ). It is the
+    outer product of three ``gaussian_kernel_1d``, which is how ``step`` applies it."""
+    g = gaussian_kernel_1d(var, radius)
+    return g[:, None, None] * g[None, :, None] * g[None, None, :]
+
+
+# --- Numba kernels over the flat network, index = (x * n_y + y) * n_θ + θ --------------------
+
+
+@njit(cache=True)
+def _conv_axis(src, src_idx, n_src, dst, dst_idx, mark, gen, g, r, stride, n, keep_src):
+    """Scatter ``src`` convolved with the 1-D kernel ``g`` along one wrapped axis into ``dst``.
+
+    Only the ``n_src`` listed source cells are read; the cells written are listed in
+    ``dst_idx`` (returned count). Unless ``keep_src``, the source cells are cleared.
+    """
+    n_dst = 0
+    for t in range(n_src):
+        a = src_idx[t]
+        v = src[a]
+        if not keep_src:
+            src[a] = 0.0
+        if v == 0.0:
+            continue
+        c = (a // stride) % n
+        base = a - c * stride
+        for d in range(-r, r + 1):
+            cc = c + d
+            if cc < 0:
+                cc += n
+            elif cc >= n:
+                cc -= n
+            idx = base + cc * stride
+            if mark[idx] != gen:
+                mark[idx] = gen
+                dst[idx] = 0.0
+                dst_idx[n_dst] = idx
+                n_dst += 1
+            dst[idx] += v * g[d + r]
+    return n_dst
+
+
+@njit(cache=True)
+def _conv3(a, a_idx, n_a, b, b_idx, c, c_idx, mark, gen, g, r, nx, ny, nt, keep_src):
+    """Separable 3-D Gaussian: a -> b (x), b -> c (y), c -> b (θ); result in b / b_idx."""
+    n_b = _conv_axis(a, a_idx, n_a, b, b_idx, mark, gen, g, r, ny * nt, nx, keep_src)
+    n_c = _conv_axis(b, b_idx, n_b, c, c_idx, mark, gen + 1, g, r, nt, ny, False)
+    return _conv_axis(c, c_idx, n_c, b, b_idx, mark, gen + 2, g, r, 1, nt, False)
+
+
+@njit(cache=True)
+def _attractor_step(
+    pc,
+    active,
+    n_active,
+    exc,
+    exc_idx,
+    inh,
+    inh_idx,
+    tmp_idx,
+    mark,
+    gen,
+    g_e,
+    r_e,
+    g_i,
+    r_i,
+    g_inhib,
+    nx,
+    ny,
+    nt,
+):
+    """Excite, inhibit locally, inhibit globally, normalise; returns the new active count.
+
+    The 3-D Gaussians are separable, so each is applied as three 1-D passes over the active
+    cells (~3·(2r+1) operations per cell instead of (2r+1)³).
+    """
+    # Local excitation: exc = W_E * PC (PC is cleared on the way).
+    n_exc = _conv3(
+        pc, active, n_active, exc, exc_idx, inh, tmp_idx, mark, gen, g_e, r_e, nx, ny, nt, False
+    )
+    # Local inhibition from the excited state, as OpenRatSLAM: PC = exc - W_I * exc.
+    n_inh = _conv3(
+        exc, exc_idx, n_exc, inh, inh_idx, pc, tmp_idx, mark, gen + 3, g_i, r_i, nx, ny, nt, True
+    )
+    # The inhibited support contains the excited one (the kernel centre is non-zero).
+    total = 0.0
+    n_new = 0
+    for t in range(n_inh):
+        idx = inh_idx[t]
+        v = exc[idx] - inh[idx] - g_inhib
+        exc[idx] = 0.0
+        inh[idx] = 0.0
+        if v > 0.0:
+            pc[idx] = v
+            total += v
+            active[n_new] = idx
+            n_new += 1
+    if total > 0.0:
+        for t in range(n_new):
+            pc[active[t]] /= total
+    return n_new
+
+
+@njit(cache=True)
+def _path_integrate(
+    pc, active, n_active, buf, mark, gen, touched, dx, dy, dth, cxy, cth, nx, ny, nt
+):
+    """Eq. 10 in scatter form: move each active cell by k·Δ (rotated by its layer's heading)
+    and spread it over the 2x2x2 cube by the fractional residue."""
+    n_out = 0
+    sth = dth / cth
+    fth = math.floor(sth)
+    rth = sth - fth
+    for t in range(n_active):
+        a = active[t]
+        v = pc[a]
+        if v == 0.0:
+            continue
+        k = a % nt
+        j = (a // nt) % ny
+        i = a // (nt * ny)
+        heading = k * cth
+        c = math.cos(heading)
+        s = math.sin(heading)
+        sx = (c * dx - s * dy) / cxy
+        sy = (s * dx + c * dy) / cxy
+        fx = math.floor(sx)
+        fy = math.floor(sy)
+        rx = sx - fx
+        ry = sy - fy
+        i0 = (i + int(fx)) % nx
+        j0 = (j + int(fy)) % ny
+        k0 = (k + int(fth)) % nt
+        for bi in range(2):
+            wx = rx if bi == 1 else 1.0 - rx
+            if wx == 0.0:
+                continue
+            ii = i0 + bi if i0 + bi < nx else 0
+            for bj in range(2):
+                wy = ry if bj == 1 else 1.0 - ry
+                if wy == 0.0:
+                    continue
+                jj = j0 + bj if j0 + bj < ny else 0
+                for bk in range(2):
+                    wk = rth if bk == 1 else 1.0 - rth
+                    if wk == 0.0:
+                        continue
+                    idx = (ii * ny + jj) * nt + (k0 + bk if k0 + bk < nt else 0)
+                    if mark[idx] != gen:
+                        mark[idx] = gen
+                        buf[idx] = 0.0
+                        touched[n_out] = idx
+                        n_out += 1
+                    buf[idx] += v * wx * wy * wk
+    for t in range(n_active):
+        pc[active[t]] = 0.0
+    for t in range(n_out):
+        idx = touched[t]
+        pc[idx] = buf[idx]
+        buf[idx] = 0.0
+        active[t] = idx
+    return n_out
+
+
+@njit(cache=True)
+def _inject(pc, active, n_active, mark, gen, cx, cy, cth, energy, nx, ny, nt):
+    """Add ``energy`` at a fractional cell position, spread trilinearly over its 2x2x2 cube."""
+    fx = math.floor(cx)
+    fy = math.floor(cy)
+    ft = math.floor(cth)
+    rx = cx - fx
+    ry = cy - fy
+    rt = cth - ft
+    for bi in range(2):
+        wx = rx if bi == 1 else 1.0 - rx
+        ii = (int(fx) + bi) % nx
+        for bj in range(2):
+            wy = ry if bj == 1 else 1.0 - ry
+            jj = (int(fy) + bj) % ny
+            for bk in range(2):
+                wk = rt if bk == 1 else 1.0 - rt
+                e = energy * wx * wy * wk
+                if e <= 0.0:
+                    continue
+                idx = (ii * ny + jj) * nt + (int(ft) + bk) % nt
+                if pc[idx] == 0.0 and mark[idx] != gen:
+                    mark[idx] = gen
+                    active[n_active] = idx
+                    n_active += 1
+                pc[idx] += e
+    return n_active
+
+
+@njit(cache=True)
+def _centre(pc, active, n_active, radius, nx, ny, nt):
+    """Population vector around the peak: a circular mean per axis over a (2r+1)³ window."""
+    best = -1.0
+    bi = 0
+    for t in range(n_active):
+        if pc[active[t]] > best:
+            best = pc[active[t]]
+            bi = active[t]
+    k = bi % nt
+    j = (bi // nt) % ny
+    i = bi // (nt * ny)
+    sums = np.zeros((3, 2))
+    dims = (nx, ny, nt)
+    for di in range(-radius, radius + 1):
+        ii = (i + di) % nx
+        for dj in range(-radius, radius + 1):
+            jj = (j + dj) % ny
+            for dk in range(-radius, radius + 1):
+                kk = (k + dk) % nt
+                v = pc[(ii * ny + jj) * nt + kk]
+                if v == 0.0:
+                    continue
+                cells = (ii, jj, kk)
+                for ax in range(3):
+                    ang = TWO_PI * cells[ax] / dims[ax]
+                    sums[ax, 0] += v * math.cos(ang)
+                    sums[ax, 1] += v * math.sin(ang)
+    out = np.empty(3)
+    for ax in range(3):
+        ang = math.atan2(sums[ax, 1], sums[ax, 0])
+        c = ang * dims[ax] / TWO_PI
+        if c < 0.0:
+            c += dims[ax]
+        # A tiny negative angle rounds to exactly n after the shift; n is cell 0.
+        out[ax] = c if c < dims[ax] else 0.0
+    return out
+
+
+def wrapped_cell_distance(a: ArrayLike, b: ArrayLike, dims: tuple[int, int, int]) -> FloatArray:
+    """Euclidean distance in cell units between cell coordinates ``(..., 3)``, with wrap-around
+    in every dimension (OpenRatSLAM ``get_delta_pc``)."""
+    d = np.abs(np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64))
+    n = np.asarray(dims, dtype=np.float64)
+    d = np.minimum(np.mod(d, n), n - np.mod(d, n))
+    return np.sqrt(np.sum(d * d, axis=-1))
+
+
+class PoseCellNetwork:
+    """The 3-D continuous attractor network of Sec. III-C.
+
+    ``activity`` is the (n_x, n_y, n_θ) array; layer ``k`` of the θ' axis represents the heading
+    ``k · cell_size_theta``. All updates touch only the active (non-zero) cells.
+    """
+
+    def __init__(self, config: PoseCellConfig | None = None) -> None:
+        self.config = config if config is not None else PoseCellConfig()
+        cfg = self.config
+        self.dims: tuple[int, int, int] = cfg.dims
+        size = int(np.prod(self.dims))
+        self._pc = np.zeros(size)
+        self._exc = np.zeros(size)
+        self._inh = np.zeros(size)
+        self._mark = np.zeros(size, dtype=np.int64)
+        self._gen = 0
+        self._active = np.zeros(size, dtype=np.int64)
+        self._exc_idx = np.zeros(size, dtype=np.int64)
+        self._inh_idx = np.zeros(size, dtype=np.int64)
+        self._tmp_idx = np.zeros(size, dtype=np.int64)
+        self._n_active = 0
+        self._g_e = gaussian_kernel_1d(cfg.excite_var, cfg.excite_radius)
+        self._g_i = gaussian_kernel_1d(cfg.inhibit_var, cfg.inhibit_radius)
+        #: Link matrix A of Eq. 11, stored sparsely: view id -> the packet centre (cells) at
+        #: which the view was learned.
+        self.view_links: dict[int, FloatArray] = {}
+        start = cfg.start
+        if start is None:
+            start = (self.dims[0] // 2, self.dims[1] // 2, 0.0)
+        self.reset(start)
+
+    # --- state ---------------------------------------------------------------------------
+
+    def reset(self, centre: ArrayLike) -> None:
+        """Clear the network and put a single packet at ``centre`` (cell units)."""
+        self._pc[:] = 0.0
+        self._n_active = 0
+        c = np.asarray(centre, dtype=np.float64)
+        self._n_active = self._inject_at(c, 1.0)
+        self.step()
+
+    @property
+    def activity(self) -> FloatArray:
+        """The activity PC[x', y', θ'] (read-only view)."""
+        view = self._pc.reshape(self.dims).view()
+        view.flags.writeable = False
+        return view
+
+    @property
+    def active_count(self) -> int:
+        """Number of non-zero cells."""
+        return int(self._n_active)
+
+    def _next_gen(self) -> int:
+        # Each Numba pass marks the cells it writes with its own generation; a step uses six.
+        self._gen += 8
+        return self._gen
+
+    def _inject_at(self, centre: FloatArray, energy: float) -> int:
+        nx, ny, nt = self.dims
+        return int(
+            _inject(
+                self._pc,
+                self._active,
+                self._n_active,
+                self._mark,
+                self._next_gen(),
+                float(centre[0]),
+                float(centre[1]),
+                float(centre[2]),
+                float(energy),
+                nx,
+                ny,
+                nt,
+            )
+        )
+
+    # --- Eq. 10 ----------------------------------------------------------------------------
+
+    def path_integrate(self, dp: ArrayLike) -> None:
+        """Eq. 10: shift the activity by the odometry ``dp = (dx, dy, dθ)``.
+
+        ``dp`` is the motion in the robot's previous frame (forward, left, turn), of any size.
+        Each θ' layer rotates ``(dx, dy)`` by its own heading, so the packet moves along the
+        heading it encodes; the shift ``k·Δ`` is split into its integer part and a fractional
+        residue spread over the 2x2x2 cube.
+        """
+        dx, dy, dth = (float(v) for v in np.asarray(dp, dtype=np.float64).reshape(3))
+        if not (math.isfinite(dx) and math.isfinite(dy) and math.isfinite(dth)):
+            raise ValueError(f"path integration needs a finite pose change, got {dp}")
+        nx, ny, nt = self.dims
+        cxy, _, cth = self.config.cell_size
+        self._n_active = int(
+            _path_integrate(
+                self._pc,
+                self._active,
+                self._n_active,
+                self._exc,
+                self._mark,
+                self._next_gen(),
+                self._exc_idx,
+                dx,
+                dy,
+                dth,
+                cxy,
+                cth,
+                nx,
+                ny,
+                nt,
+            )
+        )
+
+    # --- Eq. 11 ----------------------------------------------------------------------------
+
+    def inject_view(self, view_id: int, activity: float = 1.0, is_new: bool = False) -> None:
+        """Eq. 11: calibration from the view cells.
+
+        A new view (or one never linked before) learns its link ``A_i`` to the current packet
+        centre. A known view injects ``k_V · V_i`` at its linked cells (spread trilinearly over
+        the 2x2x2 cube around the stored fractional centre). One injection is too weak to move
+        the packet; it only wins after consecutive matches (Sec. III-C's ambiguity rule).
+        """
+        vid = int(view_id)
+        if is_new or vid not in self.view_links:
+            self.view_links[vid] = self.centre()
+            return
+        energy = self.config.view_energy * float(np.clip(activity, 0.0, 1.0))
+        if energy > 0.0:
+            self._n_active = self._inject_at(self.view_links[vid], energy)
+
+    # --- dynamics and read-out -------------------------------------------------------------
+
+    def step(self) -> None:
+        """Local excitation and inhibition (3-D Gaussians), global inhibition, normalisation."""
+        cfg = self.config
+        nx, ny, nt = self.dims
+        self._n_active = int(
+            _attractor_step(
+                self._pc,
+                self._active,
+                self._n_active,
+                self._exc,
+                self._exc_idx,
+                self._inh,
+                self._inh_idx,
+                self._tmp_idx,
+                self._mark,
+                self._next_gen(),
+                self._g_e,
+                cfg.excite_radius,
+                self._g_i,
+                cfg.inhibit_radius,
+                cfg.global_inhibition,
+                nx,
+                ny,
+                nt,
+            )
+        )
+        if self._n_active == 0:
+            raise RuntimeError("the pose cell network lost all activity; lower global_inhibition")
+
+    def centre(self) -> FloatArray:
+        """The packet centre (x', y', θ') in cell units, each in [0, n): a population vector
+        (circular mean) over the window around the most active cell, as in RatSLAM."""
+        nx, ny, nt = self.dims
+        return _centre(
+            self._pc, self._active, self._n_active, self.config.centre_radius, nx, ny, nt
+        )
+
+    def centre_distance(self, a: ArrayLike, b: ArrayLike) -> FloatArray:
+        """Wrapped distance in cells between two cell positions (see ``wrapped_cell_distance``)."""
+        return wrapped_cell_distance(a, b, self.dims)
+
+
+def consecutive_matches_to_shift(
+    config: PoseCellConfig | None = None,
+    offset_cells: tuple[float, float, float] = (6.0, 0.0, 0.0),
+    max_matches: int = 200,
+    activity: float = 1.0,
+    tolerance_cells: float = 1.0,
+) -> int | None:
+    """Measure the ambiguity rule: how many consecutive matches of one known view, linked
+    ``offset_cells`` away from the packet, are needed before the packet centre moves there.
+
+    Returns the count, or ``None`` if ``max_matches`` matches never move it. The robot is
+    stationary (no path integration), the hardest case for a view to win.
+    """
+    net = PoseCellNetwork(config)
+    start = net.centre()
+    target = np.mod(start + np.asarray(offset_cells, dtype=np.float64), net.dims)
+    net.view_links[-1] = target
+    for n in range(1, max_matches + 1):
+        net.inject_view(-1, activity, is_new=False)
+        net.step()
+        if net.centre_distance(net.centre(), target) <= tolerance_cells:
+            return n
+    return None
