@@ -5,6 +5,7 @@ UTM-30LX) and lets users simulate their own floor plans from map_server maps.
 """
 
 from bioslam.sim.lidar import LIDAR_PRESETS, LidarModel
+from bioslam.sim.mapworld import MapWorldConfig, world_from_map, world_from_occupancy
 from bioslam.sim.maze import maze_world
 from bioslam.sim.route import Route, RouteConfig, make_route
 from bioslam.sim.simulate import MovingObstacle, scan_stamps, simulate_scans, true_ranges
@@ -13,6 +14,7 @@ from bioslam.sim.world import Roadmap, World
 __all__ = [
     "LIDAR_PRESETS",
     "LidarModel",
+    "MapWorldConfig",
     "MovingObstacle",
     "Roadmap",
     "Route",
@@ -23,4 +25,6 @@ __all__ = [
     "scan_stamps",
     "simulate_scans",
     "true_ranges",
+    "world_from_map",
+    "world_from_occupancy",
 ]

@@ -99,10 +99,19 @@ class Route:
         return float(np.sum(np.hypot(*np.diff(self.poses[keep, :2], axis=0).T)))
 
 
-def coverage_walk(roadmap: Roadmap, rng: np.random.Generator, min_length: float) -> list[int]:
+def _turn(nodes: NDArray, a: int, b: int, c: int) -> float:
+    """Absolute heading change at ``b`` on the way ``a -> b -> c``, radians."""
+    u, v = nodes[b] - nodes[a], nodes[c] - nodes[b]
+    return abs(float(np.arctan2(u[0] * v[1] - u[1] * v[0], u @ v)))
+
+
+def coverage_walk(
+    roadmap: Roadmap, rng: np.random.Generator, min_length: float, max_turn: float = 1.75
+) -> list[int]:
     """A walk over the roadmap of at least ``min_length`` metres that always takes the exit
-    driven least often in that direction (ties broken at random), never turning back unless a
-    node is a dead end."""
+    driven least often in that direction (ties broken at random), avoiding turns sharper than
+    ``max_turn`` radians (100 degrees) where it can, never turning back unless a node is a
+    dead end."""
     adj = roadmap.neighbours()
     if not any(adj):
         raise ValueError("the world's roadmap has no edges to drive along")
@@ -112,7 +121,17 @@ def coverage_walk(roadmap: Roadmap, rng: np.random.Generator, min_length: float)
     while length < min_length:
         cur = tour[-1]
         options = [n for n in adj[cur] if n != prev] or adj[cur]
-        keys = [(driven.get((cur, n), 0), driven.get((n, cur), 0), rng.random()) for n in options]
+        keys = [
+            (
+                prev >= 0 and _turn(roadmap.nodes, prev, cur, n) > max_turn,
+                driven.get((cur, n), 0),
+                driven.get((n, cur), 0),
+                # Straight on first among equals: a driver does not zig-zag down a corridor.
+                prev >= 0 and _turn(roadmap.nodes, prev, cur, n) > 0.2,
+                rng.random(),
+            )
+            for n in options
+        ]
         nxt = options[min(range(len(options)), key=keys.__getitem__)]
         driven[(cur, nxt)] = driven.get((cur, nxt), 0) + 1
         length += float(np.hypot(*(roadmap.nodes[nxt] - roadmap.nodes[cur])))
@@ -170,12 +189,16 @@ def _rounded_polyline(points: NDArray, slack: NDArray, radius: float, step: floa
     return np.vstack(pieces)
 
 
-def _speed_profile(s: NDArray, curvature: NDArray, cfg: RouteConfig) -> NDArray:
-    """Fastest speeds along the path under the speed, yaw-rate and acceleration limits,
+def _speed_profile(s: NDArray, heading: NDArray, cfg: RouteConfig) -> NDArray:
+    """Fastest speeds at the path samples under the speed, yaw-rate and acceleration limits,
     starting from rest."""
-    with np.errstate(divide="ignore"):
-        v = np.minimum(cfg.max_speed, cfg.effective_yaw_rate / np.abs(curvature))
     ds = np.diff(s)
+    # Curvature of each interval between samples; a sample's speed must respect both of its
+    # intervals so that the heading change per interval, over its duration, stays in limits.
+    bend = np.abs(np.diff(heading)) / ds
+    bend = np.maximum(np.concatenate([bend[:1], bend]), np.concatenate([bend, bend[-1:]]))
+    with np.errstate(divide="ignore"):
+        v = np.minimum(cfg.max_speed, cfg.effective_yaw_rate / bend)
     v[0] = 0.0
     two_a = 2.0 * cfg.max_accel
     for i in range(1, len(v)):
@@ -193,8 +216,7 @@ def _timed_path(dense: NDArray, cfg: RouteConfig) -> tuple[NDArray, NDArray]:
     s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
     grad = np.gradient(xy, s, axis=0)
     heading = np.unwrap(np.arctan2(grad[:, 1], grad[:, 0]))
-    curvature = np.gradient(heading, s)
-    v = _speed_profile(s, curvature, cfg)
+    v = _speed_profile(s, heading, cfg)
     dt = 2.0 * np.diff(s) / (v[1:] + v[:-1])
     times = np.concatenate([[0.0], np.cumsum(dt)])
     return times, np.column_stack([xy, heading])

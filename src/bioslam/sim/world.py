@@ -10,8 +10,9 @@ from numpy.typing import NDArray
 
 from bioslam.sim.raycast import SegmentGrid, build_segment_grid
 
-# Points per batch when measuring distances to walls: bounds the (points x segments) buffers.
-_DISTANCE_BATCH = 4096
+# Point-segment pairs per batch when measuring distances to walls: bounds the temporary
+# (points x segments) buffers to a few tens of megabytes whatever the size of the world.
+_DISTANCE_PAIRS = 1 << 20
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,12 +71,13 @@ class World:
         a = self.segments[:, :2]
         d = self.segments[:, 2:] - a
         dd = np.maximum(np.einsum("ij,ij->i", d, d), 1e-300)
-        for lo in range(0, flat.shape[0], _DISTANCE_BATCH):
-            p = flat[lo : lo + _DISTANCE_BATCH, None, :] - a[None]
+        batch = max(1, _DISTANCE_PAIRS // len(a))
+        for lo in range(0, flat.shape[0], batch):
+            p = flat[lo : lo + batch, None, :] - a[None]
             u = np.clip(np.einsum("nsk,sk->ns", p, d) / dd, 0.0, 1.0)
             diff = p - u[..., None] * d[None]
             squared = np.einsum("nsk,nsk->ns", diff, diff)
-            out[lo : lo + _DISTANCE_BATCH] = np.sqrt(squared.min(axis=1))
+            out[lo : lo + batch] = np.sqrt(squared.min(axis=1))
         return out.reshape(pts.shape[:-1])
 
 
