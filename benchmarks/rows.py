@@ -117,7 +117,7 @@ def run_bioslam(
 ) -> None:
     """One ``bioslam run`` of the case; accuracy and counters are read on the first run."""
     out.mkdir(parents=True, exist_ok=True)
-    cmd = [*bioslam_cli(), "run", str(prepared.input_path), "--out", str(out)]
+    cmd = [*bioslam_cli(), "run", str(prepared.input_path), "--out", str(out), "--no-progress"]
     if odometry_only:
         cmd.append("--odometry-only")
     t = run_timed(cmd, out / "stdout.txt")
