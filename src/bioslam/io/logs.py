@@ -1,0 +1,419 @@
+"""Opening a LiDAR log: format detection and the source API every reader implements.
+
+``open_log(path)`` returns a :class:`LogSource`; iterating it yields :class:`LaserScan` records in
+strictly increasing time order, streamed from the file. Records that cannot be used are skipped
+and counted by reason in ``source.skipped`` (the first occurrence of each reason is kept, with
+its line or record number, in ``source.skip_examples``); with ``strict=True`` the first such
+record raises a ``ValueError`` naming the file, the record and the problem instead.
+"""
+
+from __future__ import annotations
+
+import bz2
+import gzip
+import heapq
+import lzma
+import zlib
+from abc import ABC, abstractmethod
+from collections import Counter
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO, Any, ClassVar
+
+import numpy as np
+
+from bioslam.scan import LaserScan
+from bioslam.trajectory import Trajectory
+
+Pose = tuple[float, float, float]
+
+SUPPORTED_FORMATS: dict[str, str] = {
+    "carmen": "CARMEN log: .log, .clf, optionally gzipped (.gz); FLASER, ROBOTLASER1, "
+    "RAWLASER1-4, ODOM",
+    "rosbag1": "ROS 1 bag (.bag) with sensor_msgs/LaserScan",
+    "rosbag2": "ROS 2 bag: directory with metadata.yaml, .db3 or .mcap, sensor_msgs/LaserScan",
+    "breezyslam": "BreezySLAM log (.dat): one line per scan, timestamp in µs, ranges in mm",
+}
+
+# Skip reasons shared by all readers (keys of ``LogSource.skipped``).
+MALFORMED = "malformed record"
+WRONG_BEAM_COUNT = "wrong beam count"
+NON_MONOTONIC = "non-monotonic timestamp (not later than the previous scan)"
+EMPTY_SCAN = "empty scan (no beams)"
+NO_VALID_RETURNS = "no valid returns (all beams NaN, inf, zero or out of range)"
+ODOMETRY_NON_MONOTONIC = "odometry record with non-monotonic timestamp"
+TRUNCATED = "truncated or corrupt file (stopped reading there)"
+
+
+class LogSource(ABC):
+    """A LiDAR log opened for reading. Subclasses implement :meth:`_records`.
+
+    Attributes:
+        path: the file or bag directory.
+        format: one of :data:`SUPPORTED_FORMATS`.
+        topic: the scan stream read (ROS topic, CARMEN message name), ``None`` when the format
+            has a single stream.
+        strict: raise on the first bad record instead of skipping it.
+    """
+
+    format: ClassVar[str] = ""
+    #: Seconds a record may arrive late and still be put back in order (see ``_Reorder``).
+    reorder_window_s: float = 2.0
+
+    def __init__(self, path: str | Path, topic: str | None = None, strict: bool = False) -> None:
+        self.path = Path(path)
+        if not self.path.exists():
+            raise FileNotFoundError(f"{self.path}: no such file or directory")
+        self.topic = topic
+        self.strict = strict
+        self._skipped: Counter[str] = Counter()
+        self.skip_examples: dict[str, str] = {}
+        self._reference: list[tuple[float, Pose]] = []
+        self._odometry: list[tuple[float, Pose]] = []
+        self._complete = False
+        self._iterating = False
+
+    # -- what subclasses provide ------------------------------------------------------------
+    @abstractmethod
+    def _records(self) -> Iterator[tuple[LaserScan, str, Pose | None]]:
+        """Yield ``(scan, where, reference_pose_or_None)`` in file order; ``where`` locates the
+        record for messages ("line 12", "message 5"). Report unusable records with
+        :meth:`_skip` and odometry with :meth:`_add_odometry`."""
+
+    def topics(self) -> list[dict[str, Any]]:
+        """The streams in the log: ``[{"name", "type", "count"}]`` (empty if not applicable)."""
+        return []
+
+    # -- helpers for subclasses -------------------------------------------------------------
+    def _skip(self, reason: str, where: str, detail: str = "") -> None:
+        """Count a skipped record; in strict mode raise instead."""
+        message = f"{where}: {reason}" + (f": {detail}" if detail else "")
+        if self.strict:
+            raise ValueError(f"{self.path}: {message}")
+        self._skipped[reason] += 1
+        self.skip_examples.setdefault(reason, message)
+
+    def _lines(self) -> Iterator[tuple[int, str]]:
+        """``(line number, text)`` of a text log, gzip/bzip2/xz transparently; a truncated or
+        corrupt compressed stream ends the iteration and is counted as :data:`TRUNCATED`."""
+        lineno = 0
+        try:
+            with _open_text(self.path) as fh:
+                for lineno, line in enumerate(fh, start=1):
+                    yield lineno, line
+        except (EOFError, OSError, lzma.LZMAError, zlib.error) as exc:
+            self._skip(TRUNCATED, f"after line {lineno}", str(exc))
+
+    def _add_odometry(self, stamp: float, pose: Pose) -> None:
+        """Keep an odometry pose; one not later than the previous is counted, never raised
+        (odometry is side information: a bad record must not stop the scans)."""
+        if self._odometry and not stamp > self._odometry[-1][0]:
+            self._skipped[ODOMETRY_NON_MONOTONIC] += 1
+            return
+        self._odometry.append((stamp, pose))
+
+    # -- public API -------------------------------------------------------------------------
+    def __iter__(self) -> Iterator[LaserScan]:
+        self._skipped = Counter()
+        self.skip_examples = {}
+        self._reference = []
+        self._odometry = []
+        self._complete = False
+        self._iterating = True
+        order = _Reorder(self.reorder_window_s)
+        try:
+            for scan, where, ref in self._records():
+                if scan.num_beams == 0:
+                    self._skip(EMPTY_SCAN, where)
+                elif not order.accepts(scan.stamp):
+                    self._skip(NON_MONOTONIC, where, f"t = {scan.stamp:.6f} s, "
+                               f"{order.latest - scan.stamp:.6f} s before a previous scan")
+                elif not scan.valid_mask.any():
+                    self._skip(NO_VALID_RETURNS, where)
+                else:
+                    yield from self._emit(order.push(scan, ref))
+            yield from self._emit(order.flush())
+            self._complete = True
+        finally:
+            self._iterating = False
+
+    def _emit(self, ready: list[tuple[LaserScan, Pose | None]]) -> Iterator[LaserScan]:
+        for scan, ref in ready:
+            if ref is not None:
+                self._reference.append((scan.stamp, ref))
+            yield scan
+
+    def _ensure_read(self) -> None:
+        if not self._complete and not self._iterating:
+            for _ in self:
+                pass
+
+    @property
+    def skipped(self) -> dict[str, int]:
+        """Reason -> number of records skipped (complete after a full iteration)."""
+        self._ensure_read()
+        return dict(self._skipped)
+
+    @property
+    def reference(self) -> Trajectory | None:
+        """Reference (corrected) pose of each yielded scan, if the log carries one."""
+        self._ensure_read()
+        return _trajectory(self._reference)
+
+    @property
+    def odometry(self) -> Trajectory | None:
+        """Wheel odometry, if the log carries it (its own time stamps, not the scans')."""
+        self._ensure_read()
+        return _trajectory(self._odometry)
+
+    def notes(self) -> list[str]:
+        """Remarks about how the log was read (e.g. a fallback that was needed)."""
+        return []
+
+    def info(self) -> dict[str, Any]:
+        """What the log holds (reads it all): the data of ``bioslam info``."""
+        stats = _ScanStats()
+        for scan in self:
+            stats.add(scan)
+        summary: dict[str, Any] = {"format": self.format, "path": str(self.path)}
+        if self.topic is not None:
+            summary["topic"] = self.topic
+        summary["topics"] = self.topics()
+        summary.update(stats.summary())
+        summary["skipped"] = dict(self._skipped)
+        summary["skip_examples"] = dict(self.skip_examples)
+        summary["reference_poses"] = len(self._reference)
+        summary["odometry_poses"] = len(self._odometry)
+        summary["notes"] = self.notes()
+        return summary
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({str(self.path)!r}, topic={self.topic!r})"
+
+
+def _open_text(path: Path) -> IO[str]:
+    opener = _decompressor(path)
+    # latin-1 maps every byte to a character: a stray byte makes a malformed line, not a crash.
+    if opener is None:
+        return path.open("r", encoding="latin-1")
+    return opener(path, "rt", encoding="latin-1")  # type: ignore[no-any-return]
+
+
+class _Reorder:
+    """Puts records that arrive a little late back in time order.
+
+    Logs written by several processes can hold a scan after one stamped a fraction of a second
+    later (the Intel log has four, at most 0.86 s late). Records are held until every record
+    that may still precede them has arrived: one more than ``window`` seconds earlier than the
+    latest seen is skipped as non-monotonic, as is a repeated stamp.
+    """
+
+    def __init__(self, window: float) -> None:
+        self.window = window
+        self.latest = -np.inf
+        self.last_out = -np.inf
+        self._heap: list[tuple[float, int, LaserScan, Pose | None]] = []
+        self._stamps: set[float] = set()
+        self._seq = 0
+
+    def accepts(self, stamp: float) -> bool:
+        return (
+            bool(np.isfinite(stamp))
+            and stamp > self.last_out
+            and stamp >= self.latest - self.window
+            and stamp not in self._stamps
+        )
+
+    def push(self, scan: LaserScan, ref: Pose | None) -> list[tuple[LaserScan, Pose | None]]:
+        heapq.heappush(self._heap, (scan.stamp, self._seq, scan, ref))
+        self._seq += 1
+        self._stamps.add(scan.stamp)
+        self.latest = max(self.latest, scan.stamp)
+        return self._pop_until(self.latest - self.window)
+
+    def flush(self) -> list[tuple[LaserScan, Pose | None]]:
+        return self._pop_until(np.inf)
+
+    def _pop_until(self, limit: float) -> list[tuple[LaserScan, Pose | None]]:
+        out = []
+        while self._heap and (self._heap[0][0] < limit or limit == np.inf):
+            stamp, _, scan, ref = heapq.heappop(self._heap)
+            self._stamps.discard(stamp)
+            self.last_out = stamp
+            out.append((scan, ref))
+        return out
+
+
+def _trajectory(rows: list[tuple[float, Pose]]) -> Trajectory | None:
+    if not rows:
+        return None
+    return Trajectory(np.array([r[0] for r in rows]), np.array([r[1] for r in rows]))
+
+
+class _ScanStats:
+    """Running statistics over the scans of a log, for :meth:`LogSource.info`."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.first: LaserScan | None = None
+        self.last_stamp = 0.0
+        self.beams: Counter[int] = Counter()
+        self.range_min = np.inf
+        self.range_max = -np.inf
+        self.returns = 0
+        self.beam_total = 0
+
+    def add(self, scan: LaserScan) -> None:
+        if self.first is None:
+            self.first = scan
+        self.count += 1
+        self.last_stamp = scan.stamp
+        self.beams[scan.num_beams] += 1
+        self.range_min = min(self.range_min, scan.range_min)
+        self.range_max = max(self.range_max, scan.range_max)
+        self.returns += int(np.count_nonzero(scan.valid_mask))
+        self.beam_total += scan.num_beams
+
+    def summary(self) -> dict[str, Any]:
+        if self.first is None:
+            return {"scans": 0, "beams": 0, "fov_deg": 0.0, "duration_s": 0.0}
+        first = self.first
+        beams = self.beams.most_common(1)[0][0]
+        duration = self.last_stamp - first.stamp
+        increments = np.diff(first.angles)
+        out: dict[str, Any] = {
+            "scans": self.count,
+            "beams": beams,
+            "fov_deg": float(np.degrees(first.fov)),
+            "duration_s": float(duration),
+            "start_s": float(first.stamp),
+            "end_s": float(self.last_stamp),
+            "rate_hz": float((self.count - 1) / duration) if duration > 0 else 0.0,
+            "angle_min_deg": float(np.degrees(first.angles[0])),
+            "angle_max_deg": float(np.degrees(first.angles[-1])),
+            "angle_increment_deg": float(np.degrees(np.mean(increments)))
+            if increments.size else 0.0,
+            "range_min_m": float(self.range_min),
+            "range_max_m": float(self.range_max),
+            "time_increment_s": float(first.time_increment),
+            "valid_return_fraction": self.returns / max(self.beam_total, 1),
+        }
+        if len(self.beams) > 1:
+            out["beam_counts"] = {str(k): v for k, v in sorted(self.beams.items())}
+        return out
+
+
+# -- format detection --------------------------------------------------------------------------
+
+_EXTENSIONS = {
+    ".log": "carmen",
+    ".clf": "carmen",
+    ".carmen": "carmen",
+    ".bag": "rosbag1",
+    ".db3": "rosbag2",
+    ".mcap": "rosbag2",
+    ".dat": "breezyslam",
+}
+_CARMEN_WORDS = frozenset(
+    {"FLASER", "RLASER", "ROBOTLASER1", "ROBOTLASER2", "RAWLASER1", "RAWLASER2", "RAWLASER3",
+     "RAWLASER4", "ODOM", "PARAM", "SYNC", "NEFF", "TRUEPOS", "POSITIONLASER"}
+)
+
+
+def _by_extension(path: Path) -> str | None:
+    if path.is_dir():
+        if (path / "metadata.yaml").exists() or any(path.glob("*.db3")) or any(
+            path.glob("*.mcap")
+        ):
+            return "rosbag2"
+        return None
+    suffixes = [s.lower() for s in path.suffixes]
+    if suffixes and suffixes[-1] in (".gz", ".bz2", ".xz"):
+        suffixes = suffixes[:-1]
+    return _EXTENSIONS.get(suffixes[-1]) if suffixes else None
+
+
+def _decompressor(path: Path) -> Any:
+    """``gzip.open``/``bz2.open``/``lzma.open`` when the file starts with their magic, else None."""
+    with path.open("rb") as fh:
+        magic = fh.read(2)
+    return {b"\x1f\x8b": gzip.open, b"BZ": bz2.open, b"\xfd7": lzma.open}.get(magic)
+
+
+def _head(path: Path, size: int = 4096) -> bytes:
+    """The first bytes of a file, decompressed when it is gzip/bzip2/xz."""
+    opener = _decompressor(path) or open
+    try:
+        with opener(path, "rb") as fh:
+            return fh.read(size)
+    except (OSError, EOFError, lzma.LZMAError, zlib.error):
+        return b""
+
+
+def _by_content(path: Path) -> str | None:
+    if path.is_dir():
+        return None
+    head = _head(path)
+    if head.startswith(b"#ROSBAG V2"):
+        return "rosbag1"
+    if head.startswith(b"\x89MCAP") or head.startswith(b"SQLite format 3\x00"):
+        return "rosbag2"
+    lines = head.decode("latin-1").splitlines()[:-1] or head.decode("latin-1").splitlines()
+    words = [line.split()[0] for line in lines if line.strip() and not line.startswith("#")]
+    if words and sum(w in _CARMEN_WORDS for w in words) >= max(1, len(words) // 2):
+        return "carmen"
+    if words and all(_numeric_line(line) for line in lines if line.strip()):
+        return "breezyslam"
+    return None
+
+
+def _numeric_line(line: str) -> bool:
+    fields = line.split()
+    if len(fields) < 26:
+        return False
+    try:
+        [float(f) for f in fields[:30]]
+    except ValueError:
+        return False
+    return True
+
+
+def detect_format(path: str | Path) -> str:
+    """The format of ``path``: by extension first, then by content.
+
+    Raises ``FileNotFoundError`` when it does not exist and ``ValueError`` listing the supported
+    formats when it is none of them.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file or directory")
+    found = _by_extension(path) or _by_content(path)
+    if found is None:
+        formats = "\n  ".join(f"{k}: {v}" for k, v in SUPPORTED_FORMATS.items())
+        raise ValueError(f"{path}: unknown log format; supported formats:\n  {formats}")
+    return found
+
+
+def open_log(
+    path: str | Path, topic: str | None = None, *, strict: bool = False, fmt: str | None = None
+) -> LogSource:
+    """Open a LiDAR log for reading; ``fmt`` overrides format detection.
+
+    ``topic`` chooses the scan stream when the log has several (a ROS topic, or a CARMEN
+    message name such as ``ROBOTLASER1``); without it a log with several LaserScan topics is a
+    ``ValueError`` that lists them.
+    """
+    fmt = fmt or detect_format(path)
+    if fmt == "carmen":
+        from bioslam.io.carmen import CarmenLog
+
+        return CarmenLog(path, topic, strict)
+    if fmt in ("rosbag1", "rosbag2"):
+        from bioslam.io.rosbag import Rosbag1Log, Rosbag2Log
+
+        return (Rosbag1Log if fmt == "rosbag1" else Rosbag2Log)(path, topic, strict)
+    if fmt == "breezyslam":
+        from bioslam.io.breezyslam import BreezySlamLog
+
+        return BreezySlamLog(path, topic, strict)
+    raise ValueError(f"unknown format {fmt!r}; supported formats: {', '.join(SUPPORTED_FORMATS)}")
