@@ -16,6 +16,7 @@ No file or terminal I/O here.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numba
@@ -60,6 +61,9 @@ class OdometryConfig:
         degeneracy_ratio: a direction whose curvature is below this fraction of the strongest
             is unconstrained (a featureless corridor): the step keeps the prediction along it
             instead of letting noise move the pose, and the report flags it.
+        velocity_window: seconds of past poses the constant-velocity estimate (prediction and
+            de-skew) is taken over; ours, about the time constant of a robot's acceleration,
+            and several scans of a 40 Hz scanner.
         deskew: correct per-beam motion when ``scan.time_increment > 0``.
         min_points: fewer valid endpoints than this give a prediction-only update.
         log_odds: hit/miss increments of the map cells.
@@ -78,6 +82,7 @@ class OdometryConfig:
     step_tolerance: float = 1e-4
     length_scale: float = 3.0
     degeneracy_ratio: float = 0.01
+    velocity_window: float = 0.1
     deskew: bool = True
     min_points: int = 20
     log_odds: LogOddsConfig = field(default_factory=LogOddsConfig)
@@ -106,6 +111,7 @@ class MatchReport:
         num_points: endpoints used for matching (after subsampling).
         inserted: the scan was fused into the map.
         predicted_only: no usable scan; the pose is the constant-velocity prediction.
+        converged: the finest level stopped on a small step within its iteration budget.
     """
 
     iterations: int = 0
@@ -116,6 +122,7 @@ class MatchReport:
     num_points: int = 0
     inserted: bool = False
     predicted_only: bool = False
+    converged: bool = False
 
 
 # --------------------------------------------------------------------------------------------
@@ -146,13 +153,16 @@ def _normal_equations(logodds, ox, oy, res, pts, pose):
     """Gauss-Newton normal equations of Eq. 3 linearised at ``pose``.
 
     Residual ``1 - M*(S_i(p))`` with ``S_i(p) = R_p e_i + T_p`` (Eq. 4); its Jacobian is
-    ``∇M* · ∂S_i/∂p``. Returns ``(H, b, mean M*, points inside the map)``.
+    ``∇M* · ∂S_i/∂p``. Returns ``(H, b, mean M* inside, cost, points inside the map)``; the
+    cost Σ (1 - M*)² counts points outside the map as unknown (M* = 0.5), so that pushing
+    points out of the map never looks like an improvement.
     """
     c = math.cos(pose[2])
     s = math.sin(pose[2])
     H = np.zeros((3, 3))
     b = np.zeros(3)
     total = 0.0
+    cost = 0.0
     inside = 0
     for k in range(pts.shape[0]):
         px = pts[k, 0]
@@ -160,6 +170,7 @@ def _normal_equations(logodds, ox, oy, res, pts, pose):
         wx = c * px - s * py + pose[0]
         wy = s * px + c * py + pose[1]
         m, gx, gy, ok = interpolate_point(logodds, ox, oy, res, wx, wy)
+        cost += (1.0 - m) * (1.0 - m)
         if not ok:
             continue
         inside += 1
@@ -179,14 +190,15 @@ def _normal_equations(logodds, ox, oy, res, pts, pose):
     H[2, 0] = H[0, 2]
     H[2, 1] = H[1, 2]
     mean = total / inside if inside > 0 else 0.0
-    return H, b, mean, inside
+    return H, b, mean, cost, inside
 
 
 @numba.njit(cache=True)
-def _guarded_step(H, b, length, ratio):
-    """Solve ``H dp = b`` in the eigenbasis of the scaled Hessian, leaving out directions with
-    curvature below ``ratio`` of the largest (they keep the prediction).
+def _guarded_step(H, b, length, ratio, damping):
+    """Solve ``(H + damping) dp = b`` in the eigenbasis of the scaled Hessian, leaving out
+    directions with curvature below ``ratio`` of the largest (they keep the prediction).
 
+    ``damping`` is a Levenberg-Marquardt term, a fraction of the largest curvature.
     Returns ``(dp, condition, weakest unit direction, degenerate)``.
     """
     scale = np.array([1.0, 1.0, 1.0 / length])
@@ -202,25 +214,40 @@ def _guarded_step(H, b, length, ratio):
         if w[k] < ratio * top:
             degenerate = True
             continue
-        step += v[:, k] * (v[:, k] @ bs) / w[k]
+        step += v[:, k] * (v[:, k] @ bs) / (w[k] + damping * top)
     return step * scale, max(w[0], 0.0) / top, v[:, 0].copy(), degenerate
 
 
 @numba.njit(cache=True)
 def _gauss_newton_level(logodds, ox, oy, res, pts, pose, max_iter, tol, length, ratio):
+    """Gauss-Newton on one level, with a Levenberg-Marquardt guard: a step that raises the
+    cost is refused and retried with more damping, so the bilinear map's kinks at cell
+    boundaries cannot make the pose oscillate. Returns ``(pose, H, mean M*, iterations,
+    converged)``."""
     pose = pose.copy()
+    H, b, mean, cost, inside = _normal_equations(logodds, ox, oy, res, pts, pose)
+    damping = 0.0
     iterations = 0
+    converged = False
+    if inside < 3:
+        return pose, H, mean, iterations, converged
     for _ in range(max_iter):
-        H, b, _, inside = _normal_equations(logodds, ox, oy, res, pts, pose)
-        if inside < 3:
-            break
-        step, _, _, _ = _guarded_step(H, b, length, ratio)
-        pose += step
         iterations += 1
-        if math.hypot(step[0], step[1]) < tol and abs(step[2]) * length < tol:
+        step, _, _, _ = _guarded_step(H, b, length, ratio, damping)
+        small = math.hypot(step[0], step[1]) < tol and abs(step[2]) * length < tol
+        trial = pose + step
+        H2, b2, mean2, cost2, inside2 = _normal_equations(logodds, ox, oy, res, pts, trial)
+        if cost2 <= cost and inside2 >= 3:
+            pose, H, b, mean, cost = trial, H2, b2, mean2, cost2
+            damping *= 0.1
+            if damping < 1e-4:
+                damping = 0.0
+        else:
+            damping = max(10.0 * damping, 1e-3)
+        if small:
+            converged = True
             break
-    H, b, mean, inside = _normal_equations(logodds, ox, oy, res, pts, pose)
-    return pose, H, mean, inside, iterations
+    return pose, H, mean, iterations, converged
 
 
 @numba.njit(cache=True)
@@ -321,14 +348,17 @@ def match_scan_to_map(
     iters = max_iterations[::-1]
     for k in range(len(pyramid.grids) - 1, -1, -1):
         grid = pyramid.grids[k]
-        pose, H, mean, _, n = _gauss_newton_level(
+        pose, H, mean, n, converged = _gauss_newton_level(
             grid.logodds, grid.origin[0], grid.origin[1], grid.resolution, level_points[k],
             pose, iters[len(pyramid.grids) - 1 - k], step_tolerance, length_scale,
             degeneracy_ratio,
         )  # fmt: skip
         report.iterations += int(n)
     pose[2] = wrap_angle(pose[2])
-    _, cond, weakest, degenerate = _guarded_step(H, np.zeros(3), length_scale, degeneracy_ratio)
+    _, cond, weakest, degenerate = _guarded_step(
+        H, np.zeros(3), length_scale, degeneracy_ratio, 0.0
+    )
+    report.converged = bool(converged)
     report.score = float(mean)
     report.condition = float(cond)
     report.degenerate = bool(degenerate)
@@ -358,6 +388,7 @@ class LidarOdometry:
         self.num_predicted_only = 0
         self._twist = np.zeros(3)
         self._last_stamp: float | None = None
+        self._history: deque[tuple[float, FloatArray]] = deque()
         self._last_inserted: FloatArray | None = None
 
     # -- steps of one update ------------------------------------------------------------------
@@ -418,11 +449,21 @@ class LidarOdometry:
         if not self.last_report.predicted_only and self._should_insert():
             self._insert(pts)
             self.last_report.inserted = True
-        delta = between(previous, self.pose)
-        if dt > 0:
-            self._twist = se2_log(delta) / dt
+        self._update_twist(scan.stamp)
         self._last_stamp = scan.stamp
-        return delta
+        return between(previous, self.pose)
+
+    def _update_twist(self, stamp: float) -> None:
+        """Constant-velocity estimate over the last ``velocity_window`` seconds: differencing
+        only two consecutive fast scans turns millimetre match noise into a velocity noise
+        that, fed back through the prediction and the de-skew, makes the estimate oscillate."""
+        history = self._history
+        history.append((stamp, self.pose.copy()))
+        while len(history) > 2 and stamp - history[1][0] >= self.config.velocity_window:
+            history.popleft()
+        t0, p0 = history[0]
+        if stamp > t0:
+            self._twist = se2_log(between(p0, self.pose)) / (stamp - t0)
 
 
 # --------------------------------------------------------------------------------------------
@@ -539,7 +580,7 @@ def register_scans(
         score=float(np.mean(values[inside] >= c.hit_level)) if n_in else 0.0,
         mean_value=float(np.mean(values[inside])) if n_in else 0.0,
         overlap=n_in / qry.shape[0],
-        converged=report.iterations < sum(c.max_iterations),
+        converged=report.converged,
         degenerate=report.degenerate,
         condition=report.condition,
         iterations=report.iterations,
