@@ -1,0 +1,537 @@
+"""The cognitive map (Eq. 12-14): experience nodes, directed transition links, relaxation.
+
+An experience ``e_i = <PC^i, V^i, p^i>`` (Eq. 12) stores the pose cell packet centre, the view
+id and the map pose at which it was made. A link ``l_ij = <Δp^ij, Δt^ij>`` (Eq. 13) stores the
+odometry from ``e_i`` to ``e_j`` in ``e_i``'s frame. The topological decisions follow
+OpenRatSLAM's ``PosecellNetwork::get_action`` and ``ExperienceMap`` (Ball et al. 2013):
+
+* a new view, or a known view whose experiences are all farther than ``match_threshold`` cells
+  from the packet, creates an experience at ``p_current ⊕ odometry since`` and an ``odometry``
+  link to it;
+* a known view whose nearest experience is within the threshold and is not the current one
+  moves the robot there; if the two experiences were not linked yet this closes a loop and adds
+  a ``loop`` link whose Δp is the odometry since the current experience (optionally refined by a
+  scan registration, ``refine``), after which the map is relaxed (Eq. 14).
+
+Relaxation (Eq. 14) — the choices the paper leaves open, written down:
+
+* Eq. 14 only names positions; headings are relaxed the same way (as OpenRatSLAM does), since a
+  link's Δp is expressed in its source's frame and the compositions must stay consistent.
+* The residuals use the consistent sign for both edge directions: outgoing
+  ``p_j - (p_i ⊕ Δp_ij)`` and incoming ``(p_k ⊕ Δp_ki) - p_i`` (Eq. 14 prints ``- Δp^ki``).
+* Sweeps update the nodes in place (Gauss-Seidel). The per-node gain is ``a = 0.5`` for nodes
+  with one or two links — Eq. 14 exactly, and for the usual chain node the exact local minimum —
+  and ``1 / (N_f + N_t)`` for nodes with more links: ``a`` times a sum over three or more edges
+  overshoots (a Jacobi update with a = 0.5 also never damps the alternating mode of an even
+  loop). With this normalisation every sweep decreases the squared residual, so repeated sweeps
+  converge instead of oscillating.
+* Experience 0 defines the map frame and stays fixed (Eq. 14 leaves the gauge free).
+* Sweeps on a long loop converge slowly (the error diffuses ~one node per sweep), so after a loop
+  closure ``relax`` first jumps to the fixed point of Eq. 14 — the state where every node's
+  correction Δp^i is zero — by solving that sparse linear system directly (headings, then
+  positions with the headings fixed), then confirms it with sweeps. Between loop closures the
+  map is consistent by construction (new links equal the odometry), so ``relax`` costs nothing.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+import scipy.sparse as sp
+from numba import njit
+from numpy.typing import ArrayLike, NDArray
+from scipy.sparse.linalg import splu
+
+from bioslam.geometry import compose, inverse, wrap_angle
+from bioslam.pose_cells import PoseCellConfig, wrapped_cell_distance
+
+FloatArray = NDArray[np.float64]
+EventKind = Literal["none", "new", "link", "loop"]
+LinkKind = Literal["odometry", "loop"]
+
+
+@dataclass
+class CognitiveMapConfig:
+    """Parameters of the cognitive map."""
+
+    #: Packet distance, in pose cells (wrapped, x'/y'/θ' together), beyond which a known view
+    #: makes a new experience instead of matching an old one. OpenRatSLAM
+    #: exp_delta_pc_threshold (1.0 by default, 2.0 in its indoor configs).
+    match_threshold: float = 2.0
+    #: Correction factor a of Eq. 14 (paper: 0.5; OpenRatSLAM exp_correction = 0.5).
+    correction: float = 0.5
+    #: Gauss-Seidel sweeps of Eq. 14 per ``relax`` call while the map is not converged
+    #: (OpenRatSLAM exp_loops = 20 sweeps every update; here only after loop closures).
+    sweeps_per_update: int = 20
+    #: The map counts as converged when a sweep moves no node by more than this (m) ...
+    tolerance_m: float = 1e-4
+    #: ... and turns none by more than this (rad).
+    tolerance_rad: float = 1e-5
+    #: After a loop closure, solve for the fixed point of Eq. 14 directly (sparse, O(map)) before
+    #: sweeping; without it only bounded sweeps run and a long loop converges over many scans.
+    solve_on_loop: bool = True
+
+    def __post_init__(self) -> None:
+        if self.match_threshold <= 0.0:
+            raise ValueError(f"match_threshold must be positive, got {self.match_threshold}")
+        if not 0.0 < self.correction <= 1.0:
+            raise ValueError(f"correction a must be in (0, 1], got {self.correction}")
+        if self.sweeps_per_update < 0:
+            raise ValueError("sweeps_per_update must be >= 0")
+
+
+@dataclass
+class Experience:
+    """An experience node ``e_i = <PC^i, V^i, p^i>`` (Eq. 12); ``pose`` is the relaxed pose at
+    the time the record was taken, ``pc_centre`` the packet centre (cells) it was made at."""
+
+    id: int
+    stamp: float
+    pose: FloatArray
+    view_id: int
+    pc_centre: FloatArray
+    payload: Any = None
+
+
+@dataclass
+class Link:
+    """A directed link ``l_ij = <Δp^ij, Δt^ij>`` (Eq. 13), ``dp`` in the source's frame."""
+
+    source: int
+    target: int
+    dp: FloatArray
+    dt: float
+    stamp: float
+    kind: LinkKind
+
+
+@dataclass
+class MapEvent:
+    """What one ``update`` did: ``new`` experience, moved along an existing ``link``, closed a
+    ``loop`` (new link to an old experience), or ``none``; ``experience`` is the current id
+    afterwards. ``rejected`` is set when ``refine`` vetoed a loop closure."""
+
+    kind: EventKind
+    experience: int
+    rejected: bool = False
+    matched: int | None = None
+
+
+@dataclass
+class _Growable:
+    """A row-growable float array (amortised O(1) append)."""
+
+    width: int
+    data: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
+    n: int = 0
+
+    def __post_init__(self) -> None:
+        self.data = np.zeros((64, self.width))
+
+    def append(self, row: ArrayLike) -> int:
+        if self.n == self.data.shape[0]:
+            self.data = np.concatenate([self.data, np.zeros_like(self.data)])
+        self.data[self.n] = row
+        self.n += 1
+        return self.n - 1
+
+    @property
+    def view(self) -> FloatArray:
+        return self.data[: self.n]
+
+
+@njit(cache=True)
+def _wrap(a):
+    return math.pi - (math.pi - a) % (2.0 * math.pi)
+
+
+@njit(cache=True)
+def _relax_sweep(poses, src, dst, dps, out_ptr, out_e, in_ptr, in_e, a):
+    """One in-place sweep of Eq. 14 over nodes 1..N-1; returns the largest (move, turn)."""
+    n = poses.shape[0]
+    max_move = 0.0
+    max_turn = 0.0
+    for i in range(1, n):
+        deg = (out_ptr[i + 1] - out_ptr[i]) + (in_ptr[i + 1] - in_ptr[i])
+        if deg == 0:
+            continue
+        gain = a if deg <= 2 else 1.0 / deg
+        th_i = poses[i, 2]
+        r_th = 0.0
+        for q in range(out_ptr[i], out_ptr[i + 1]):
+            e = out_e[q]
+            r_th += _wrap(poses[dst[e], 2] - th_i - dps[e, 2])
+        for q in range(in_ptr[i], in_ptr[i + 1]):
+            e = in_e[q]
+            r_th += _wrap(poses[src[e], 2] + dps[e, 2] - th_i)
+        d_th = gain * r_th
+        th_i = _wrap(th_i + d_th)
+        poses[i, 2] = th_i
+        c = math.cos(th_i)
+        s = math.sin(th_i)
+        rx = 0.0
+        ry = 0.0
+        for q in range(out_ptr[i], out_ptr[i + 1]):
+            e = out_e[q]
+            j = dst[e]
+            rx += poses[j, 0] - (poses[i, 0] + c * dps[e, 0] - s * dps[e, 1])
+            ry += poses[j, 1] - (poses[i, 1] + s * dps[e, 0] + c * dps[e, 1])
+        for q in range(in_ptr[i], in_ptr[i + 1]):
+            e = in_e[q]
+            k = src[e]
+            ck = math.cos(poses[k, 2])
+            sk = math.sin(poses[k, 2])
+            rx += poses[k, 0] + ck * dps[e, 0] - sk * dps[e, 1] - poses[i, 0]
+            ry += poses[k, 1] + sk * dps[e, 0] + ck * dps[e, 1] - poses[i, 1]
+        dx = gain * rx
+        dy = gain * ry
+        poses[i, 0] += dx
+        poses[i, 1] += dy
+        max_move = max(max_move, math.hypot(dx, dy))
+        max_turn = max(max_turn, abs(d_th))
+    return max_move, max_turn
+
+
+def relaxation_correction(
+    poses: ArrayLike, sources: ArrayLike, targets: ArrayLike, dps: ArrayLike, a: float = 0.5
+) -> FloatArray:
+    """Eq. 14 for every node at once: ``Δp^i = a [Σ_out (p^j - p^i ⊕ Δp^ij) + Σ_in (p^k ⊕ Δp^ki
+    - p^i)]`` (positions and, as OpenRatSLAM does, headings), without the gain normalisation.
+
+    ``CognitiveMap.relax`` applies it node by node in place; this vectorised form states the
+    equation and measures how far a map is from its fixed point (all corrections zero).
+    """
+    p = np.asarray(poses, dtype=np.float64)
+    s = np.asarray(sources, dtype=np.int64)
+    t = np.asarray(targets, dtype=np.int64)
+    predicted = compose(p[s], np.asarray(dps, dtype=np.float64))
+    r = p[t] - predicted
+    r[:, 2] = wrap_angle(r[:, 2])
+    out = np.zeros_like(p)
+    np.add.at(out, s, r)
+    np.add.at(out, t, -r)
+    return a * out
+
+
+class CognitiveMap:
+    """The topological-metric map of experiences (Eq. 12-14)."""
+
+    def __init__(
+        self,
+        config: CognitiveMapConfig | None = None,
+        cell_size: Sequence[float] | None = None,
+        dims: Sequence[int] | None = None,
+    ) -> None:
+        self.config = config if config is not None else CognitiveMapConfig()
+        pc_default = PoseCellConfig()
+        self.cell_size = tuple(cell_size) if cell_size is not None else pc_default.cell_size
+        self.dims: tuple[int, int, int] = tuple(int(d) for d in (dims or pc_default.dims))  # type: ignore[assignment]
+        self._poses = _Growable(3)
+        self._centres = _Growable(3)
+        self._stamps: list[float] = []
+        self._view_ids: list[int] = []
+        self._payloads: list[Any] = []
+        self._by_view: dict[int, list[int]] = {}
+        self._link_ends = _Growable(2)
+        self._link_dp = _Growable(3)
+        self._link_dt: list[float] = []
+        self._link_stamp: list[float] = []
+        self._link_kind: list[LinkKind] = []
+        self._linked: set[tuple[int, int]] = set()
+        self._current = -1
+        self._offset = np.zeros(3)
+        self._entered = 0.0
+        self._last_stamp = 0.0
+        self._dirty = False
+        self._needs_solve = False
+        self._csr: tuple[NDArray[np.int64], ...] | None = None
+        self.loop_closures = 0
+        self.rejected_closures = 0
+
+    @classmethod
+    def from_pose_cells(
+        cls, config: CognitiveMapConfig | None, pc_config: PoseCellConfig
+    ) -> CognitiveMap:
+        """A map whose cell distances use the pose cell network's geometry."""
+        return cls(config, cell_size=pc_config.cell_size, dims=pc_config.dims)
+
+    # --- accessors -------------------------------------------------------------------------
+
+    def __len__(self) -> int:
+        return self._poses.n
+
+    @property
+    def current(self) -> int:
+        """Id of the current experience (-1 before the first one)."""
+        return self._current
+
+    @property
+    def num_links(self) -> int:
+        return self._link_ends.n
+
+    @property
+    def experience_poses(self) -> FloatArray:
+        """(N, 3) relaxed experience poses (a copy)."""
+        return self._poses.view.copy()
+
+    def experience(self, eid: int) -> Experience:
+        """A snapshot of experience ``eid``."""
+        return Experience(
+            id=eid,
+            stamp=self._stamps[eid],
+            pose=self._poses.data[eid].copy(),
+            view_id=self._view_ids[eid],
+            pc_centre=self._centres.data[eid].copy(),
+            payload=self._payloads[eid],
+        )
+
+    @property
+    def experiences(self) -> list[Experience]:
+        """Snapshots of all experiences, O(N): for output, not for the per-scan loop."""
+        return [self.experience(i) for i in range(len(self))]
+
+    def link(self, index: int) -> Link:
+        s, t = self._link_ends.data[index]
+        return Link(
+            source=int(s),
+            target=int(t),
+            dp=self._link_dp.data[index].copy(),
+            dt=self._link_dt[index],
+            stamp=self._link_stamp[index],
+            kind=self._link_kind[index],
+        )
+
+    @property
+    def links(self) -> list[Link]:
+        """Snapshots of all links, O(E)."""
+        return [self.link(i) for i in range(self.num_links)]
+
+    def experiences_of_view(self, view_id: int) -> list[int]:
+        return list(self._by_view.get(int(view_id), []))
+
+    # --- odometry and poses ----------------------------------------------------------------
+
+    def integrate_odometry(self, dp: ArrayLike, stamp: float | None = None) -> None:
+        """Accumulate the motion ``dp`` (robot frame) since the current experience."""
+        d = np.asarray(dp, dtype=np.float64).reshape(3)
+        if not np.all(np.isfinite(d)):
+            raise ValueError(f"odometry step must be finite, got {dp}")
+        self._offset = compose(self._offset, d)
+        if stamp is not None:
+            self._last_stamp = float(stamp)
+
+    def anchor(self) -> tuple[int, FloatArray]:
+        """(current experience id, robot pose in its frame); id -1 before the first experience,
+        when the offset is in the map frame."""
+        return self._current, self._offset.copy()
+
+    def poses_of(self, experience_ids: ArrayLike, offsets: ArrayLike) -> FloatArray:
+        """Map poses ``p_e ⊕ offset`` for arrays of anchors (vectorised; id -1 = map origin)."""
+        ids = np.asarray(experience_ids, dtype=np.int64).reshape(-1)
+        off = np.asarray(offsets, dtype=np.float64).reshape(-1, 3)
+        base = np.zeros((ids.shape[0], 3))
+        known = ids >= 0
+        base[known] = self._poses.data[ids[known]]
+        return compose(base, off)
+
+    def pose(self) -> FloatArray:
+        """The robot's current map pose."""
+        return self.poses_of([self._current], self._offset[None, :])[0]
+
+    # --- topology (Eq. 12-13) --------------------------------------------------------------
+
+    def update(
+        self,
+        view_id: int,
+        is_new: bool,
+        pc_centre: ArrayLike,
+        stamp: float,
+        payload: Any = None,
+        refine: Callable[[Experience], ArrayLike | None] | None = None,
+    ) -> MapEvent:
+        """One topological action for the active view (see the module docstring)."""
+        vid = int(view_id)
+        centre = np.asarray(pc_centre, dtype=np.float64).reshape(3)
+        stamp = float(stamp)
+        if self._current < 0:
+            return self._new_experience(vid, centre, stamp, payload)
+        candidates = self._by_view.get(vid)
+        if not is_new and candidates:
+            dist = wrapped_cell_distance(self._centres.data[candidates], centre, self.dims)
+            best = int(np.argmin(dist))
+            if dist[best] <= self.config.match_threshold:
+                return self._move_to(candidates[best], stamp, refine)
+        return self._new_experience(vid, centre, stamp, payload)
+
+    def _add_experience(
+        self, pose: FloatArray, vid: int, centre: FloatArray, stamp: float, payload: Any
+    ) -> int:
+        """Eq. 12: e_j = <PC^j, V^j, p^j>."""
+        eid = self._poses.append(pose)
+        self._centres.append(centre)
+        self._stamps.append(stamp)
+        self._view_ids.append(vid)
+        self._payloads.append(payload)
+        self._by_view.setdefault(vid, []).append(eid)
+        return eid
+
+    def _add_link(
+        self, source: int, target: int, dp: FloatArray, stamp: float, kind: LinkKind
+    ) -> None:
+        """Eq. 13: l_ij = <Δp^ij, Δt^ij>."""
+        self._link_ends.append((source, target))
+        self._link_dp.append(dp)
+        self._link_dt.append(stamp - self._entered)
+        self._link_stamp.append(stamp)
+        self._link_kind.append(kind)
+        self._linked.add((min(source, target), max(source, target)))
+        self._csr = None
+
+    def _enter(self, eid: int, offset: FloatArray, stamp: float) -> None:
+        self._current = eid
+        self._offset = np.asarray(offset, dtype=np.float64).copy()
+        self._entered = stamp
+
+    def _new_experience(self, vid: int, centre: FloatArray, stamp: float, payload: Any) -> MapEvent:
+        """Eq. 13: e_j at p^i ⊕ Δp^ij, linked from the current experience by the odometry."""
+        pose = self.pose()
+        eid = self._add_experience(pose, vid, centre, stamp, payload)
+        if self._current >= 0:
+            self._add_link(self._current, eid, self._offset.copy(), stamp, "odometry")
+        self._enter(eid, np.zeros(3), stamp)
+        return MapEvent("new", eid)
+
+    def _move_to(
+        self, target: int, stamp: float, refine: Callable[[Experience], ArrayLike | None] | None
+    ) -> MapEvent:
+        current = self._current
+        if target == current:
+            return MapEvent("none", current, matched=target)
+        arrival = np.zeros(3)
+        if refine is not None:
+            refined = refine(self.experience(target))
+            if refined is None:
+                self.rejected_closures += 1
+                return MapEvent("none", current, rejected=True, matched=target)
+            arrival = np.asarray(refined, dtype=np.float64).reshape(3)
+        kind: EventKind = "link"
+        if (min(current, target), max(current, target)) not in self._linked:
+            # p_current ⊕ offset = p_target ⊕ arrival, so Δp = offset ⊕ arrival⁻¹.
+            dp = compose(self._offset, inverse(arrival))
+            self._add_link(current, target, dp, stamp, "loop")
+            self.loop_closures += 1
+            self._dirty = True
+            self._needs_solve = True
+            kind = "loop"
+        self._enter(target, arrival, stamp)
+        return MapEvent(kind, target, matched=target)
+
+    # --- relaxation (Eq. 14) ---------------------------------------------------------------
+
+    @property
+    def converged(self) -> bool:
+        """True when the last relaxation reached the tolerance (or nothing needed it)."""
+        return not self._dirty
+
+    def mark_dirty(self) -> None:
+        """Force the next ``relax`` to sweep (e.g. after editing poses by hand)."""
+        self._dirty = True
+
+    def _adjacency(self) -> tuple[NDArray[np.int64], ...]:
+        if self._csr is None:
+            n = len(self)
+            ends = self._link_ends.view.astype(np.int64)
+            src, dst = np.ascontiguousarray(ends[:, 0]), np.ascontiguousarray(ends[:, 1])
+            out_e = np.argsort(src, kind="stable")
+            in_e = np.argsort(dst, kind="stable")
+            out_ptr = np.concatenate([[0], np.cumsum(np.bincount(src, minlength=n))])
+            in_ptr = np.concatenate([[0], np.cumsum(np.bincount(dst, minlength=n))])
+            self._csr = (src, dst, out_ptr, out_e, in_ptr, in_e)
+        return self._csr
+
+    def relax(self, iterations: int | None = None) -> int:
+        """Relax the map per Eq. 14; returns the number of sweeps run.
+
+        Nothing runs while the map is consistent. After a loop closure the fixed point is
+        solved directly (``solve_on_loop``); then at most ``iterations`` (default
+        ``sweeps_per_update``) in-place sweeps run, stopping once converged.
+        """
+        if not self._dirty or len(self) < 2:
+            self._dirty = False
+            return 0
+        if self._needs_solve and self.config.solve_on_loop:
+            self.solve()
+        self._needs_solve = False
+        n_sweeps = self.config.sweeps_per_update if iterations is None else int(iterations)
+        src, dst, out_ptr, out_e, in_ptr, in_e = self._adjacency()
+        poses = self._poses.view
+        dps = self._link_dp.view
+        for k in range(n_sweeps):
+            move, turn = _relax_sweep(
+                poses, src, dst, dps, out_ptr, out_e, in_ptr, in_e, self.config.correction
+            )
+            if move < self.config.tolerance_m and turn < self.config.tolerance_rad:
+                self._dirty = False
+                return k + 1
+        return n_sweeps
+
+    def solve(self) -> None:
+        """Jump to the fixed point of Eq. 14 (every Δp^i zero) by a sparse linear solve.
+
+        Headings first (the linearised, anchored Laplacian system of the heading residuals),
+        then positions with the headings fixed: ``min Σ |p_j - p_i - R(θ_i) Δp_ij|²``, whose
+        normal equations are exactly "the sum of each node's residuals is zero".
+        """
+        n, m = len(self), self.num_links
+        if n < 2 or m == 0:
+            return
+        src, dst, *_ = self._adjacency()
+        rows = np.concatenate([np.arange(m), np.arange(m)])
+        cols = np.concatenate([src, dst])
+        vals = np.concatenate([-np.ones(m), np.ones(m)])
+        incidence = sp.csr_matrix((vals, (rows, cols)), shape=(m, n))
+        free = incidence[:, 1:]
+        lu = splu((free.T @ free).tocsc())
+        poses = self._poses.view
+        dps = self._link_dp.view
+        for _ in range(2):  # a second pass settles residuals that wrapped around ±π
+            r = wrap_angle(poses[src, 2] + dps[:, 2] - poses[dst, 2])
+            poses[1:, 2] = wrap_angle(poses[1:, 2] + lu.solve(free.T @ r))
+        c, s = np.cos(poses[src, 2]), np.sin(poses[src, 2])
+        rel = np.stack([c * dps[:, 0] - s * dps[:, 1], s * dps[:, 0] + c * dps[:, 1]], axis=1)
+        rhs = rel - incidence[:, [0]].toarray() * poses[0, :2]
+        poses[1:, :2] = lu.solve(np.asarray(free.T @ rhs))
+
+    # --- output ----------------------------------------------------------------------------
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready map: nodes (id, creation time, relaxed pose, view id) and links (from,
+        to, Δp, Δt, creation time, kind)."""
+        poses = self._poses.view
+        nodes = [
+            {
+                "id": i,
+                "time": self._stamps[i],
+                "pose": [float(v) for v in poses[i]],
+                "view_id": self._view_ids[i],
+            }
+            for i in range(len(self))
+        ]
+        ends = self._link_ends.view
+        dps = self._link_dp.view
+        links = [
+            {
+                "from": int(ends[k, 0]),
+                "to": int(ends[k, 1]),
+                "dp": [float(v) for v in dps[k]],
+                "dt": self._link_dt[k],
+                "time": self._link_stamp[k],
+                "kind": self._link_kind[k],
+            }
+            for k in range(self.num_links)
+        ]
+        return {"nodes": nodes, "links": links, "loop_closures": self.loop_closures}
