@@ -110,7 +110,7 @@ class BreezySlamLog(LogSource):
                     )
                     pose = integrate_wheel_odometry(pose, d_left, d_right, c.half_axle_m)
                 ticks = now
-                self._add_odometry(stamp, pose)
+                self._add_odometry(stamp, pose, where)
             ranges = (values[self._first :] * 1e-3).astype(np.float32)
             scan = LaserScan(
                 stamp, ranges, self._angles, c.range_min_m, c.range_max_m, c.time_increment_s

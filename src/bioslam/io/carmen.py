@@ -160,7 +160,7 @@ class CarmenLog(LogSource):
             self._skip(MALFORMED, where, f"ODOM needs at least 8 fields, got {len(fields)}")
             return
         x, y, theta = (float(v) for v in fields[1:4])
-        self._add_odometry(float(fields[7]), (x, y, theta))
+        self._add_odometry(float(fields[7]), (x, y, theta), where)
 
     def _beam_count(self, fields: list[str], index: int, where: str) -> int | None:
         n = int(fields[index])

@@ -16,7 +16,7 @@ import lzma
 import zlib
 from abc import ABC, abstractmethod
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any, ClassVar
 
@@ -72,6 +72,7 @@ class LogSource(ABC):
         self._odometry: list[tuple[float, Pose]] = []
         self._complete = False
         self._iterating = False
+        self._order: _Reorder | None = None
 
     # -- what subclasses provide ------------------------------------------------------------
     @abstractmethod
@@ -104,11 +105,15 @@ class LogSource(ABC):
         except (EOFError, OSError, lzma.LZMAError, zlib.error) as exc:
             self._skip(TRUNCATED, f"after line {lineno}", str(exc))
 
-    def _add_odometry(self, stamp: float, pose: Pose) -> None:
+    def _add_odometry(self, stamp: float, pose: Pose, where: str) -> None:
         """Keep an odometry pose; one not later than the previous is counted, never raised
         (odometry is side information: a bad record must not stop the scans)."""
         if self._odometry and not stamp > self._odometry[-1][0]:
             self._skipped[ODOMETRY_NON_MONOTONIC] += 1
+            self.skip_examples.setdefault(
+                ODOMETRY_NON_MONOTONIC,
+                f"{where}: t = {stamp:.6f} s after {self._odometry[-1][0]:.6f} s",
+            )
             return
         self._odometry.append((stamp, pose))
 
@@ -121,6 +126,7 @@ class LogSource(ABC):
         self._complete = False
         self._iterating = True
         order = _Reorder(self.reorder_window_s)
+        self._order = order
         try:
             for scan, where, ref in self._records():
                 if scan.num_beams == 0:
@@ -170,10 +176,20 @@ class LogSource(ABC):
         """Remarks about how the log was read (e.g. a fallback that was needed)."""
         return []
 
-    def info(self) -> dict[str, Any]:
-        """What the log holds (reads it all): the data of ``bioslam info``."""
+    def _read_notes(self) -> list[str]:
+        late = self._order.reordered if self._order is not None else 0
+        extra = [f"{late} scan(s) stored out of time order were put back in order"] if late else []
+        return self.notes() + extra
+
+    def info(
+        self, progress: Callable[[Iterable[LaserScan]], Iterable[LaserScan]] | None = None
+    ) -> dict[str, Any]:
+        """What the log holds (reads it all): the data of ``bioslam info``.
+
+        ``progress`` may wrap the scan iterator (e.g. in a progress bar).
+        """
         stats = _ScanStats()
-        for scan in self:
+        for scan in progress(self) if progress else self:
             stats.add(scan)
         summary: dict[str, Any] = {"format": self.format, "path": str(self.path)}
         if self.topic is not None:
@@ -184,7 +200,7 @@ class LogSource(ABC):
         summary["skip_examples"] = dict(self.skip_examples)
         summary["reference_poses"] = len(self._reference)
         summary["odometry_poses"] = len(self._odometry)
-        summary["notes"] = self.notes()
+        summary["notes"] = self._read_notes()
         return summary
 
     def __repr__(self) -> str:
@@ -215,6 +231,7 @@ class _Reorder:
         self._heap: list[tuple[float, int, LaserScan, Pose | None]] = []
         self._stamps: set[float] = set()
         self._seq = 0
+        self.reordered = 0  # records that arrived after a later-stamped one
 
     def accepts(self, stamp: float) -> bool:
         return (
@@ -225,6 +242,8 @@ class _Reorder:
         )
 
     def push(self, scan: LaserScan, ref: Pose | None) -> list[tuple[LaserScan, Pose | None]]:
+        if scan.stamp < self.latest:
+            self.reordered += 1
         heapq.heappush(self._heap, (scan.stamp, self._seq, scan, ref))
         self._seq += 1
         self._stamps.add(scan.stamp)
