@@ -68,23 +68,37 @@ class RouteConfig:
 
 @dataclass(frozen=True, eq=False)
 class Route:
-    """A timed path: ``times`` (M,) from 0, ``poses`` (M, 3) with unwrapped heading.
+    """A timed path: ``times`` (M,) from 0, ``poses`` (M, 3) with unwrapped heading, and
+    optionally the ``speeds`` (M,) there, m/s.
 
-    ``tour`` lists the roadmap nodes visited, in order.
+    With ``speeds``, the robot moves between samples at constant acceleration (so its velocity
+    is continuous, also from rest); without, at constant velocity. ``tour`` lists the roadmap
+    nodes visited, in order.
     """
 
     times: NDArray[np.float64]
     poses: NDArray[np.float64]
     duration: float
     tour: NDArray[np.int64]
+    speeds: NDArray[np.float64] | None = None
+
+    def _fraction(self, t: NDArray, i: NDArray) -> NDArray:
+        """How far along sample interval ``i`` the robot is at time ``t`` (0..1)."""
+        tau = t - self.times[i]
+        dt = self.times[i + 1] - self.times[i]
+        if self.speeds is None:
+            return tau / dt
+        v0, v1 = self.speeds[i], self.speeds[i + 1]
+        travelled = v0 * tau + 0.5 * (v1 - v0) / dt * tau * tau
+        return travelled / (0.5 * (v0 + v1) * dt)
 
     def pose_at(self, t: ArrayLike) -> NDArray[np.float64]:
         """Poses ``(..., 3)`` at times ``t`` (seconds, clamped to ``[0, duration]``)."""
         tt = np.clip(np.asarray(t, dtype=np.float64), 0.0, self.duration)
         flat = tt.reshape(-1)
-        out = np.empty((flat.size, 3))
-        for k in range(3):
-            out[:, k] = np.interp(flat, self.times, self.poses[:, k])
+        i = np.clip(np.searchsorted(self.times, flat, side="right") - 1, 0, len(self.times) - 2)
+        f = np.clip(self._fraction(flat, i), 0.0, 1.0)[:, None]
+        out = self.poses[i] * (1.0 - f) + self.poses[i + 1] * f
         out[:, 2] = wrap_angle(out[:, 2])
         return out.reshape(*tt.shape, 3)
 
@@ -208,7 +222,7 @@ def _speed_profile(s: NDArray, heading: NDArray, cfg: RouteConfig) -> NDArray:
     return v
 
 
-def _timed_path(dense: NDArray, cfg: RouteConfig) -> tuple[NDArray, NDArray]:
+def _timed_path(dense: NDArray, cfg: RouteConfig) -> tuple[NDArray, NDArray, NDArray]:
     xy = gaussian_filter1d(dense, cfg.smoothing / cfg.step, axis=0, mode="nearest")
     seg = np.hypot(*np.diff(xy, axis=0).T)
     keep = np.concatenate([[True], seg > 1e-9])
@@ -219,7 +233,7 @@ def _timed_path(dense: NDArray, cfg: RouteConfig) -> tuple[NDArray, NDArray]:
     v = _speed_profile(s, heading, cfg)
     dt = 2.0 * np.diff(s) / (v[1:] + v[:-1])
     times = np.concatenate([[0.0], np.cumsum(dt)])
-    return times, np.column_stack([xy, heading])
+    return times, np.column_stack([xy, heading]), v
 
 
 def make_route(
@@ -260,15 +274,15 @@ def make_route(
     slack = roadmap.clearance[tour] - cfg.clearance - cfg.corner_margin
     points, slack = _drop_straight_vertices(points, slack)
     dense = _rounded_polyline(points, slack, cfg.effective_turn_radius, cfg.step)
-    times, poses = _timed_path(dense, cfg)
+    times, poses, speeds = _timed_path(dense, cfg)
     if times[-1] < duration:
         raise ValueError(f"route too short: {times[-1]:.1f} s of {duration:.1f} s")
     cut = int(np.searchsorted(times, duration)) + 1
-    times, poses = times[: cut + 1], poses[: cut + 1]
+    times, poses, speeds = times[: cut + 1], poses[: cut + 1], speeds[: cut + 1]
     nearest = float(world.distance_to_walls(poses[:, :2]).min())
     if nearest < cfg.clearance:
         raise ValueError(
             f"route in world {world.name!r} comes {nearest:.3f} m from a wall "
             f"(clearance {cfg.clearance} m); the roadmap is too close to the walls"
         )
-    return Route(times, poses, float(duration), np.asarray(tour, dtype=np.int64))
+    return Route(times, poses, float(duration), np.asarray(tour, dtype=np.int64), speeds)
