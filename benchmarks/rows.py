@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 from cases import PreparedCase, bioslam_cli, read_reference
-from loop_consistency import LoopReturn, loop_gap
+from loop_consistency import loop_gap
 from peers import mrpt_icp_slam as mrpt
 
 from bioslam.evaluation import evaluate
@@ -54,9 +54,10 @@ def run_timed(cmd: list[str], log: Path, cwd: Path | None = None, timeout_s: flo
     return Timed(proc.returncode, wall, usage.ru_maxrss / 1024.0, log)
 
 
-def _tail(path: Path, n: int = 3) -> str:
+def _tail(path: Path) -> str:
+    """The last non-empty line of a child's output: the exception or error message."""
     lines = path.read_text(errors="replace").strip().splitlines() if path.exists() else []
-    return " | ".join(lines[-n:])[-400:]
+    return lines[-1].strip()[-300:] if lines else "(no output)"
 
 
 @dataclass
@@ -77,7 +78,7 @@ class RowRun:
         self.rss_mb.append(t.peak_rss_mb)
 
 
-def _accuracy(traj: Trajectory, prepared: PreparedCase, ret: LoopReturn | None) -> dict:
+def _accuracy(traj: Trajectory, prepared: PreparedCase) -> dict:
     ref = read_reference(prepared)
     out: dict[str, Any] = {}
     if ref is not None:
@@ -95,8 +96,8 @@ def _accuracy(traj: Trajectory, prepared: PreparedCase, ret: LoopReturn | None) 
                 )
             }
         )
-    if ret is not None:
-        out.update(loop_gap(traj, ret))
+    else:
+        out.update(loop_gap(traj))
     return out
 
 
@@ -112,7 +113,6 @@ def run_bioslam(
     prepared: PreparedCase,
     out: Path,
     odometry_only: bool,
-    ret: LoopReturn | None,
     first: bool,
 ) -> None:
     """One ``bioslam run`` of the case; accuracy and counters are read on the first run."""
@@ -132,10 +132,9 @@ def run_bioslam(
         return
     traj = read_tum(out / "trajectory.tum")
     row.trajectory = traj
-    row.metrics.update(
-        {k: summary.get(k) for k in ("scans", "views", "experiences", "loop_closures")}
-    )
-    row.metrics.update(_accuracy(traj, prepared, ret))
+    counters = ("scans",) if odometry_only else ("scans", "views", "experiences", "loop_closures")
+    row.metrics.update({k: summary.get(k) for k in counters})
+    row.metrics.update(_accuracy(traj, prepared))
     if (out / "map.pgm").exists():
         row.artefacts["map"] = str(out / "map.pgm")
 
@@ -154,7 +153,6 @@ def run_peer(
     work: Path,
     ini: Path,
     stamps: list[float],
-    ret: LoopReturn | None,
     first: bool,
 ) -> None:
     """One ``icp-slam`` run; poses are mapped back to the scans' stamps by index."""
@@ -175,7 +173,7 @@ def run_peer(
     row.trajectory = traj
     write_tum(work / "trajectory.tum", traj)
     row.metrics["scans"] = len(stamps)
-    row.metrics.update(_accuracy(traj, prepared, ret))
+    row.metrics.update(_accuracy(traj, prepared))
     picture = mrpt.render_point_map(work)
     if picture is not None:
         row.artefacts["map"] = str(picture)

@@ -24,8 +24,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 import numpy as np  # noqa: E402
-from cases import Case, PreparedCase, full_cases, prepare, quick_cases  # noqa: E402
-from loop_consistency import LoopReturn, find_return  # noqa: E402
+from cases import Case, full_cases, prepare, quick_cases  # noqa: E402
 from peers import mrpt_icp_slam as mrpt  # noqa: E402
 from rows import (  # noqa: E402
     ROW_FULL,
@@ -52,10 +51,12 @@ PAPER_ROWS = [
 
 COLUMNS = [  # (key, header, format)
     ("ate_rmse_m", "ATE RMSE m", "{:.3f}"),
+    ("ate_mean_m", "ATE mean m", "{:.3f}"),
     ("ate_max_m", "ATE max m", "{:.3f}"),
     ("rpe_1m_trans_m", "RPE 1m m", "{:.3f}"),
     ("rpe_1m_rot_deg", "RPE 1m deg", "{:.2f}"),
     ("loop_gap_m", "loop gap m", "{:.3f}"),
+    ("loop_gap_deg", "loop gap deg", "{:.1f}"),
     ("wall_s", "wall s", "{:.1f}"),
     ("ms_per_scan_median", "ms/scan med", "{:.2f}"),
     ("ms_per_scan_p99", "ms/scan p99", "{:.2f}"),
@@ -101,10 +102,6 @@ def _error(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}"[:300]
 
 
-def _loop_return(prepared: PreparedCase) -> LoopReturn | None:
-    return None if prepared.reference_tum else find_return(prepared.scans)
-
-
 def bench_case(case: Case, args: argparse.Namespace, peer_ok: str) -> tuple[list[RowRun], dict]:
     """All rows of one case; timed runs interleaved so each bioslam run has a peer partner."""
     work = args.work / ("quick" if args.quick else "full")
@@ -112,7 +109,6 @@ def bench_case(case: Case, args: argparse.Namespace, peer_ok: str) -> tuple[list
     rows = {name: RowRun(name, case.name) for name in (ROW_FULL, ROW_ODOM, ROW_PEER)}
     try:
         prepared = prepare(case, work)
-        ret = _loop_return(prepared)
     except Exception as exc:  # a case that cannot be prepared is reported, not fatal
         for r in rows.values():
             r.error = f"case not prepared: {_error(exc)}"
@@ -123,8 +119,6 @@ def bench_case(case: Case, args: argparse.Namespace, peer_ok: str) -> tuple[list
         reference=bool(prepared.reference_tum),
         notes=prepared.notes,
     )
-    if ret is not None:
-        info["loop_return"] = {"scan": ret.index, "stamp": ret.stamp, "match_m": ret.match_m}
     peer_work = work / "runs" / case.name / "mrpt"
     ini = stamps = None
     if peer_ok:
@@ -142,12 +136,12 @@ def bench_case(case: Case, args: argparse.Namespace, peer_ok: str) -> tuple[list
                 continue
             out = work / "runs" / case.name / ("odometry" if odo else "full")
             try:
-                run_bioslam(rows[name], prepared, out, odo, ret, first)
+                run_bioslam(rows[name], prepared, out, odo, first)
             except Exception as exc:
                 rows[name].error = _error(exc)
         if ini is not None and not rows[ROW_PEER].error:
             try:
-                run_peer(rows[ROW_PEER], prepared, peer_work, ini, stamps, ret, first)
+                run_peer(rows[ROW_PEER], prepared, peer_work, ini, stamps, first)
             except Exception as exc:
                 rows[ROW_PEER].error = _error(exc)
     for r in rows.values():
@@ -222,12 +216,6 @@ def write_results(
         line = f"- **{info['case']}**: {info['description']}"
         if "scans" in info:
             line += f"; {info['scans']} scans over {info['log_duration_s']:.0f} s"
-        if "loop_return" in info:
-            lr = info["loop_return"]
-            line += (
-                f"; return scan {lr['scan']} at t = {lr['stamp']:.1f} s "
-                f"(median range mismatch to scan 0: {lr['match_m']:.3f} m)"
-            )
         md.append(line)
     md += [
         "",
