@@ -175,7 +175,7 @@ class CarmenLog(LogSource):
             # 180/181 beams are 1° apart and 360/361 beams 0.5°: an odd count includes both
             # ends of the field of view, an even one does not.
             fov = np.radians(self.config.flaser_fov_deg)
-            step = fov / (n - 1) if n % 2 else fov / max(n, 1)
+            step = fov / (n - 1) if n % 2 and n > 1 else fov / max(n, 1)
             angles = (np.arange(n) - (n - 1) / 2.0) * step
             self._flaser_angles[n] = angles
         return angles
@@ -186,9 +186,8 @@ class CarmenLog(LogSource):
         n = self._beam_count(fields, 1, where)
         if n is None:
             return None
-        # 7 fields (pose, odometry, timestamp) must follow the ranges; hostname and logger
-        # timestamp are optional in old logs.
-        if not n + 9 <= len(fields) <= n + 11:
+        # pose, odometry pose, ipc_timestamp, ipc_hostname and logger_timestamp follow the ranges
+        if len(fields) != n + 11:
             self._skip(
                 WRONG_BEAM_COUNT, where,
                 f"{fields[0]} declares {n} beams but the line has {len(fields)} fields "
