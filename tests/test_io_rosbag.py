@@ -175,7 +175,7 @@ def test_garbage_bag_is_a_clear_error(tmp_path):
         open_log(bag)
     db = tmp_path / "junk.db3"
     db.write_bytes(b"SQLite format 3\x00" + b"\x00" * 100)
-    with pytest.raises(ValueError, match=r"junk\.db3: cannot open the ROS 2 bag"):
+    with pytest.raises(ValueError, match=r"junk\.db3: cannot read the topics table"):
         open_log(db)
 
 
@@ -188,3 +188,49 @@ def test_real_demo_bag_falls_back_and_yields_every_scan():
     assert scans[0].time_increment > 0
     assert source.skipped == {}
     assert any("sequentially" in note for note in source.notes())
+
+
+def test_truncated_mcap_keeps_what_was_read(tmp_path):
+    bag = write_bag2(tmp_path / "bag", count=60, storage=StoragePlugin.MCAP)
+    (mcap,) = bag.glob("*.mcap")
+    data = mcap.read_bytes()
+    mcap.write_bytes(data[: int(len(data) * 0.6)])
+    source = open_log(bag)
+    scans = list(source)
+    assert 20 <= len(scans) < 60
+    assert source.skipped == {TRUNCATED: 1}
+    assert any("record by record" in note for note in source.notes())
+    np.testing.assert_allclose(scans[5].ranges, np.linspace(1.0, 2.0, N) + 0.5, rtol=1e-6)
+
+
+def test_damaged_db3_is_a_clear_error(tmp_path):
+    bag = write_bag2(tmp_path / "bag", count=60)
+    (db3,) = bag.glob("*.db3")
+    data = db3.read_bytes()
+    db3.write_bytes(data[: len(data) // 3])
+    with pytest.raises(ValueError, match=r"bag\.db3"):
+        list(open_log(bag))
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_reads_the_simulator_bag_writer_output(tmp_path, storage):
+    from bioslam.io.bag_writer import write_scan_bag
+    from bioslam.scan import LaserScan
+
+    angles = np.linspace(-2.0, 2.0, 50)
+    written = [
+        LaserScan(10.0 + 0.025 * k, np.full(50, 1.0 + k, dtype=np.float32), angles, 0.1, 30.0,
+                  1e-5)
+        for k in range(8)
+    ]
+    write_scan_bag(tmp_path / "scans", written, scan_time=0.025, storage=storage,
+                   pose_topic="/ground_truth")
+    source = open_log(tmp_path / "scans")
+    assert source.topic == "/scan"
+    read = list(source)
+    assert len(read) == 8
+    for a, b in zip(written, read, strict=True):
+        assert b.stamp == pytest.approx(a.stamp, abs=1e-9)
+        np.testing.assert_allclose(b.angles, a.angles, atol=1e-6)
+        np.testing.assert_array_equal(b.ranges, a.ranges)
+        assert b.time_increment == pytest.approx(1e-5)

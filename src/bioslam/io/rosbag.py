@@ -405,23 +405,176 @@ class Rosbag1Log(_BagLog):
 
 # -- ROS 2 ----------------------------------------------------------------------------------------
 
+class McapRecordReader:
+    """Reads an MCAP file's records in file order, without its summary section.
+
+    Used when ``rosbags`` cannot open the file (a truncated file has no footer). Iterating
+    :meth:`messages` yields ``(topic, msgtype, log_time_ns, raw)``; ``truncated`` then says
+    where the file stopped making sense (or None).
+    """
+
+    MAGIC = b"\x89MCAP0\r\n"
+    _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK, _OP_DATA_END = 0x03, 0x04, 0x05, 0x06, 0x0F
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.truncated: str | None = None
+        self._schemas: dict[int, str] = {}
+        self._channels: dict[int, tuple[str, str]] = {}
+
+    def messages(self) -> Iterator[tuple[str, str, int, bytes]]:
+        self.truncated = None
+        data = self.path.read_bytes()
+        if not data.startswith(self.MAGIC):
+            raise BagFormatError("not an MCAP file (bad magic)")
+        yield from self._records(data, len(self.MAGIC), top_level=True)
+
+    def _records(
+        self, data: bytes, pos: int, top_level: bool
+    ) -> Iterator[tuple[str, str, int, bytes]]:
+        while pos < len(data):
+            if pos + 9 > len(data):
+                self.truncated = f"byte {pos}: record opcode/length cut short"
+                return
+            op, length = data[pos], struct.unpack_from("<Q", data, pos + 1)[0]
+            body = data[pos + 9 : pos + 9 + length]
+            if len(body) < length:
+                if op == self._OP_CHUNK:  # an uncompressed chunk's complete records are usable
+                    yield from self._chunk(body, pos, partial=True)
+                self.truncated = f"byte {pos}: record of {length} bytes cut short at {len(body)}"
+                return
+            if op == self._OP_DATA_END and top_level:
+                return
+            try:
+                yield from self._dispatch(op, body, pos)
+            except (struct.error, UnicodeDecodeError, IndexError) as exc:
+                self.truncated = f"byte {pos}: unreadable record ({exc})"
+                return
+            pos += 9 + length
+
+    def _dispatch(self, op: int, body: bytes, pos: int) -> Iterator[tuple[str, str, int, bytes]]:
+        if op == self._OP_SCHEMA:
+            (schema_id,) = struct.unpack_from("<H", body, 0)
+            name, _ = _mcap_string(body, 2)
+            self._schemas[schema_id] = name
+        elif op == self._OP_CHANNEL:
+            channel_id, schema_id = struct.unpack_from("<HH", body, 0)
+            topic, _ = _mcap_string(body, 4)
+            self._channels[channel_id] = (topic, self._schemas.get(schema_id, ""))
+        elif op == self._OP_MESSAGE:
+            channel_id, _seq, log_time = struct.unpack_from("<HIQ", body, 0)
+            if channel_id in self._channels:
+                topic, msgtype = self._channels[channel_id]
+                yield topic, msgtype, log_time, body[22:]
+        elif op == self._OP_CHUNK:
+            yield from self._chunk(body, pos)
+
+    def _chunk(
+        self, body: bytes, pos: int, partial: bool = False
+    ) -> Iterator[tuple[str, str, int, bytes]]:
+        uncompressed_size = struct.unpack_from("<Q", body, 16)[0]
+        compression, at = _mcap_string(body, 28)
+        (size,) = struct.unpack_from("<Q", body, at)
+        records = body[at + 8 : at + 8 + size]
+        if partial:
+            if not compression:
+                yield from self._records(records, 0, top_level=False)
+            return
+        try:
+            if compression == "zstd":
+                try:
+                    from compression import zstd  # type: ignore[import-not-found]
+                except ImportError:
+                    from backports import zstd  # type: ignore[no-redef]  # rosbags' dependency
+                records = zstd.decompress(records)
+            elif compression == "lz4":
+                from lz4.frame import decompress
+
+                records = decompress(records)
+            elif compression:
+                raise BagFormatError(f"unsupported chunk compression {compression!r}")
+        except Exception as exc:  # decompressors raise their own error types on bad data
+            self.truncated = f"chunk at byte {pos} cannot be decompressed: {exc}"
+            return
+        if len(records) != uncompressed_size:
+            self.truncated = f"chunk at byte {pos} has {len(records)} of {uncompressed_size} bytes"
+            return
+        yield from self._records(records, 0, top_level=False)
+
+
+def _mcap_string(body: bytes, pos: int) -> tuple[str, int]:
+    (length,) = struct.unpack_from("<I", body, pos)
+    end = pos + 4 + length
+    if end > len(body):
+        raise IndexError("string overruns its record")
+    return body[pos + 4 : end].decode("utf-8"), end
+
+
+class Sqlite3RecordReader:
+    """Reads the ``messages`` table of a ROS 2 ``.db3`` row by row, for damaged files.
+
+    Iterating :meth:`messages` yields ``(topic, msgtype, time_ns, raw)`` in insertion order;
+    rows past a damaged page end the iteration and set ``truncated``.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.truncated: str | None = None
+
+    def messages(self) -> Iterator[tuple[str, str, int, bytes]]:
+        import sqlite3
+
+        self.truncated = None
+        try:
+            db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
+        except sqlite3.Error as exc:
+            raise BagFormatError(f"cannot open the database: {exc}") from None
+        try:
+            try:
+                topics = {row[0]: (row[1], row[2]) for row in
+                          db.execute("SELECT id, name, type FROM topics")}
+            except sqlite3.Error as exc:
+                raise BagFormatError(f"cannot read the topics table: {exc}") from None
+            rows = db.execute("SELECT id, topic_id, timestamp, data FROM messages ORDER BY id")
+            last_id = 0
+            try:
+                for row_id, topic_id, stamp, raw in rows:
+                    last_id = row_id
+                    if topic_id in topics:
+                        name, msgtype = topics[topic_id]
+                        yield name, msgtype, int(stamp), bytes(raw)
+            except sqlite3.Error as exc:
+                self.truncated = f"after message row {last_id}: {exc}"
+        finally:
+            db.close()
+
+
 class Rosbag2Log(_BagLog):
-    """A ROS 2 bag: a directory with ``metadata.yaml``, or a single ``.db3``/``.mcap`` file."""
+    """A ROS 2 bag: a directory with ``metadata.yaml``, or a single ``.db3``/``.mcap`` file.
+
+    When ``rosbags`` cannot open it (a truncated or damaged storage file, a missing
+    ``metadata.yaml``), its storage files are read record by record instead and whatever is
+    readable is kept.
+    """
 
     format = "rosbag2"
 
     def _open_reader(self) -> Any:
         from rosbags.rosbag2 import Reader
 
-        try:
-            reader = Reader(self.path)
-            reader.open()
-        except Exception as exc:  # sqlite/mcap/yaml errors alike
-            raise ValueError(f"{self.path}: cannot open the ROS 2 bag: {exc}") from None
+        reader = Reader(self.path)
+        reader.open()
         return reader
 
     def _list_topics(self) -> list[TopicEntry]:
-        reader = self._open_reader()
+        self._salvage = False
+        try:
+            reader = self._open_reader()
+        except Exception as exc:  # sqlite/mcap/yaml errors alike
+            self._salvage = True
+            self._notes.append(f"rosbags could not open the bag ({exc}); "
+                               "read its storage files record by record")
+            return self._salvage_topics()
         try:
             counts: Counter[tuple[str, str]] = Counter()
             for c in reader.connections:
@@ -430,7 +583,47 @@ class Rosbag2Log(_BagLog):
             reader.close()
         return [TopicEntry(t, m, n) for (t, m), n in counts.items()]
 
+    def _storage_readers(self) -> list[McapRecordReader | Sqlite3RecordReader]:
+        files = sorted(self.path.iterdir()) if self.path.is_dir() else [self.path]
+        readers: list[McapRecordReader | Sqlite3RecordReader] = []
+        for f in files:
+            if f.suffix == ".mcap":
+                readers.append(McapRecordReader(f))
+            elif f.suffix == ".db3":
+                readers.append(Sqlite3RecordReader(f))
+        if not readers:
+            raise ValueError(f"{self.path}: no .mcap or .db3 storage file in the ROS 2 bag")
+        return readers
+
+    def _salvaged(self) -> Iterator[tuple[str, str, int, bytes]]:
+        for reader in self._storage_readers():
+            try:
+                for topic, msgtype, stamp, raw in reader.messages():
+                    yield topic, normalize_msgtype(msgtype), stamp, raw
+            except BagFormatError as exc:
+                raise ValueError(f"{reader.path}: {exc}") from None
+            if reader.truncated:
+                self._skip(TRUNCATED, f"{reader.path.name}: {reader.truncated}")
+                return
+
+    def _salvage_topics(self) -> list[TopicEntry]:
+        counts: Counter[tuple[str, str]] = Counter()
+        strict, self.strict = self.strict, False  # the truncation is reported when reading
+        try:
+            for topic, msgtype, _, _ in self._salvaged():
+                counts[(topic, msgtype)] += 1
+        finally:
+            self.strict = strict
+            self._skipped.clear()
+            self.skip_examples.clear()
+        return [TopicEntry(t, m, n) for (t, m), n in counts.items()]
+
     def _raw_messages(self) -> Iterator[tuple[int, bytes]]:
+        if self._salvage:
+            for topic, msgtype, stamp, raw in self._salvaged():
+                if topic == self.topic and msgtype == LASERSCAN:
+                    yield stamp, raw
+            return
         reader = self._open_reader()
         try:
             conns = [c for c in reader.connections if c.topic == self.topic]
