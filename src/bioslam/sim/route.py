@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import gaussian_filter1d
 
@@ -66,6 +67,27 @@ class RouteConfig:
         return 0.25 if self.fast_turns else self.turn_radius
 
 
+@njit(cache=True)
+def _interpolate(times, poses, speeds, t, out):  # pragma: no cover - numba
+    """Poses at times ``t`` between samples: at constant acceleration when ``speeds`` is given
+    (so velocity is continuous, even from rest), else at constant velocity. The simulator asks
+    for every beam of every scan, so this is a hot loop."""
+    last = times.shape[0] - 2
+    for n in range(t.shape[0]):
+        i = min(max(np.searchsorted(times, t[n], side="right") - 1, 0), last)
+        dt = times[i + 1] - times[i]
+        tau = t[n] - times[i]
+        if speeds.shape[0] == 0:
+            f = tau / dt
+        else:
+            v0 = speeds[i]
+            v1 = speeds[i + 1]
+            f = (v0 * tau + 0.5 * (v1 - v0) / dt * tau * tau) / (0.5 * (v0 + v1) * dt)
+        f = min(max(f, 0.0), 1.0)
+        for k in range(3):
+            out[n, k] = poses[i, k] * (1.0 - f) + poses[i + 1, k] * f
+
+
 @dataclass(frozen=True, eq=False)
 class Route:
     """A timed path: ``times`` (M,) from 0, ``poses`` (M, 3) with unwrapped heading, and
@@ -82,23 +104,13 @@ class Route:
     tour: NDArray[np.int64]
     speeds: NDArray[np.float64] | None = None
 
-    def _fraction(self, t: NDArray, i: NDArray) -> NDArray:
-        """How far along sample interval ``i`` the robot is at time ``t`` (0..1)."""
-        tau = t - self.times[i]
-        dt = self.times[i + 1] - self.times[i]
-        if self.speeds is None:
-            return tau / dt
-        v0, v1 = self.speeds[i], self.speeds[i + 1]
-        travelled = v0 * tau + 0.5 * (v1 - v0) / dt * tau * tau
-        return travelled / (0.5 * (v0 + v1) * dt)
-
     def pose_at(self, t: ArrayLike) -> NDArray[np.float64]:
         """Poses ``(..., 3)`` at times ``t`` (seconds, clamped to ``[0, duration]``)."""
         tt = np.clip(np.asarray(t, dtype=np.float64), 0.0, self.duration)
-        flat = tt.reshape(-1)
-        i = np.clip(np.searchsorted(self.times, flat, side="right") - 1, 0, len(self.times) - 2)
-        f = np.clip(self._fraction(flat, i), 0.0, 1.0)[:, None]
-        out = self.poses[i] * (1.0 - f) + self.poses[i + 1] * f
+        flat = np.ascontiguousarray(tt.reshape(-1))
+        out = np.empty((flat.size, 3))
+        speeds = np.zeros(0) if self.speeds is None else self.speeds
+        _interpolate(self.times, self.poses, speeds, flat, out)
         out[:, 2] = wrap_angle(out[:, 2])
         return out.reshape(*tt.shape, 3)
 
