@@ -1,0 +1,109 @@
+"""Format detection, the common source API and the time-order rules shared by all readers."""
+
+from __future__ import annotations
+
+import gzip
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from bioslam.io.logs import (
+    NON_MONOTONIC,
+    SUPPORTED_FORMATS,
+    LogSource,
+    Pose,
+    detect_format,
+    open_log,
+)
+from bioslam.scan import LaserScan
+
+FLASER = "FLASER 3 1 1 1 0 0 0 0 0 0 {t} host {t}\n"
+
+
+def test_detect_by_extension(tmp_path):
+    for name, fmt in [("a.log", "carmen"), ("a.clf.gz", "carmen"), ("a.bag", "rosbag1"),
+                      ("a.mcap", "rosbag2"), ("a.db3", "rosbag2"), ("a.dat", "breezyslam")]:
+        (tmp_path / name).write_bytes(b"whatever")
+        assert detect_format(tmp_path / name) == fmt, name
+    bag_dir = tmp_path / "bagdir"
+    bag_dir.mkdir()
+    (bag_dir / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    assert detect_format(bag_dir) == "rosbag2"
+
+
+def test_detect_by_content_when_extension_says_nothing(tmp_path):
+    carmen = tmp_path / "robot.txt"
+    carmen.write_text("# log\nPARAM x 1 0 h 0\n" + FLASER.format(t=1.0) * 3)
+    assert detect_format(carmen) == "carmen"
+    zipped = tmp_path / "robot.gz"
+    with gzip.open(zipped, "wt") as fh:
+        fh.write(FLASER.format(t=1.0) * 3)
+    assert detect_format(zipped) == "carmen"
+    assert sum(1 for _ in open_log(zipped)) == 1  # three scans, two repeat the stamp
+    breezy = tmp_path / "rover.log2"
+    breezy.write_text(" ".join(["1000"] * 707) + "\n")
+    assert detect_format(breezy) == "breezyslam"
+    bag = tmp_path / "capture"
+    bag.write_bytes(b"#ROSBAG V2.0\n" + b"\x00" * 64)
+    assert detect_format(bag) == "rosbag1"
+    mcap = tmp_path / "capture2"
+    mcap.write_bytes(b"\x89MCAP0\r\n" + b"\x00" * 64)
+    assert detect_format(mcap) == "rosbag2"
+
+
+def test_unknown_format_lists_the_supported_ones(tmp_path):
+    path = tmp_path / "notes.txt"
+    path.write_text("hello world\n")
+    with pytest.raises(ValueError, match="unknown log format") as info:
+        open_log(path)
+    for name in SUPPORTED_FORMATS:
+        assert name in str(info.value)
+    with pytest.raises(FileNotFoundError, match=r"missing\.log"):
+        open_log(tmp_path / "missing.log")
+
+
+class _Scripted(LogSource):
+    """A source replaying given stamps, to test the ordering rules on their own."""
+
+    format = "carmen"
+
+    def __init__(self, path, stamps, window=2.0):
+        super().__init__(path)
+        self.stamps = stamps
+        self.reorder_window_s = window
+
+    def _records(self) -> Iterator[tuple[LaserScan, str, Pose | None]]:
+        for k, t in enumerate(self.stamps):
+            scan = LaserScan(t, np.ones(4), np.linspace(-1, 1, 4))
+            yield scan, f"record {k + 1}", (float(k), 0.0, 0.0)
+
+
+@pytest.mark.parametrize(
+    ("stamps", "expected", "skipped"),
+    [
+        ([1.0, 2.0, 3.0], [1.0, 2.0, 3.0], 0),
+        ([1.0, 3.0, 2.5, 4.0], [1.0, 2.5, 3.0, 4.0], 0),  # 0.5 s late: put back in order
+        ([1.0, 2.0, 10.0, 3.0, 11.0], [1.0, 2.0, 10.0, 11.0], 1),  # 7 s late: skipped
+        ([1.0, 2.0, 2.0, 3.0], [1.0, 2.0, 3.0], 1),  # repeated stamp
+        ([1.0, np.nan, 2.0], [1.0, 2.0], 1),
+        ([5.0, 6.0, 0.0, 7.0], [5.0, 6.0, 7.0], 1),  # a clock reset is not moved first
+    ],
+)
+def test_time_order_rules(tmp_path, stamps, expected, skipped):
+    source = _Scripted(tmp_path, stamps)
+    assert [s.stamp for s in source] == expected
+    assert source.skipped.get(NON_MONOTONIC, 0) == skipped
+    # reference poses follow their scans through the reordering
+    ref = source.reference
+    np.testing.assert_array_equal(ref.stamps, expected)
+    np.testing.assert_array_equal(ref.poses[:, 0], [stamps.index(t) for t in expected])
+
+
+def test_side_data_reads_the_log_when_not_iterated_yet(tmp_path):
+    source = _Scripted(tmp_path, [1.0, 2.0])
+    assert len(source.reference) == 2 and source.skipped == {}
+    info = source.info()
+    assert (info["scans"], info["beams"]) == (2, 4)
+    assert info["fov_deg"] == pytest.approx(np.degrees(2.0))
+    assert info["duration_s"] == pytest.approx(1.0)
