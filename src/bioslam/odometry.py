@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from bioslam.geometry import between, compose, transform_points, wrap_angle
-from bioslam.occupancy_grid import LogOddsConfig, MapPyramid, interpolate_point
+from bioslam.occupancy_grid import LogOddsConfig, MapPyramid, OccupancyGrid, map_point
 from bioslam.scan import LaserScan
 
 FloatArray = NDArray[np.float64]
@@ -61,6 +61,9 @@ class OdometryConfig:
         degeneracy_ratio: a direction whose curvature is below this fraction of the strongest
             is unconstrained (a featureless corridor): the step keeps the prediction along it
             instead of letting noise move the pose, and the report flags it.
+        subcell_sigma: width of the sub-cell map function's kernels in cells of each level
+            (:func:`bioslam.occupancy_grid.subcell_point`); ``None`` uses Hector's bilinear
+            M*, which biases the match towards cell centres (benchmark: more drift).
         velocity_window: seconds of past poses the constant-velocity estimate (prediction and
             de-skew) is taken over; ours, about the time constant of a robot's acceleration,
             and several scans of a 40 Hz scanner.
@@ -83,6 +86,7 @@ class OdometryConfig:
     length_scale: float = 3.0
     degeneracy_ratio: float = 0.01
     velocity_window: float = 0.1
+    subcell_sigma: float | None = 1.0
     deskew: bool = True
     min_points: int = 20
     log_odds: LogOddsConfig = field(default_factory=LogOddsConfig)
@@ -149,7 +153,13 @@ def _subsample_by_spacing(pts, spacing):
 
 
 @numba.njit(cache=True)
-def _normal_equations(logodds, ox, oy, res, pts, pose):
+def _lookup(g, x, y):
+    """``g`` is the tuple built by :func:`_grid_args`."""
+    return map_point(g[0], g[1], g[2], g[3], g[4], g[5], g[6], g[7], x, y)
+
+
+@numba.njit(cache=True)
+def _normal_equations(g, pts, pose):
     """Gauss-Newton normal equations of Eq. 3 linearised at ``pose``.
 
     Residual ``1 - M*(S_i(p))`` with ``S_i(p) = R_p e_i + T_p`` (Eq. 4); its Jacobian is
@@ -169,7 +179,7 @@ def _normal_equations(logodds, ox, oy, res, pts, pose):
         py = pts[k, 1]
         wx = c * px - s * py + pose[0]
         wy = s * px + c * py + pose[1]
-        m, gx, gy, ok = interpolate_point(logodds, ox, oy, res, wx, wy)
+        m, gx, gy, ok = _lookup(g, wx, wy)
         cost += (1.0 - m) * (1.0 - m)
         if not ok:
             continue
@@ -219,13 +229,13 @@ def _guarded_step(H, b, length, ratio, damping):
 
 
 @numba.njit(cache=True)
-def _gauss_newton_level(logodds, ox, oy, res, pts, pose, max_iter, tol, length, ratio):
+def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio):
     """Gauss-Newton on one level, with a Levenberg-Marquardt guard: a step that raises the
     cost is refused and retried with more damping, so the bilinear map's kinks at cell
     boundaries cannot make the pose oscillate. Returns ``(pose, H, mean M*, iterations,
     converged)``."""
     pose = pose.copy()
-    H, b, mean, cost, inside = _normal_equations(logodds, ox, oy, res, pts, pose)
+    H, b, mean, cost, inside = _normal_equations(g, pts, pose)
     damping = 0.0
     iterations = 0
     converged = False
@@ -236,7 +246,7 @@ def _gauss_newton_level(logodds, ox, oy, res, pts, pose, max_iter, tol, length, 
         step, _, _, _ = _guarded_step(H, b, length, ratio, damping)
         small = math.hypot(step[0], step[1]) < tol and abs(step[2]) * length < tol
         trial = pose + step
-        H2, b2, mean2, cost2, inside2 = _normal_equations(logodds, ox, oy, res, pts, trial)
+        H2, b2, mean2, cost2, inside2 = _normal_equations(g, pts, trial)
         if cost2 <= cost and inside2 >= 3:
             pose, H, b, mean, cost = trial, H2, b2, mean2, cost2
             damping *= 0.1
@@ -251,7 +261,7 @@ def _gauss_newton_level(logodds, ox, oy, res, pts, pose, max_iter, tol, length, 
 
 
 @numba.njit(cache=True)
-def _correlative_search(logodds, ox, oy, res, pts, pose, half_xy, half_th, step_xy, step_th):
+def _correlative_search(g, pts, pose, half_xy, half_th, step_xy, step_th):
     """Exhaustive search of the Eq. 3 objective (summed M*) on a (x, y, theta) lattice."""
     best = pose.copy()
     best_score = -1.0
@@ -269,7 +279,7 @@ def _correlative_search(logodds, ox, oy, res, pts, pose, half_xy, half_th, step_
                 for k in range(pts.shape[0]):
                     wx = c * pts[k, 0] - s * pts[k, 1] + tx
                     wy = s * pts[k, 0] + c * pts[k, 1] + ty
-                    m, _, _, _ = interpolate_point(logodds, ox, oy, res, wx, wy)
+                    m, _, _, _ = _lookup(g, wx, wy)
                     score += m
                 if score > best_score:
                     best_score = score
@@ -320,6 +330,13 @@ def deskew_points(points: ArrayLike, beam_times: ArrayLike, twist: ArrayLike) ->
 # Matching
 
 
+def _grid_args(grid: OccupancyGrid, subcell_sigma: float | None) -> tuple:
+    kind = 0 if subcell_sigma is None else 1
+    sigma = grid.resolution * (subcell_sigma or 1.0)
+    o = grid.origin
+    return (kind, grid.logodds, grid.means, grid.hits, o[0], o[1], grid.resolution, sigma)
+
+
 def _level_points(points: FloatArray, spacing: float, levels: int) -> list[FloatArray]:
     return [
         np.ascontiguousarray(points[_subsample_by_spacing(points, spacing * 2**k)])
@@ -335,6 +352,7 @@ def match_scan_to_map(
     step_tolerance: float = 1e-4,
     length_scale: float = 3.0,
     degeneracy_ratio: float = 0.01,
+    subcell_sigma: float | None = 1.0,
 ) -> tuple[FloatArray, MatchReport]:
     """Eq. 3: the pose maximising Σ M*(R_p e_i + T_p) (Eq. 4 transform), by Gauss-Newton.
 
@@ -342,16 +360,16 @@ def match_scan_to_map(
     current estimate; the pose goes through the pyramid coarsest level first, each level
     starting where the previous stopped. ``level_points[k]`` are the sensor-frame endpoints
     used at level ``k`` (finest first). The report's conditioning refers to the finest level.
+    ``subcell_sigma`` (in cells) selects the sub-cell map function
+    (:func:`bioslam.occupancy_grid.subcell_point`); ``None`` is Hector's bilinear M*.
     """
     pose = np.asarray(initial_pose, dtype=np.float64).copy()
     report = MatchReport(num_points=int(level_points[0].shape[0]))
     iters = max_iterations[::-1]
     for k in range(len(pyramid.grids) - 1, -1, -1):
-        grid = pyramid.grids[k]
         pose, H, mean, n, converged = _gauss_newton_level(
-            grid.logodds, grid.origin[0], grid.origin[1], grid.resolution, level_points[k],
-            pose, iters[len(pyramid.grids) - 1 - k], step_tolerance, length_scale,
-            degeneracy_ratio,
+            _grid_args(pyramid.grids[k], subcell_sigma), level_points[k], pose,
+            iters[len(pyramid.grids) - 1 - k], step_tolerance, length_scale, degeneracy_ratio,
         )  # fmt: skip
         report.iterations += int(n)
     pose[2] = wrap_angle(pose[2])
@@ -444,7 +462,7 @@ class LidarOdometry:
             level_pts = _level_points(pts, c.point_spacing, c.levels)
             self.pose, self.last_report = match_scan_to_map(
                 self.pyramid, level_pts, predicted, c.max_iterations, c.step_tolerance,
-                c.length_scale, c.degeneracy_ratio,
+                c.length_scale, c.degeneracy_ratio, c.subcell_sigma,
             )  # fmt: skip
         if not self.last_report.predicted_only and self._should_insert():
             self._insert(pts)
@@ -509,7 +527,8 @@ class RegistrationConfig:
             level around the initial guess (metres, radians); they set the convergence basin
             (a view cell's place match can be half a metre and tens of degrees off).
         max_range: reference/query endpoints beyond this are ignored, metres.
-        max_iterations, step_tolerance, length_scale, degeneracy_ratio: as in OdometryConfig.
+        max_iterations, step_tolerance, length_scale, degeneracy_ratio, subcell_sigma: as in
+            OdometryConfig.
         hit_level: M* at or above which a query point counts as landing on an occupied cell
             (0.5 = more likely occupied than not).
     """
@@ -523,6 +542,7 @@ class RegistrationConfig:
     step_tolerance: float = 1e-4
     length_scale: float = 3.0
     degeneracy_ratio: float = 0.01
+    subcell_sigma: float | None = 1.0
     hit_level: float = 0.5
 
 
@@ -564,16 +584,16 @@ def register_scans(
     top = pyramid.grids[-1]
     radius = max(float(np.max(np.hypot(qry[:, 0], qry[:, 1]))), top.resolution)
     seed = _correlative_search(
-        top.logodds, top.origin[0], top.origin[1], top.resolution, level_pts[-1], guess,
-        c.search_distance, c.search_angle, 0.5 * top.resolution, 0.5 * top.resolution / radius,
+        _grid_args(top, None), level_pts[-1], guess, c.search_distance, c.search_angle,
+        0.5 * top.resolution, 0.5 * top.resolution / radius,
     )  # fmt: skip
     rel, report = match_scan_to_map(
         pyramid, level_pts, seed, c.max_iterations, c.step_tolerance, c.length_scale,
-        c.degeneracy_ratio,
+        c.degeneracy_ratio, c.subcell_sigma,
     )  # fmt: skip
     fine = pyramid.finest
     world = transform_points(rel, qry)
-    values, _ = fine.value_and_gradient(world)
+    values, _ = fine.value_and_gradient(world)  # bilinear: "lands on an occupied cell"
     inside = _inside(fine, world)
     n_in = int(inside.sum())
     quality = RegistrationQuality(
