@@ -141,13 +141,13 @@ class CarmenLog(LogSource):
                 counts[word] += 1
             if word != self.topic and word != "ODOM":
                 continue
-            fields = line.split()
             where = f"line {lineno}"
             try:
                 if word == "ODOM":
-                    self._parse_odom(fields, where)
+                    # only the first 8 fields matter: skip splitting the rest
+                    self._parse_odom(line.split(None, 8), where)
                     continue
-                record = parse(fields, where)
+                record = parse(line.split(), where)
             except (ValueError, IndexError) as exc:
                 self._skip(MALFORMED, where, f"{word}: {exc}")
                 continue
