@@ -285,3 +285,15 @@ def test_scans_stream_at_the_sensor_rate_with_ground_truth():
     assert all(
         np.array_equal(a, s.ranges, equal_nan=True) for a, (s, _) in zip(again, out, strict=True)
     )
+
+
+def test_scan_endpoints_land_on_the_walls_seen_from_the_true_pose():
+    world = maze_world()
+    route = make_route(world, duration=20.0, seed=4)
+    lidar = replace(LIDAR_PRESETS["urg04lx"], noise_sigma=0.0, sweep=False)
+    for scan, pose in list(simulate_scans(world, lidar, route))[::25]:
+        c, s = np.cos(pose[2]), np.sin(pose[2])
+        local = scan.endpoints()
+        assert len(local) > 0.5 * scan.num_beams
+        world_xy = local @ np.array([[c, s], [-s, c]]) + pose[:2]
+        assert world.distance_to_walls(world_xy).max() < 1e-5  # float32 ranges

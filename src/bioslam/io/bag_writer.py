@@ -9,6 +9,7 @@ the beams were swept, and ranges use the REP 117 codes the scan carries (``inf``
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 from pathlib import Path
 from types import TracebackType
@@ -18,7 +19,6 @@ from numpy.typing import ArrayLike
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
-from bioslam.geometry import yaw_to_quaternion
 from bioslam.scan import LaserScan
 
 SCAN_MSGTYPE = "sensor_msgs/msg/LaserScan"
@@ -65,6 +65,8 @@ class ScanBagWriter:
         self._writer = Writer(self.path, version=_BAG_VERSION, storage_plugin=STORAGES[storage])
         self._scan_conn = None
         self._pose_conn = None
+        self._last_angles: np.ndarray | None = None
+        self._last_layout = (0.0, 0.0, 0.0)
 
     def __enter__(self) -> ScanBagWriter:
         self._writer.open()
@@ -91,12 +93,11 @@ class ScanBagWriter:
         time = types["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9)
         return types["std_msgs/msg/Header"](stamp=time, frame_id=frame_id)
 
-    def write(self, scan: LaserScan) -> None:
-        """Append one scan (stamps must be >= 0 and should increase)."""
-        if self._scan_conn is None:
-            raise RuntimeError("ScanBagWriter.write called outside its 'with' block")
-        if not scan.stamp >= 0.0:
-            raise ValueError(f"scan stamp must be >= 0 for a ROS time, got {scan.stamp}")
+    def _angle_layout(self, scan: LaserScan) -> tuple[float, float, float]:
+        """``(angle_min, angle_max, angle_increment)``, checked once per distinct angle array
+        (a simulator or driver reuses one array for every scan)."""
+        if scan.angles is self._last_angles:
+            return self._last_layout
         n = scan.num_beams
         angle_min = float(scan.angles[0]) if n else 0.0
         angle_max = float(scan.angles[-1]) if n else 0.0
@@ -107,6 +108,16 @@ class ScanBagWriter:
                 f"scan at {scan.stamp:.6f} s: beam angles are not evenly spaced, which a "
                 "sensor_msgs/LaserScan cannot describe"
             )
+        self._last_angles, self._last_layout = scan.angles, (angle_min, angle_max, increment)
+        return self._last_layout
+
+    def write(self, scan: LaserScan) -> None:
+        """Append one scan (stamps must be >= 0 and should increase)."""
+        if self._scan_conn is None:
+            raise RuntimeError("ScanBagWriter.write called outside its 'with' block")
+        if not scan.stamp >= 0.0:
+            raise ValueError(f"scan stamp must be >= 0 for a ROS time, got {scan.stamp}")
+        angle_min, angle_max, increment = self._angle_layout(scan)
         msg = self._typestore.types[SCAN_MSGTYPE](
             header=self._header(scan.stamp, self.frame_id),
             angle_min=angle_min,
@@ -129,12 +140,12 @@ class ScanBagWriter:
             raise RuntimeError("ScanBagWriter has no pose topic (pass pose_topic=...)")
         x, y, theta = (float(v) for v in np.asarray(pose, dtype=np.float64).reshape(3))
         types = self._typestore.types
-        qx, qy, qz, qw = (float(v) for v in yaw_to_quaternion(theta))
+        qz, qw = math.sin(0.5 * theta), math.cos(0.5 * theta)
         msg = types[POSE_MSGTYPE](
             header=self._header(stamp, self.map_frame),
             pose=types["geometry_msgs/msg/Pose"](
                 position=types["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
-                orientation=types["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
+                orientation=types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=qz, w=qw),
             ),
         )
         data = self._typestore.serialize_cdr(msg, POSE_MSGTYPE)
