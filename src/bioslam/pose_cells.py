@@ -34,6 +34,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
+from bioslam.geometry import compose as _compose
+
 FloatArray = NDArray[np.float64]
 
 TWO_PI = 2.0 * math.pi
@@ -71,6 +73,23 @@ class PoseCellConfig:
     #: ``consecutive_matches_to_shift`` so that one match never moves the packet and a short
     #: run of consecutive matches does (see ``benchmarks/bench_pose_cells.py``).
     view_energy: float = 0.1
+    #: Fatigue a view gains per injection; a view keeps injecting
+    #: ``max(0, 1 - exp(rate · (fatigue - limit)))`` of its energy, so the same view matched on
+    #: consecutive updates (a stationary robot, or the view just learned while the robot
+    #: drives on) stops pulling after a few updates. OpenRatSLAM vt_active_decay = 1.0.
+    view_fatigue: float = 1.0
+    #: Fatigue recovered per update (OpenRatSLAM pc_vt_restore = 0.05).
+    view_recovery: float = 0.05
+    #: Growth rate of the fatigue term (OpenRatSLAM's exp(1.2 · decay)).
+    view_fatigue_rate: float = 1.2
+    #: Fatigue at which a view stops injecting: OpenRatSLAM's (30 - exp(1.2 d)) / 30 reaches zero
+    #: at d = ln(30) / 1.2.
+    view_fatigue_limit: float = math.log(30.0) / 1.2
+    #: Odometry is accumulated until it would shift the packet by this many cells (or turn it by
+    #: this many layers) before Eq. 10 is applied. The discrete attractor pins a packet to the
+    #: lattice, so many sub-cell shifts lag behind the odometry (measured: the packet covers 84%
+    #: of the distance at 0.05 cell per update, 99% at 0.5); 0 applies every step at once.
+    min_shift_cells: float = 0.5
     #: Half-width, in cells, of the window around the peak used for the population-vector
     #: read-out of the packet centre (OpenRatSLAM PC_CELLS_TO_AVG = 3).
     centre_radius: int = 3
@@ -97,8 +116,17 @@ class PoseCellConfig:
             raise ValueError("kernel and read-out radii must be at least 1 cell")
         if 2 * max(self.excite_radius, self.inhibit_radius, self.centre_radius) + 1 > min(dims):
             raise ValueError(f"kernels wider than the network {dims}")
-        if self.global_inhibition < 0.0 or self.view_energy < 0.0:
-            raise ValueError("global_inhibition and view_energy must be non-negative")
+        if (
+            min(
+                self.global_inhibition,
+                self.view_energy,
+                self.view_fatigue,
+                self.view_recovery,
+                self.min_shift_cells,
+            )
+            < 0.0
+        ):
+            raise ValueError("inhibition, view energy/fatigue and min_shift_cells must be >= 0")
 
     @property
     def cell_size(self) -> tuple[float, float, float]:
@@ -384,6 +412,10 @@ class PoseCellNetwork:
         #: Link matrix A of Eq. 11, stored sparsely: view id -> the packet centre (cells) at
         #: which the view was learned.
         self.view_links: dict[int, FloatArray] = {}
+        #: Per view: (fatigue, update count when it was stored); recovery is applied lazily.
+        self._fatigue: dict[int, tuple[float, int]] = {}
+        self.updates = 0
+        self._pending = np.zeros(3)
         start = cfg.start
         if start is None:
             start = (self.dims[0] // 2, self.dims[1] // 2, 0.0)
@@ -443,11 +475,24 @@ class PoseCellNetwork:
         ``dp`` is the motion in the robot's previous frame (forward, left, turn), of any size.
         Each θ' layer rotates ``(dx, dy)`` by its own heading, so the packet moves along the
         heading it encodes; the shift ``k·Δ`` is split into its integer part and a fractional
-        residue spread over the 2x2x2 cube.
+        residue spread over the 2x2x2 cube. Motions below ``min_shift_cells`` are composed and
+        applied together (``centre`` includes the pending part).
         """
-        dx, dy, dth = (float(v) for v in np.asarray(dp, dtype=np.float64).reshape(3))
-        if not (math.isfinite(dx) and math.isfinite(dy) and math.isfinite(dth)):
+        d = np.asarray(dp, dtype=np.float64).reshape(3)
+        if not np.all(np.isfinite(d)):
             raise ValueError(f"path integration needs a finite pose change, got {dp}")
+        self._pending = _compose(self._pending, d)
+        cxy, _, cth = self.config.cell_size
+        quantum = self.config.min_shift_cells
+        if abs(self._pending[2]) >= quantum * cth:
+            self._apply_shift(self._pending)
+            self._pending = np.zeros(3)
+        elif math.hypot(self._pending[0], self._pending[1]) >= quantum * cxy:
+            # Translate now and keep the small turn pending: (x, y, 0) ⊕ (0, 0, θ) = (x, y, θ).
+            self._apply_shift(np.array([self._pending[0], self._pending[1], 0.0]))
+            self._pending[:2] = 0.0
+
+    def _apply_shift(self, dp: FloatArray) -> None:
         nx, ny, nt = self.dims
         cxy, _, cth = self.config.cell_size
         self._n_active = int(
@@ -459,9 +504,9 @@ class PoseCellNetwork:
                 self._mark,
                 self._next_gen(),
                 self._exc_idx,
-                dx,
-                dy,
-                dth,
+                float(dp[0]),
+                float(dp[1]),
+                float(dp[2]),
                 cxy,
                 cth,
                 nx,
@@ -485,14 +530,26 @@ class PoseCellNetwork:
             self.view_links[vid] = self.centre()
             return
         energy = self.config.view_energy * float(np.clip(activity, 0.0, 1.0))
+        energy *= self._fatigue_factor(vid)
         if energy > 0.0:
             self._n_active = self._inject_at(self.view_links[vid], energy)
+
+    def _fatigue_factor(self, vid: int) -> float:
+        """Raise the view's fatigue by one injection and return the share it may inject."""
+        cfg = self.config
+        fatigue, since = self._fatigue.get(vid, (0.0, self.updates))
+        fatigue = max(0.0, fatigue - cfg.view_recovery * (self.updates - since))
+        # Capped just past the limit, so that a view seen for a long time recovers promptly.
+        fatigue = min(fatigue + cfg.view_fatigue, cfg.view_fatigue_limit + cfg.view_fatigue)
+        self._fatigue[vid] = (fatigue, self.updates)
+        return max(0.0, 1.0 - math.exp(cfg.view_fatigue_rate * (fatigue - cfg.view_fatigue_limit)))
 
     # --- dynamics and read-out -------------------------------------------------------------
 
     def step(self) -> None:
         """Local excitation and inhibition (3-D Gaussians), global inhibition, normalisation."""
         cfg = self.config
+        self.updates += 1
         nx, ny, nt = self.dims
         self._n_active = int(
             _attractor_step(
@@ -521,11 +578,19 @@ class PoseCellNetwork:
 
     def centre(self) -> FloatArray:
         """The packet centre (x', y', θ') in cell units, each in [0, n): a population vector
-        (circular mean) over the window around the most active cell, as in RatSLAM."""
+        (circular mean) over the window around the most active cell, as in RatSLAM, plus the
+        odometry not yet applied (see ``min_shift_cells``)."""
         nx, ny, nt = self.dims
-        return _centre(
-            self._pc, self._active, self._n_active, self.config.centre_radius, nx, ny, nt
-        )
+        c = _centre(self._pc, self._active, self._n_active, self.config.centre_radius, nx, ny, nt)
+        if np.any(self._pending):
+            cxy, _, cth = self.config.cell_size
+            heading = c[2] * cth
+            dx, dy, dth = self._pending
+            c[0] += (math.cos(heading) * dx - math.sin(heading) * dy) / cxy
+            c[1] += (math.sin(heading) * dx + math.cos(heading) * dy) / cxy
+            c[2] += dth / cth
+            c = np.mod(c, self.dims)
+        return c
 
     def centre_distance(self, a: ArrayLike, b: ArrayLike) -> FloatArray:
         """Wrapped distance in cells between two cell positions (see ``wrapped_cell_distance``)."""
@@ -535,23 +600,34 @@ class PoseCellNetwork:
 def consecutive_matches_to_shift(
     config: PoseCellConfig | None = None,
     offset_cells: tuple[float, float, float] = (6.0, 0.0, 0.0),
-    max_matches: int = 200,
+    view_spacing_cells: float = 1.0,
+    speed_cells: float = 0.25,
+    max_updates: int = 400,
     activity: float = 1.0,
     tolerance_cells: float = 1.0,
 ) -> int | None:
-    """Measure the ambiguity rule: how many consecutive matches of one known view, linked
-    ``offset_cells`` away from the packet, are needed before the packet centre moves there.
+    """Measure the ambiguity rule: how many consecutive view matches it takes to move the
+    packet to where the views were learned.
 
-    Returns the count, or ``None`` if ``max_matches`` matches never move it. The robot is
-    stationary (no path integration), the hardest case for a view to win.
+    The robot re-drives a straight route (heading 0) whose views were learned every
+    ``view_spacing_cells``, but its packet is ``offset_cells`` away from where they were linked
+    (accumulated drift, or an aliased place). Each update moves ``speed_cells``, matches the
+    view of that stretch and steps the network. Returns the number of matched updates until the
+    packet centre is within ``tolerance_cells`` of the route's linked position, or ``None``.
     """
     net = PoseCellNetwork(config)
+    cxy = net.config.cell_size[0]
     start = net.centre()
-    target = np.mod(start + np.asarray(offset_cells, dtype=np.float64), net.dims)
-    net.view_links[-1] = target
-    for n in range(1, max_matches + 1):
-        net.inject_view(-1, activity, is_new=False)
+    linked = np.mod(start + np.asarray(offset_cells, dtype=np.float64), net.dims)
+    n_views = math.ceil(max_updates * speed_cells / view_spacing_cells) + 2
+    for v in range(n_views):
+        net.view_links[v] = np.mod(linked + np.array([v * view_spacing_cells, 0.0, 0.0]), net.dims)
+    for n in range(1, max_updates + 1):
+        net.path_integrate((speed_cells * cxy, 0.0, 0.0))
+        travelled = n * speed_cells
+        net.inject_view(round(travelled / view_spacing_cells), activity, is_new=False)
         net.step()
-        if net.centre_distance(net.centre(), target) <= tolerance_cells:
+        truth = np.mod(linked + np.array([travelled, 0.0, 0.0]), net.dims)
+        if net.centre_distance(net.centre(), truth) <= tolerance_cells:
             return n
     return None
