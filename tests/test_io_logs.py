@@ -107,3 +107,13 @@ def test_side_data_reads_the_log_when_not_iterated_yet(tmp_path):
     assert (info["scans"], info["beams"]) == (2, 4)
     assert info["fov_deg"] == pytest.approx(np.degrees(2.0))
     assert info["duration_s"] == pytest.approx(1.0)
+
+
+def test_side_data_after_a_partial_iteration_cover_the_scans_read(tmp_path):
+    source = _Scripted(tmp_path, [1.0, 2.0, 3.0, 4.0, 5.0], window=0.0)
+    for scan in source:
+        if scan.stamp >= 2.0:
+            break
+    assert not source.complete
+    np.testing.assert_array_equal(source.reference.stamps, [1.0, 2.0])
+    assert list(source) and source.complete and len(source.reference) == 5

@@ -150,9 +150,16 @@ class LogSource(ABC):
             yield scan
 
     def _ensure_read(self) -> None:
-        if not self._complete and not self._iterating:
+        """Read the log once if it was never iterated; after a partial iteration the side data
+        describe the scans read so far (a caller that stopped early wants those)."""
+        if self._order is None:
             for _ in self:
                 pass
+
+    @property
+    def complete(self) -> bool:
+        """True once an iteration has reached the end of the log."""
+        return self._complete
 
     @property
     def skipped(self) -> dict[str, int]:
