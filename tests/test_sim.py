@@ -297,3 +297,16 @@ def test_scan_endpoints_land_on_the_walls_seen_from_the_true_pose():
         assert len(local) > 0.5 * scan.num_beams
         world_xy = local @ np.array([[c, s], [-s, c]]) + pose[:2]
         assert world.distance_to_walls(world_xy).max() < 1e-5  # float32 ranges
+
+
+def test_route_config_limits_are_kept_unless_overridden():
+    from bioslam.sim import RouteConfig
+
+    world = maze_world()
+    slow = make_route(world, duration=60.0, config=RouteConfig(max_speed=0.3))
+    poses = slow.pose_at(np.arange(0.0, 60.0, 0.05))
+    speed = np.hypot(*np.diff(poses[:, :2], axis=0).T) / 0.05
+    assert 0.29 < speed.max() <= 0.3 + 1e-6
+    fast = make_route(world, duration=60.0, max_speed=0.4, config=RouteConfig(max_speed=0.3))
+    poses = fast.pose_at(np.arange(0.0, 60.0, 0.05))
+    assert np.hypot(*np.diff(poses[:, :2], axis=0).T).max() / 0.05 > 0.39

@@ -51,8 +51,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--noise", type=float, help="range noise sigma in metres (preset default)")
     p.add_argument("--dropout", type=float, help="probability a beam returns nothing (NaN)")
     p.add_argument("--no-sweep", action="store_true", help="cast all beams of a scan from one pose")
-    p.add_argument("--max-speed", type=float, default=0.5, help="m/s (default 0.5)")
-    p.add_argument("--max-yaw-rate", type=float, default=0.8, help="rad/s (default 0.8)")
+    p.add_argument("--max-speed", type=float, help="m/s (default 0.5)")
+    p.add_argument("--max-yaw-rate", type=float, help="rad/s (default 0.8)")
     p.add_argument(
         "--fast-turns", action="store_true", help="take corners at 1 rad/s (odometry stress)"
     )

@@ -10,7 +10,7 @@ acceleration limits. Deterministic for a given world, duration and seed.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numba import njit
@@ -252,29 +252,28 @@ def make_route(
     world: World,
     duration: float = 600.0,
     seed: int = 0,
-    max_speed: float = 0.5,
-    max_yaw_rate: float = 0.8,
-    clearance: float = 0.3,
-    fast_turns: bool = False,
+    max_speed: float | None = None,
+    max_yaw_rate: float | None = None,
+    clearance: float | None = None,
+    fast_turns: bool | None = None,
     config: RouteConfig | None = None,
 ) -> Route:
     """A smooth route of ``duration`` seconds that explores ``world`` and revisits it.
 
-    The keyword limits override the matching fields of ``config``. Raises ``ValueError`` when
-    the world has no roadmap or the route would come closer than ``clearance`` to a wall.
+    Keyword limits given (not ``None``) override the matching fields of ``config``, whose
+    defaults are those of :class:`RouteConfig` (0.5 m/s, 0.8 rad/s, 0.3 m clearance). Raises
+    ``ValueError`` when the world has no roadmap or the route would come closer than the
+    clearance to a wall.
     """
     if not duration > 0.0:
         raise ValueError(f"route duration must be positive, got {duration}")
-    base = config or RouteConfig()
-    cfg = RouteConfig(
-        **{
-            **base.__dict__,
-            "max_speed": max_speed,
-            "max_yaw_rate": max_yaw_rate,
-            "clearance": clearance,
-            "fast_turns": fast_turns,
-        }
-    )
+    overrides = {
+        "max_speed": max_speed,
+        "max_yaw_rate": max_yaw_rate,
+        "clearance": clearance,
+        "fast_turns": fast_turns,
+    }
+    cfg = replace(config or RouteConfig(), **{k: v for k, v in overrides.items() if v is not None})
     roadmap = world.roadmap
     if roadmap is None:
         raise ValueError(f"world {world.name!r} has no roadmap to build a route on")
