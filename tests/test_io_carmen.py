@@ -189,3 +189,13 @@ def test_real_intel_log():
     source = open_log(shared_log("intel-corrected.log.gz"))
     assert sum(1 for _ in source) == 910
     assert len(source.reference) == 910
+
+
+def test_robotlaser_with_counts_that_do_not_fit_the_line(tmp_path):
+    good = robotlaser([1.0, 2.0, 3.0], 1.0)
+    fields = good.split()
+    fields[8] = "7"  # declares 7 beams, holds 3
+    log = write(tmp_path / "r.log", [" ".join(fields) + "\n", robotlaser([1.0, 2.0], 2.0)])
+    source = open_log(log)
+    assert [s.num_beams for s in source] == [2]
+    assert source.skip_examples[WRONG_BEAM_COUNT].startswith("line 3: wrong beam count")

@@ -40,6 +40,8 @@ LASER_MESSAGES = (
 )
 # Fields after the remissions in ROBOTLASER lines (up to and including logger_timestamp).
 _ROBOTLASER_TAIL = 14
+# Fields after the remissions in RAWLASER lines: ipc_timestamp ipc_hostname logger_timestamp.
+_RAWLASER_TAIL = 3
 
 
 @dataclass(frozen=True)
@@ -205,13 +207,17 @@ class CarmenLog(LogSource):
         self, fields: list[str], where: str, tail: int
     ) -> tuple[NDArray[np.float32], NDArray[np.float64], float, int] | None:
         """Ranges, angles, max range and the index after the remissions of a ROBOTLASER or
-        RAWLASER line, or None (counted) when the declared counts do not fit the line."""
+        RAWLASER line (``tail`` fields follow them), or None (counted) when the declared
+        counts do not fit the line."""
         n = self._beam_count(fields, 8, where)
         if n is None:
             return None
-        m = int(fields[9 + n]) if len(fields) > 9 + n else -1
+        try:
+            m = int(fields[9 + n])
+        except (IndexError, ValueError):
+            m = -1
         end = 10 + n + m
-        if m < 0 or len(fields) < end + tail:
+        if m < 0 or len(fields) != end + tail:
             self._skip(
                 WRONG_BEAM_COUNT, where,
                 f"{fields[0]} declares {n} beams but the line has {len(fields)} fields",
@@ -227,7 +233,7 @@ class CarmenLog(LogSource):
     def _parse_robotlaser(
         self, fields: list[str], where: str
     ) -> tuple[LaserScan, str, Pose | None] | None:
-        parsed = self._laser_header(fields, where, _ROBOTLASER_TAIL - 2)
+        parsed = self._laser_header(fields, where, _ROBOTLASER_TAIL)
         if parsed is None:
             return None
         ranges, angles, max_range, end = parsed
@@ -238,7 +244,7 @@ class CarmenLog(LogSource):
     def _parse_rawlaser(
         self, fields: list[str], where: str
     ) -> tuple[LaserScan, str, Pose | None] | None:
-        parsed = self._laser_header(fields, where, 1)
+        parsed = self._laser_header(fields, where, _RAWLASER_TAIL)
         if parsed is None:
             return None
         ranges, angles, max_range, end = parsed

@@ -13,6 +13,7 @@ file order (bag header, chunks, connections, message data) and ignores the index
 from __future__ import annotations
 
 import bz2
+import mmap
 import struct
 from collections import Counter
 from collections.abc import Callable, Iterator
@@ -424,13 +425,15 @@ class McapRecordReader:
 
     def messages(self) -> Iterator[tuple[str, str, int, bytes]]:
         self.truncated = None
-        data = self.path.read_bytes()
-        if not data.startswith(self.MAGIC):
-            raise BagFormatError("not an MCAP file (bad magic)")
-        yield from self._records(data, len(self.MAGIC), top_level=True)
+        with self.path.open("rb") as fh:
+            if fh.read(len(self.MAGIC)) != self.MAGIC:
+                raise BagFormatError("not an MCAP file (bad magic)")
+            # mapped, not read: a long bag is paged in as its records are visited
+            with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
+                yield from self._records(data, len(self.MAGIC), top_level=True)
 
     def _records(
-        self, data: bytes, pos: int, top_level: bool
+        self, data: bytes | mmap.mmap, pos: int, top_level: bool
     ) -> Iterator[tuple[str, str, int, bytes]]:
         while pos < len(data):
             if pos + 9 > len(data):
