@@ -123,3 +123,24 @@ def test_sim_command_writes_bag_ground_truth_and_figure(tmp_path):
 def test_sim_command_rejects_unknown_world(tmp_path):
     with pytest.raises(ValueError, match="maze"):
         run_cli("--world", "plan.txt", "--out", str(tmp_path))
+
+
+def test_sim_command_on_a_map_file(tmp_path):
+    _, yaml = room_with_pillar(tmp_path)
+    out = tmp_path / "run"
+    summary = run_cli(
+        "--world", str(yaml), "--lidar", "urg04lx", "--duration", "3", "--out", str(out)
+    )
+    assert summary["world"] == yaml.stem and summary["scans"] == 30
+    gt = read_tum(out / "gt.tum")
+    world = world_from_map(yaml)
+    assert world.distance_to_walls(gt.poses[:, :2]).min() >= 0.3
+
+
+def test_rotated_map_origin_rotates_the_world(tmp_path):
+    image, _ = room_with_pillar(tmp_path)
+    turned = OccupancyImage(image.occupancy, image.resolution, (-0.1, -0.1, np.pi / 2))
+    _, yaml = write_map(tmp_path / "turned", turned)
+    world = world_from_map(yaml)
+    # Rotating by +90 degrees about the origin (-0.1, -0.1) maps x -> y and y -> -x.
+    assert world.bounds == pytest.approx((-6.2, 0.0, -0.2, 8.0))
