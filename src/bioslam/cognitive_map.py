@@ -9,9 +9,9 @@ OpenRatSLAM's ``PosecellNetwork::get_action`` and ``ExperienceMap`` (Ball et al.
   from the packet, creates an experience at ``p_current ⊕ odometry since`` and an ``odometry``
   link to it;
 * a known view whose nearest experience is within the threshold and is not the current one
-  moves the robot there; if the two experiences were not linked yet this closes a loop and adds
-  a ``loop`` link whose Δp is the odometry since the current experience (optionally refined by a
-  scan registration, ``refine``), after which the map is relaxed (Eq. 14).
+  moves the robot there; if there is no link from the current experience to it yet, this
+  closes a loop and adds a ``loop`` link whose Δp is the odometry since the current experience
+  (optionally refined by a scan registration, ``refine``); the map is then relaxed (Eq. 14).
 
 Relaxation (Eq. 14) — the choices the paper leaves open, written down:
 
@@ -388,7 +388,7 @@ class CognitiveMap:
         self._link_dt.append(stamp - self._entered)
         self._link_stamp.append(stamp)
         self._link_kind.append(kind)
-        self._linked.add((min(source, target), max(source, target)))
+        self._linked.add((source, target))
         self._csr = None
 
     def _enter(self, eid: int, offset: FloatArray, stamp: float) -> None:
@@ -419,7 +419,7 @@ class CognitiveMap:
                 return MapEvent("none", current, rejected=True, matched=target)
             arrival = np.asarray(refined, dtype=np.float64).reshape(3)
         kind: EventKind = "link"
-        if (min(current, target), max(current, target)) not in self._linked:
+        if (current, target) not in self._linked:
             # p_current ⊕ offset = p_target ⊕ arrival, so Δp = offset ⊕ arrival⁻¹.
             dp = compose(self._offset, inverse(arrival))
             self._add_link(current, target, dp, stamp, "loop")

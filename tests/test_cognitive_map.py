@@ -1,0 +1,232 @@
+"""Cognitive map (Eq. 12-14) and a short closed-loop run with the pose cells."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from bioslam.cognitive_map import CognitiveMap, CognitiveMapConfig, relaxation_correction
+from bioslam.geometry import between, compose, wrap_angle
+from bioslam.pose_cells import PoseCellConfig, PoseCellNetwork
+
+PC = (10.0, 10.0, 0.0)  # a packet centre used where the test is not about matching
+
+
+def square_route(side_m: float, step_m: float, laps: int) -> np.ndarray:
+    """Relative motions (forward, left, turn) around a square, turning at the corners."""
+    per_side = round(side_m / step_m)
+    side = [(step_m, 0.0, 0.0)] * (per_side - 1) + [(step_m, 0.0, math.pi / 2)]
+    return np.array(side * 4 * laps)
+
+
+def integrate(steps: np.ndarray) -> np.ndarray:
+    poses = [np.zeros(3)]
+    for d in steps:
+        poses.append(compose(poses[-1], d))
+    return np.array(poses[1:])
+
+
+def errors(poses: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    d = poses - truth
+    return float(np.max(np.hypot(d[:, 0], d[:, 1]))), float(np.max(np.abs(wrap_angle(d[:, 2]))))
+
+
+def loop_map(heading_bias: float, config: CognitiveMapConfig | None = None):
+    """One lap of a 4 m square, an experience every 0.2 m, then a loop closure back onto the
+    first experience refined with the true relative pose (a precise scan registration)."""
+    steps = square_route(4.0, 0.2, 1)
+    truth = integrate(steps)
+    cm = CognitiveMap(config)
+    for k, d in enumerate(steps):
+        cm.integrate_odometry(d + np.array([0.0, 0.0, heading_bias]), stamp=float(k))
+        cm.update(view_id=k, is_new=True, pc_centre=PC, stamp=float(k))
+    # Back at the start: the first experience's view again, packet at its cells.
+    cm.integrate_odometry(steps[0] + np.array([0.0, 0.0, heading_bias]))
+    true_end = compose(truth[-1], steps[0])
+    event = cm.update(
+        0, False, PC, stamp=len(steps), refine=lambda e: between(truth[e.id], true_end)
+    )
+    return cm, truth, event
+
+
+def test_new_views_create_linked_experiences():
+    cm = CognitiveMap()
+    ev0 = cm.update(7, True, PC, stamp=0.0)
+    cm.integrate_odometry((0.5, 0.1, 0.2), stamp=1.0)
+    ev1 = cm.update(8, True, PC, stamp=1.0)
+    assert (ev0.kind, ev1.kind) == ("new", "new")
+    assert len(cm) == 2 and cm.num_links == 1
+    link = cm.links[0]
+    assert (link.source, link.target, link.kind) == (0, 1, "odometry")
+    np.testing.assert_allclose(link.dp, (0.5, 0.1, 0.2))
+    assert link.dt == pytest.approx(1.0)
+    np.testing.assert_allclose(cm.experiences[1].pose, (0.5, 0.1, 0.2))
+    assert cm.anchor()[0] == 1 and np.allclose(cm.anchor()[1], 0.0)
+
+
+def test_known_view_matches_near_packet_and_not_far_from_it():
+    cm = CognitiveMap(CognitiveMapConfig(match_threshold=2.0))
+    cm.update(1, True, (5.0, 5.0, 3.0), stamp=0.0)
+    cm.integrate_odometry((1.0, 0.0, 0.0))
+    cm.update(2, True, (9.0, 5.0, 3.0), stamp=1.0)
+    cm.integrate_odometry((-0.9, 0.0, 0.0))
+    # View 1 again with the packet 1 cell from its experience: back at experience 0, a loop.
+    ev = cm.update(1, False, (6.0, 5.0, 3.0), stamp=2.0)
+    assert ev.kind == "loop" and ev.experience == 0 and cm.loop_closures == 1
+    assert cm.links[-1].kind == "loop"
+    np.testing.assert_allclose(cm.links[-1].dp, (-0.9, 0.0, 0.0))
+    # Staying on the current experience does nothing.
+    assert cm.update(1, False, (5.5, 5.0, 3.0), stamp=3.0).kind == "none"
+    # Re-entering an experience along an existing link adds no new link.
+    cm.integrate_odometry((1.0, 0.0, 0.0))
+    n_links = cm.num_links
+    assert cm.update(2, False, (9.0, 5.0, 3.0), stamp=4.0).kind == "link"
+    assert cm.num_links == n_links
+    # The same view with the packet beyond the threshold (wrap-around aware) is a new place.
+    ev = cm.update(2, False, (9.0, 5.0, 30.0), stamp=5.0)
+    assert ev.kind == "new" and len(cm) == 3
+
+
+def test_refine_sets_arrival_offset_or_rejects_closure():
+    cm = CognitiveMap()
+    cm.update(1, True, PC, stamp=0.0)
+    cm.integrate_odometry((2.0, 0.0, 0.0))
+    cm.update(2, True, PC, stamp=1.0)
+    cm.integrate_odometry((-1.9, 0.05, 0.0))
+    ev = cm.update(1, False, PC, stamp=2.0, refine=lambda e: None)
+    assert ev.kind == "none" and ev.rejected and cm.loop_closures == 0
+    ev = cm.update(1, False, PC, stamp=2.0, refine=lambda e: (0.12, 0.03, 0.01))
+    assert ev.kind == "loop"
+    eid, offset = cm.anchor()
+    assert eid == 0
+    np.testing.assert_allclose(offset, (0.12, 0.03, 0.01))
+
+
+def test_relaxation_shrinks_a_known_loop_error():
+    cm_odo, truth, _ = loop_map(heading_bias=0.004, config=CognitiveMapConfig())
+    before = errors(cm_odo.experience_poses, truth)
+    cm_odo.relax()
+    after = errors(cm_odo.experience_poses, truth)
+    assert before[0] > 0.5  # 0.32 rad of accumulated heading error around the square
+    assert after[0] < 0.1 * before[0]
+    assert after[1] < 0.1 * before[1]
+    assert cm_odo.converged
+
+
+def test_relaxation_sweeps_converge_monotonically_to_the_fixed_point():
+    # Converged here means a sweep moves nothing by more than 1e-10 m: a loose per-sweep
+    # tolerance would stop a slowly diffusing correction early.
+    sweeps_only = CognitiveMapConfig(
+        solve_on_loop=False, sweeps_per_update=1, tolerance_m=1e-10, tolerance_rad=1e-11
+    )
+    cm, _, _ = loop_map(heading_bias=0.004, config=sweeps_only)
+    ends = np.array([(lk.source, lk.target) for lk in cm.links])
+    dps = np.array([lk.dp for lk in cm.links])
+
+    def imbalance(poses):
+        return float(np.linalg.norm(relaxation_correction(poses, ends[:, 0], ends[:, 1], dps)[1:]))
+
+    history = [imbalance(cm.experience_poses)]
+    for _ in range(60):
+        cm.relax(1)
+        history.append(imbalance(cm.experience_poses))
+    assert history[-1] < 0.1 * history[0]
+    cm.relax(200_000)
+    assert cm.converged
+    direct, _, _ = loop_map(heading_bias=0.004)
+    direct.relax()
+    np.testing.assert_allclose(cm.experience_poses, direct.experience_poses, atol=1e-6)
+    assert imbalance(cm.experience_poses) < 1e-8
+
+
+def test_relaxation_leaves_a_consistent_map_untouched():
+    cm, truth, event = loop_map(heading_bias=0.0)
+    assert event.kind == "loop"
+    before = cm.experience_poses
+    np.testing.assert_allclose(before, truth, atol=1e-9)
+    cm.relax()
+    np.testing.assert_allclose(cm.experience_poses, before, atol=1e-9)
+    cm.mark_dirty()
+    cm.relax(50)
+    np.testing.assert_allclose(cm.experience_poses, before, atol=1e-9)
+
+
+def test_poses_follow_their_experience_after_relaxation():
+    cm, _, _ = loop_map(heading_bias=0.004)
+    ids = np.array([5, 10, 30])
+    offsets = np.array([(0.05, 0.0, 0.0), (0.1, 0.02, 0.1), (0.0, 0.0, -0.2)])
+    raw = cm.poses_of(ids, offsets)
+    np.testing.assert_allclose(raw, compose(cm.experience_poses[ids], offsets))
+    cm.relax()
+    moved = cm.poses_of(ids, offsets)
+    np.testing.assert_allclose(moved, compose(cm.experience_poses[ids], offsets))
+    assert np.max(np.abs(moved - raw)) > 0.05
+    eid, off = cm.anchor()
+    np.testing.assert_allclose(cm.pose(), compose(cm.experience_poses[eid], off))
+
+
+def test_to_dict_is_json_ready():
+    cm, _, _ = loop_map(heading_bias=0.004)
+    cm.relax()
+    data = json.loads(json.dumps(cm.to_dict()))
+    assert len(data["nodes"]) == len(cm)
+    assert set(data["nodes"][0]) >= {"id", "time", "pose", "view_id"}
+    assert {lk["kind"] for lk in data["links"]} == {"odometry", "loop"}
+    assert set(data["links"][0]) >= {"from", "to", "dp", "dt", "time", "kind"}
+    np.testing.assert_allclose(data["nodes"][3]["pose"], cm.experience_poses[3])
+
+
+def run_closed_loop(heading_bias: float, with_truth: bool):
+    """Pose cells + cognitive map on two laps of a 4 m square with biased odometry; views are
+    the route's 0.5 m stretches, so the second lap sees known views."""
+    step = 0.05
+    steps = square_route(4.0, step, 2)
+    truth = integrate(steps)
+    pc_cfg = PoseCellConfig()
+    pc = PoseCellNetwork(pc_cfg)
+    cm = CognitiveMap.from_pose_cells(CognitiveMapConfig(), pc_cfg)
+    seen: set[int] = set()
+    anchors, offsets, odo = [], [], [np.zeros(3)]
+    lap = len(steps) // 2
+    for k, d in enumerate(steps):
+        noisy = d + np.array([0.0, 0.0, heading_bias])
+        odo.append(compose(odo[-1], noisy))
+        view = int((k % lap) * step / 0.5)
+        is_new = view not in seen
+        seen.add(view)
+        pc.path_integrate(noisy)
+        pc.inject_view(view, 1.0, is_new)
+        pc.step()
+        cm.integrate_odometry(noisy, stamp=k)
+        refine = (lambda e, k=k: between(truth[e.payload], truth[k])) if with_truth else None
+        cm.update(view, is_new, pc.centre(), stamp=k, payload=k, refine=refine)
+        cm.relax()
+        eid, off = cm.anchor()
+        anchors.append(eid)
+        offsets.append(off)
+    cm.relax(1000)
+    return cm, truth, np.array(odo[1:]), cm.poses_of(anchors, offsets)
+
+
+def test_short_simulated_loop_closes_and_beats_odometry():
+    cm, truth, odo, slam = run_closed_loop(heading_bias=0.0015, with_truth=False)
+    assert cm.loop_closures >= 1
+    odo_err = np.hypot(*(odo - truth)[:, :2].T)
+    slam_err = np.hypot(*(slam - truth)[:, :2].T)
+    # Odometry alone drifts ~1.4 m over the two laps; the closed map pulls the end back.
+    assert odo_err[-1] > 1.0
+    assert slam_err[-1] < 0.25 * odo_err[-1]
+    assert np.mean(slam_err) < 0.5 * np.mean(odo_err)
+
+
+def test_loop_closures_keep_a_moderately_drifting_run_at_centimetre_level():
+    # 0.3 mrad of gyro-like bias per 5 cm step (0.34 deg/m): odometry alone ends ~0.5 m off.
+    cm, truth, odo, slam = run_closed_loop(heading_bias=0.0003, with_truth=True)
+    assert cm.loop_closures >= 1
+    odo_err = np.hypot(*(odo - truth)[:, :2].T)
+    slam_err = np.hypot(*(slam - truth)[:, :2].T)
+    assert np.max(odo_err) > 0.4
+    assert np.max(slam_err) < 0.05
