@@ -310,3 +310,21 @@ def test_route_config_limits_are_kept_unless_overridden():
     fast = make_route(world, duration=60.0, max_speed=0.4, config=RouteConfig(max_speed=0.3))
     poses = fast.pose_at(np.arange(0.0, 60.0, 0.05))
     assert np.hypot(*np.diff(poses[:, :2], axis=0).T).max() / 0.05 > 0.39
+
+
+def test_people_walk_beside_the_corridor_centre_lines_and_are_seen():
+    from bioslam.sim import people_on_roadmap
+
+    world = maze_world()
+    people = people_on_roadmap(world, 6, seed=3)
+    assert len(people) == 6
+    beats = np.array([[p.start, p.end] for p in people])
+    assert world.distance_to_walls(beats).min() >= people[0].radius
+    assert len({(p.start, p.end) for p in people}) == 6
+    route = make_route(world, duration=20.0, seed=0)
+    lidar = replace(LIDAR_PRESETS["utm30lx"], noise_sigma=0.0)
+    stamps = np.arange(0.0, 19.0, 0.5)
+    empty, _ = true_ranges(world, lidar, route, stamps)
+    crowded, _ = true_ranges(world, lidar, route, stamps, people)
+    assert np.all(crowded <= empty)
+    assert (crowded < empty - 0.1).any()

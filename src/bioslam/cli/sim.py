@@ -7,6 +7,7 @@ import argparse
 import shutil
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -15,10 +16,12 @@ from bioslam.io.bag_writer import STORAGES, ScanBagWriter
 from bioslam.io.tum import write_tum
 from bioslam.sim import (
     LIDAR_PRESETS,
+    MovingObstacle,
     Route,
     World,
     make_route,
     maze_world,
+    people_on_roadmap,
     scan_stamps,
     simulate_scans,
     world_from_map,
@@ -56,6 +59,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--fast-turns", action="store_true", help="take corners at 1 rad/s (odometry stress)"
     )
+    p.add_argument("--people", type=int, default=0, help="people walking the corridors (default 0)")
     p.add_argument("--storage", choices=sorted(STORAGES), default="sqlite3", help="bag storage")
     p.add_argument("--out", required=True, type=Path, help="output directory")
     p.add_argument("--force", action="store_true", help=f"replace an existing OUT/{BAG_NAME}")
@@ -82,8 +86,10 @@ def _prepare_bag_dir(bag: Path, force: bool) -> None:
     shutil.rmtree(bag)
 
 
-def save_world_figure(path: Path, world: World, route: Route, stamps: np.ndarray) -> None:
-    """The walls in black, the route coloured by time, the start marked."""
+def save_world_figure(
+    path: Path, world: World, route: Route, people: Sequence[MovingObstacle] = ()
+) -> None:
+    """The walls in black, the route coloured by time, the start marked, people's beats."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -98,6 +104,11 @@ def save_world_figure(path: Path, world: World, route: Route, stamps: np.ndarray
     path_lines.set_array(np.linspace(0.0, route.duration, len(xy) - 1))
     ax.add_collection(path_lines)
     ax.plot(*xy[0], "o", color="tab:red", label="start")
+    for k, person in enumerate(people):
+        ends = np.array([person.start, person.end])
+        ax.plot(
+            *ends.T, "-", color="tab:orange", lw=3, alpha=0.7, label="people" if k == 0 else None
+        )
     fig.colorbar(path_lines, ax=ax, label="time (s)", shrink=0.8)
     ax.set_aspect("equal")
     ax.autoscale_view()
@@ -136,7 +147,8 @@ def run(args: argparse.Namespace) -> dict:
     _prepare_bag_dir(bag, args.force)
     out.mkdir(parents=True, exist_ok=True)
     stamps = scan_stamps(lidar, route)
-    scans = simulate_scans(world, lidar, route, seed=args.seed)
+    people = people_on_roadmap(world, args.people, seed=args.seed) if args.people else []
+    scans = simulate_scans(world, lidar, route, seed=args.seed, obstacles=people)
     writer = ScanBagWriter(
         bag, SCAN_TOPIC, scan_time=lidar.scan_time, storage=args.storage, pose_topic=GT_TOPIC
     )
@@ -146,7 +158,7 @@ def run(args: argparse.Namespace) -> dict:
             writer.write_pose(scan.stamp, pose)
             bar.update()
     write_tum(out / GT_NAME, route.trajectory(stamps))
-    save_world_figure(out / FIGURE_NAME, world, route, stamps)
+    save_world_figure(out / FIGURE_NAME, world, route, people)
     return {
         "world": world.name,
         "lidar": lidar.name,
@@ -155,6 +167,7 @@ def run(args: argparse.Namespace) -> dict:
         "duration_s": round(float(route.duration), 3),
         "path_length_m": round(route.path_length(), 3),
         "seed": args.seed,
+        "people": len(people),
         "bag": str(bag),
         "gt": str(out / GT_NAME),
         "figure": str(out / FIGURE_NAME),

@@ -8,7 +8,13 @@ from bioslam.sim.lidar import LIDAR_PRESETS, LidarModel
 from bioslam.sim.mapworld import MapWorldConfig, world_from_map, world_from_occupancy
 from bioslam.sim.maze import maze_world
 from bioslam.sim.route import Route, RouteConfig, make_route
-from bioslam.sim.simulate import MovingObstacle, scan_stamps, simulate_scans, true_ranges
+from bioslam.sim.simulate import (
+    MovingObstacle,
+    people_on_roadmap,
+    scan_stamps,
+    simulate_scans,
+    true_ranges,
+)
 from bioslam.sim.world import Roadmap, World
 
 __all__ = [
@@ -22,6 +28,7 @@ __all__ = [
     "World",
     "make_route",
     "maze_world",
+    "people_on_roadmap",
     "scan_stamps",
     "simulate_scans",
     "true_ranges",

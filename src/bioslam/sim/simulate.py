@@ -49,6 +49,34 @@ class MovingObstacle:
         return a + frac[..., None] * d
 
 
+def people_on_roadmap(
+    world: World,
+    count: int,
+    seed: int = 0,
+    speed: float = 1.0,
+    radius: float = 0.25,
+    offset: float = 0.3,
+) -> list[MovingObstacle]:
+    """``count`` people pacing up and down roadmap edges (distinct ones while there are
+    enough), each ``offset`` metres to the side of the centre-line so that a robot driving
+    the centre-line passes them instead of going through them. 1 m/s is a slow walk."""
+    road = world.roadmap
+    if road is None or len(road.edges) == 0:
+        raise ValueError(f"world {world.name!r} has no roadmap to place people on")
+    rng = np.random.default_rng(seed)
+    picks = rng.permutation(np.resize(np.arange(len(road.edges)), max(count, 0)))[:count]
+    people = []
+    for e in picks:
+        a, b = road.nodes[road.edges[e]]
+        side = (b - a)[::-1] * np.array([-1.0, 1.0]) / np.hypot(*(b - a))
+        shift = side * offset * rng.choice([-1.0, 1.0])
+        phase = float(rng.uniform(0.0, 2.0 * np.hypot(*(b - a)) / speed))
+        people.append(
+            MovingObstacle(tuple(a + shift), tuple(b + shift), speed, radius, phase)  # type: ignore[arg-type]
+        )
+    return people
+
+
 def ray_circle_distance(
     origins: NDArray, angles: NDArray, centres: NDArray, radius: float
 ) -> NDArray[np.float64]:
