@@ -50,7 +50,7 @@ def brute_force(segments: np.ndarray, origins: np.ndarray, angles: np.ndarray) -
 
 def static_route(pose: tuple[float, float, float], duration: float = 1.0) -> Route:
     times = np.array([0.0, duration])
-    return Route(times, np.array([pose, pose], dtype=float), duration, np.zeros(0, np.int64))
+    return Route(times, np.array([pose, pose], dtype=float))
 
 
 def box_world() -> World:
@@ -139,7 +139,7 @@ def test_sweep_skew_on_a_turning_robot():
     rate = 1.0  # rad/s, the example
     times = np.linspace(0.0, 2.0, 201)
     poses = np.column_stack([np.full(201, 2.0), np.full(201, 1.5), rate * times])
-    route = Route(times, poses, 2.0, np.zeros(0, np.int64))
+    route = Route(times, poses)
     lidar = replace(LIDAR_PRESETS["utm30lx"], noise_sigma=0.0)
     stamp = np.array([0.5])
     swept, _ = true_ranges(box_world(), lidar, route, stamp)
@@ -328,3 +328,13 @@ def test_people_walk_beside_the_corridor_centre_lines_and_are_seen():
     crowded, _ = true_ranges(world, lidar, route, stamps, people)
     assert np.all(crowded <= empty)
     assert (crowded < empty - 0.1).any()
+
+
+def test_hand_made_routes_are_checked():
+    with pytest.raises(ValueError, match="increasing"):
+        Route(np.array([0.0, 1.0, 1.0]), np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="one"):
+        Route(np.array([0.0, 1.0]), np.zeros((3, 3)))
+    spin = Route(np.array([0.0, 2.0]), np.array([[1.0, 2.0, 0.0], [1.0, 2.0, 2.0]]))
+    assert spin.duration == 2.0
+    assert spin.pose_at([0.5, 5.0]) == pytest.approx(np.array([[1, 2, 0.5], [1, 2, 2.0]]))

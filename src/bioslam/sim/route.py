@@ -10,7 +10,7 @@ acceleration limits. Deterministic for a given world, duration and seed.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numba import njit
@@ -95,14 +95,35 @@ class Route:
 
     With ``speeds``, the robot moves between samples at constant acceleration (so its velocity
     is continuous, also from rest); without, at constant velocity. ``tour`` lists the roadmap
-    nodes visited, in order.
+    nodes visited, in order. ``duration`` defaults to the last time. Hand-made routes (a robot
+    spinning on the spot, say) need only ``times`` and ``poses``.
     """
 
     times: NDArray[np.float64]
     poses: NDArray[np.float64]
-    duration: float
-    tour: NDArray[np.int64]
+    duration: float | None = None
+    tour: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     speeds: NDArray[np.float64] | None = None
+
+    def __post_init__(self) -> None:
+        times = np.ascontiguousarray(self.times, dtype=np.float64).reshape(-1)
+        poses = np.ascontiguousarray(self.poses, dtype=np.float64)
+        if times.size < 2 or poses.shape != (times.size, 3):
+            raise ValueError(
+                f"a route needs >= 2 times and one (x, y, theta) per time, got {times.shape} "
+                f"times and poses {poses.shape}"
+            )
+        if not np.all(np.diff(times) > 0.0):
+            raise ValueError("route times must be strictly increasing")
+        if self.speeds is not None:
+            speeds = np.ascontiguousarray(self.speeds, dtype=np.float64)
+            if speeds.shape != times.shape:
+                raise ValueError(f"route speeds {speeds.shape} do not match times {times.shape}")
+            object.__setattr__(self, "speeds", speeds)
+        object.__setattr__(self, "times", times)
+        object.__setattr__(self, "poses", poses)
+        duration = float(times[-1]) if self.duration is None else float(self.duration)
+        object.__setattr__(self, "duration", duration)
 
     def pose_at(self, t: ArrayLike) -> NDArray[np.float64]:
         """Poses ``(..., 3)`` at times ``t`` (seconds, clamped to ``[0, duration]``)."""
