@@ -36,7 +36,9 @@ class Roadmap:
 @dataclass(eq=False)
 class World:
     """Walls as line segments ``(S, 4)`` rows ``x0 y0 x1 y1`` in metres, a name, and
-    optionally the roadmap that :func:`bioslam.sim.make_route` drives along."""
+    optionally the roadmap that :func:`bioslam.sim.make_route` drives along. ``grid_cell``
+    is the cell size of the ray-casting index, metres (see
+    :func:`bioslam.sim.raycast.build_segment_grid`)."""
 
     segments: NDArray[np.float64]
     name: str = "world"
