@@ -196,6 +196,21 @@ def _relax_sweep(poses, src, dst, dps, out_ptr, out_e, in_ptr, in_e, a):
     return max_move, max_turn
 
 
+def _laplacian_lu(src: NDArray[np.int64], dst: NDArray[np.int64], n: int) -> Any:
+    """LU of the graph Laplacian without node 0 (the anchor). Creation order is already close
+    to a band (a chain plus a few loop links), so no fill-reducing permutation is needed."""
+    rows = np.concatenate([src, dst, src, dst])
+    cols = np.concatenate([src, dst, dst, src])
+    vals = np.concatenate([np.ones(2 * src.size), -np.ones(2 * src.size)])
+    lap = sp.csc_matrix((vals, (rows, cols)), shape=(n, n))[1:, 1:]
+    return splu(lap.tocsc(), permc_spec="NATURAL", options={"SymmetricMode": True})
+
+
+def _incidence_t(src: NDArray[np.int64], dst: NDArray[np.int64], v: FloatArray, n: int):
+    """Bᵀ v for the incidence matrix B (-1 at a link's source, +1 at its target)."""
+    return np.bincount(dst, v, minlength=n) - np.bincount(src, v, minlength=n)
+
+
 def relaxation_correction(
     poses: ArrayLike, sources: ArrayLike, targets: ArrayLike, dps: ArrayLike, a: float = 0.5
 ) -> FloatArray:
@@ -490,21 +505,19 @@ class CognitiveMap:
         if n < 2 or m == 0:
             return
         src, dst, *_ = self._adjacency()
-        rows = np.concatenate([np.arange(m), np.arange(m)])
-        cols = np.concatenate([src, dst])
-        vals = np.concatenate([-np.ones(m), np.ones(m)])
-        incidence = sp.csr_matrix((vals, (rows, cols)), shape=(m, n))
-        free = incidence[:, 1:]
-        lu = splu((free.T @ free).tocsc())
+        lu = _laplacian_lu(src, dst, n)
         poses = self._poses.view
         dps = self._link_dp.view
         for _ in range(2):  # a second pass settles residuals that wrapped around ±π
             r = wrap_angle(poses[src, 2] + dps[:, 2] - poses[dst, 2])
-            poses[1:, 2] = wrap_angle(poses[1:, 2] + lu.solve(free.T @ r))
+            poses[1:, 2] = wrap_angle(poses[1:, 2] + lu.solve(_incidence_t(src, dst, r, n)[1:]))
         c, s = np.cos(poses[src, 2]), np.sin(poses[src, 2])
         rel = np.stack([c * dps[:, 0] - s * dps[:, 1], s * dps[:, 0] + c * dps[:, 1]], axis=1)
-        rhs = rel - incidence[:, [0]].toarray() * poses[0, :2]
-        poses[1:, :2] = lu.solve(np.asarray(free.T @ rhs))
+        # Experience 0 is fixed: move its known terms to the right-hand side.
+        rel = rel + np.where(src == 0, 1.0, 0.0)[:, None] * poses[0, :2]
+        rel = rel - np.where(dst == 0, 1.0, 0.0)[:, None] * poses[0, :2]
+        rhs = np.stack([_incidence_t(src, dst, rel[:, k], n)[1:] for k in range(2)], axis=1)
+        poses[1:, :2] = lu.solve(rhs)
 
     # --- output ----------------------------------------------------------------------------
 
