@@ -204,6 +204,7 @@ def write_results(
         f"Machine: {meta['host_cpus']} CPUs, {meta['platform']}, shared with other jobs during "
         f"the run (load average {meta['loadavg_start'][0]:.1f} at start, "
         f"{meta['loadavg_end'][0]:.1f} at end); wall {meta['total_wall_s']:.0f} s.  ",
+        f"Cases completed: {len(infos)} of {meta['cases_planned']}.  ",
         f"Timed runs per row: up to {args.repeat} (medians; long simulated cases once). "
         "`time / peer` = bioslam wall / icp-slam wall, pair by pair in the same run, median.",
         "",
@@ -249,14 +250,17 @@ def main(argv: list[str] | None = None) -> int:
             peer_ok = _error(exc)
     records: list[dict] = []
     infos: list[dict] = []
-    for case in select_cases(args):
+    cases = select_cases(args)
+    meta["cases_planned"] = len(cases)
+    for case in cases:
         print(f"[bench] {case.name} …", file=sys.stderr, flush=True)
         rows, info = bench_case(case, args, peer_ok)
         records += [to_record(r) for r in rows]
         infos.append(info)
-    meta["loadavg_end"] = os.getloadavg()
-    meta["total_wall_s"] = time.perf_counter() - t0
-    out = write_results(args, records, infos, meta)
+        # Written after every case, so that an interrupted full run keeps what it measured.
+        meta["loadavg_end"] = os.getloadavg()
+        meta["total_wall_s"] = time.perf_counter() - t0
+        out = write_results(args, records, infos, meta)
     print(markdown_table(records))
     print(f"\nwritten: {out} and {out.with_suffix('.json')}")
     return 0
