@@ -22,11 +22,11 @@ from bioslam.trajectory import Trajectory
 
 @dataclass
 class LoopConfig:
-    """``away_m``: how far from the start a route must get before a return counts (2 m: well
-    above the centimetre gaps a consistent system leaves, below the size of a room so that a
-    short handheld log still qualifies)."""
+    """``away_m``: how far from the start a route must get before a return counts (1 m: well
+    above the centimetre gaps a consistent system leaves, and below the 1.4 m a short handheld
+    log such as the ROS 1 demo bag moves away)."""
 
-    away_m: float = 2.0
+    away_m: float = 1.0
 
 
 def loop_gap(traj: Trajectory, cfg: LoopConfig | None = None) -> dict[str, float]:

@@ -171,11 +171,11 @@ def _fmt(value, fmt: str) -> str:
         return str(value)
 
 
-def markdown_table(records: list[dict]) -> str:
-    head = ["case", "system", *(h for _, h, _ in COLUMNS), "error"]
+def markdown_table(records: list[dict], columns: list[tuple[str, str, str]] = COLUMNS) -> str:
+    head = ["case", "system", *(h for _, h, _ in columns), "error"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in records:
-        cells = [r["case"], r["row"], *(_fmt(r.get(k), f) for k, _, f in COLUMNS)]
+        cells = [r["case"], r["row"], *(_fmt(r.get(k), f) for k, _, f in columns)]
         cells.append(r.get("error", "").replace("|", "/"))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
@@ -195,6 +195,7 @@ def write_results(
 ) -> Path:
     args.results.mkdir(parents=True, exist_ok=True)
     stem = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d") + ("-quick" if args.quick else "")
+    save_map_pictures(records, args.results / f"{stem}-maps")
     payload = {"meta": meta, "cases": infos, "rows": records, "paper": PAPER_ROWS}
     (args.results / f"{stem}.json").write_text(json.dumps(payload, indent=1, default=float))
     md = [
@@ -218,16 +219,36 @@ def write_results(
         if "scans" in info:
             line += f"; {info['scans']} scans over {info['log_duration_s']:.0f} s"
         md.append(line)
+    pictures = [
+        f"- {r['case']}, {r['row']}: `{r['map_picture']}`" for r in records if "map_picture" in r
+    ]
+    if pictures:
+        md += ["", "## Map pictures (cases without a reference)", "", *pictures]
     md += [
         "",
         "## The paper's published figures (their data, not these cases)",
         "",
-        markdown_table(PAPER_ROWS),
+        markdown_table(PAPER_ROWS, COLUMNS[:3]),
         "",
     ]
     out = args.results / f"{stem}.md"
     out.write_text("\n".join(md))
     return out
+
+
+def save_map_pictures(records: list[dict], folder: Path) -> None:
+    """Copy the map pictures of cases without a reference (judged by eye) as PNG into results."""
+    from PIL import Image
+
+    for rec in records:
+        src = rec.get("artefacts", {}).get("map")
+        if not src or "ate_rmse_m" in rec or not Path(src).exists():
+            continue
+        folder.mkdir(parents=True, exist_ok=True)
+        slug = rec["row"].split(" (")[0].replace(" ", "-")
+        dst = folder / f"{rec['case']}-{slug}.png"
+        Image.open(src).convert("L").save(dst, optimize=True)
+        rec["map_picture"] = str(dst.relative_to(folder.parent))
 
 
 def to_record(r: RowRun) -> dict:
