@@ -44,8 +44,6 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
-from bioslam.geometry import compose as _compose
-
 FloatArray = NDArray[np.float64]
 
 TWO_PI = 2.0 * math.pi
@@ -164,11 +162,12 @@ def gaussian_kernel(var: float, radius: int) -> FloatArray:
 
 
 @njit(cache=True)
-def _conv_axis(src, src_idx, n_src, dst, dst_idx, mark, gen, g, r, stride, n, keep_src):
+def _conv_axis(src, src_idx, n_src, dst, dst_idx, mark, gen, g, r, stride, n, keep_src, min_src):
     """Scatter ``src`` convolved with the 1-D kernel ``g`` along one wrapped axis into ``dst``.
 
     Only the ``n_src`` listed source cells are read; the cells written are listed in
-    ``dst_idx`` (returned count). Unless ``keep_src``, the source cells are cleared.
+    ``dst_idx`` (returned count). Unless ``keep_src``, the source cells are cleared. Sources
+    at or below ``min_src`` are skipped.
     """
     n_dst = 0
     for t in range(n_src):
@@ -176,7 +175,7 @@ def _conv_axis(src, src_idx, n_src, dst, dst_idx, mark, gen, g, r, stride, n, ke
         v = src[a]
         if not keep_src:
             src[a] = 0.0
-        if v == 0.0:
+        if v <= min_src:
             continue
         c = (a // stride) % n
         base = a - c * stride
@@ -197,11 +196,12 @@ def _conv_axis(src, src_idx, n_src, dst, dst_idx, mark, gen, g, r, stride, n, ke
 
 
 @njit(cache=True)
-def _conv3(a, a_idx, n_a, b, b_idx, c, c_idx, mark, gen, g, r, nx, ny, nt, keep_src):
-    """Separable 3-D Gaussian: a -> b (x), b -> c (y), c -> b (θ); result in b / b_idx."""
-    n_b = _conv_axis(a, a_idx, n_a, b, b_idx, mark, gen, g, r, ny * nt, nx, keep_src)
-    n_c = _conv_axis(b, b_idx, n_b, c, c_idx, mark, gen + 1, g, r, nt, ny, False)
-    return _conv_axis(c, c_idx, n_c, b, b_idx, mark, gen + 2, g, r, 1, nt, False)
+def _conv3(a, a_idx, n_a, b, b_idx, c, c_idx, mark, gen, g, r, nx, ny, nt, keep_src, min_src):
+    """Separable 3-D Gaussian: a -> b (x), b -> c (y), c -> b (θ); result in b / b_idx.
+    Sources of ``a`` at or below ``min_src`` are left out."""
+    n_b = _conv_axis(a, a_idx, n_a, b, b_idx, mark, gen, g, r, ny * nt, nx, keep_src, min_src)
+    n_c = _conv_axis(b, b_idx, n_b, c, c_idx, mark, gen + 1, g, r, nt, ny, False, 0.0)
+    return _conv_axis(c, c_idx, n_c, b, b_idx, mark, gen + 2, g, r, 1, nt, False, 0.0)
 
 
 @njit(cache=True)
@@ -232,25 +232,59 @@ def _attractor_step(
     """
     # Local excitation: exc = W_E * PC (PC is cleared on the way).
     n_exc = _conv3(
-        pc, active, n_active, exc, exc_idx, inh, tmp_idx, mark, gen, g_e, r_e, nx, ny, nt, False
+        pc,
+        active,
+        n_active,
+        exc,
+        exc_idx,
+        inh,
+        tmp_idx,
+        mark,
+        gen,
+        g_e,
+        r_e,
+        nx,
+        ny,
+        nt,
+        False,
+        0.0,
     )
-    # Local inhibition from the excited state, as OpenRatSLAM: PC = exc - W_I * exc.
+    # Local inhibition from the excited state, as OpenRatSLAM: PC = exc - W_I * exc. A cell
+    # excited no more than the global inhibition is silenced whatever its neighbours do, so it
+    # is left out as a source: its inhibition is below that level (2e-5 of the total).
     n_inh = _conv3(
-        exc, exc_idx, n_exc, inh, inh_idx, pc, tmp_idx, mark, gen + 3, g_i, r_i, nx, ny, nt, True
+        exc,
+        exc_idx,
+        n_exc,
+        inh,
+        inh_idx,
+        pc,
+        tmp_idx,
+        mark,
+        gen + 3,
+        g_i,
+        r_i,
+        nx,
+        ny,
+        nt,
+        True,
+        g_inhib,
     )
-    # The inhibited support contains the excited one (the kernel centre is non-zero).
+    # Every excited cell above the global inhibition is in the inhibited support (the kernel
+    # centre is non-zero); the others cannot fire and are only cleared.
     total = 0.0
     n_new = 0
     for t in range(n_inh):
         idx = inh_idx[t]
         v = exc[idx] - inh[idx] - g_inhib
-        exc[idx] = 0.0
         inh[idx] = 0.0
         if v > 0.0:
             pc[idx] = v
             total += v
             active[n_new] = idx
             n_new += 1
+    for t in range(n_exc):
+        exc[exc_idx[t]] = 0.0
     if total > 0.0:
         for t in range(n_new):
             pc[active[t]] /= total
@@ -386,6 +420,12 @@ def _centre(pc, active, n_active, radius, nx, ny, nt):
     return out
 
 
+def _compose_motion(a: FloatArray, b: FloatArray) -> FloatArray:
+    """``a ⊕ b`` for two single relative motions (scalar maths: this runs every update)."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], a[2] + b[2]])
+
+
 def wrapped_cell_distance(a: ArrayLike, b: ArrayLike, dims: tuple[int, int, int]) -> FloatArray:
     """Euclidean distance in cell units between cell coordinates ``(..., 3)``, with wrap-around
     in every dimension (OpenRatSLAM ``get_delta_pc``)."""
@@ -425,6 +465,8 @@ class PoseCellNetwork:
         #: Per view: (fatigue, update count when it was stored); recovery is applied lazily.
         self._fatigue: dict[int, tuple[float, int]] = {}
         self.updates = 0
+        #: How often the network lost all activity and was re-seeded at its last centre.
+        self.collapses = 0
         self._pending = np.zeros(3)
         start = cfg.start
         if start is None:
@@ -437,7 +479,8 @@ class PoseCellNetwork:
         """Clear the network and put a single packet at ``centre`` (cell units)."""
         self._pc[:] = 0.0
         self._n_active = 0
-        c = np.asarray(centre, dtype=np.float64)
+        c = np.asarray(centre, dtype=np.float64).reshape(3)
+        self._last_centre = c.copy()
         self._n_active = self._inject_at(c, 1.0)
         self.step()
 
@@ -491,7 +534,7 @@ class PoseCellNetwork:
         d = np.asarray(dp, dtype=np.float64).reshape(3)
         if not np.all(np.isfinite(d)):
             raise ValueError(f"path integration needs a finite pose change, got {dp}")
-        self._pending = _compose(self._pending, d)
+        self._pending = _compose_motion(self._pending, d)
         cxy, _, cth = self.config.cell_size
         quantum = self.config.min_shift_cells
         if abs(self._pending[2]) >= quantum * cth:
@@ -584,7 +627,10 @@ class PoseCellNetwork:
             )
         )
         if self._n_active == 0:
-            raise RuntimeError("the pose cell network lost all activity; lower global_inhibition")
+            # Activity spread thin (e.g. many path integrations without a step) falls below
+            # the global inhibition everywhere; re-seed rather than stop the run.
+            self.collapses += 1
+            self.reset(self._last_centre)
 
     def centre(self) -> FloatArray:
         """The packet centre (x', y', θ') in cell units, each in [0, n): a population vector
@@ -592,6 +638,7 @@ class PoseCellNetwork:
         odometry not yet applied (see ``min_shift_cells``)."""
         nx, ny, nt = self.dims
         c = _centre(self._pc, self._active, self._n_active, self.config.centre_radius, nx, ny, nt)
+        self._last_centre = c.copy()
         if np.any(self._pending):
             cxy, _, cth = self.config.cell_size
             heading = c[2] * cth
