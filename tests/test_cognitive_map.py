@@ -230,3 +230,12 @@ def test_loop_closures_keep_a_moderately_drifting_run_at_centimetre_level():
     slam_err = np.hypot(*(slam - truth)[:, :2].T)
     assert np.max(odo_err) > 0.4
     assert np.max(slam_err) < 0.05
+
+
+def test_relax_is_free_between_loop_closures():
+    cm, _, _ = loop_map(heading_bias=0.004)
+    assert cm.relax() >= 1
+    for k in range(5):
+        cm.integrate_odometry((0.2, 0.0, 0.01))
+        assert cm.update(1000 + k, True, PC, stamp=100.0 + k).kind == "new"
+        assert cm.relax() == 0  # new odometry links are consistent by construction

@@ -181,3 +181,14 @@ def test_one_view_matched_over_and_over_fatigues_and_never_moves_packet():
         net.inject_view(9, 1.0)
         net.step()
     assert wrapped_cell_distance(net.centre(), start, DIMS) < 0.05
+
+
+def test_network_that_loses_all_activity_is_reseeded_not_stopped():
+    net = settled((10.0, 10.0, 0.0))
+    last = net.centre()
+    for _ in range(400):  # path integration without the attractor step smears the packet out
+        net.path_integrate((0.2, 0.0, 0.05))
+    net.step()
+    assert net.collapses == 1
+    assert net.activity.sum() == pytest.approx(1.0)
+    assert wrapped_cell_distance(net.centre(), last, DIMS) < 0.05
