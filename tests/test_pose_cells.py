@@ -18,8 +18,10 @@ from bioslam.pose_cells import (
 DIMS = (21, 21, 36)
 
 
-def settled(start: tuple[float, float, float], steps: int = 10) -> PoseCellNetwork:
-    net = PoseCellNetwork(PoseCellConfig(dims=DIMS, start=start))
+def settled(
+    start: tuple[float, float, float], steps: int = 10, min_shift_cells: float = 0.5
+) -> PoseCellNetwork:
+    net = PoseCellNetwork(PoseCellConfig(dims=DIMS, start=start, min_shift_cells=min_shift_cells))
     for _ in range(steps):
         net.step()
     return net
@@ -43,9 +45,11 @@ def expected_shift(net: PoseCellNetwork, dp: tuple[float, float, float]) -> np.n
 
 @pytest.mark.parametrize("heading_cells", [0.0, 4.0, 9.0, 13.5, 18.0, 22.25, 27.0, 31.0])
 @pytest.mark.parametrize("forward_m", [0.07, 0.61, 1.37])
-def test_path_integration_moves_packet_by_expected_cells(heading_cells, forward_m):
-    # 0.07 m is 0.28 of a 0.25 m cell; 1.37 m is 5.48 cells in a single update.
-    net = settled((10.0, 10.0, heading_cells))
+@pytest.mark.parametrize("min_shift_cells", [0.0, 0.5])
+def test_path_integration_moves_packet_by_expected_cells(heading_cells, forward_m, min_shift_cells):
+    # 0.07 m is 0.28 of a 0.25 m cell; 1.37 m is 5.48 cells in a single update. With
+    # min_shift_cells = 0 every step goes through Eq. 10's 2x2x2 spread at once.
+    net = settled((10.0, 10.0, heading_cells), min_shift_cells=min_shift_cells)
     dp = (forward_m, 0.35 * forward_m, 0.0)
     want = expected_shift(net, dp)
     before = net.centre()
@@ -66,7 +70,7 @@ def test_path_integration_moves_packet_by_expected_cells(heading_cells, forward_
 
 @pytest.mark.parametrize("turn_rad", [0.05, -0.3, 1.9, -3.0])
 def test_path_integration_rotates_packet_any_size(turn_rad):
-    net = settled((10.0, 10.0, 5.0))
+    net = settled((10.0, 10.0, 5.0), min_shift_cells=0.0)
     before = net.centre()
     net.path_integrate((0.0, 0.0, turn_rad))
     got = signed_cell_delta(before, net.centre())
