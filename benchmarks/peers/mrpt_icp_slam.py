@@ -15,10 +15,10 @@ are avoided:
   instead: they carry the field of view explicitly (aperture = (n-1) * increment, MRPT's
   convention) and the laser-vs-robot pose triple carries the yaw of the scan centre, so
   asymmetric scans (180 beams over [-90, 89] deg) are placed right.
-* Every observation gets ``now() + ipc_timestamp`` as its time, and ``icp-slam`` writes its
-  path by step number, not by time. We write the scans' own stamps (relative to the first) and
-  map the path back by index: each ROBOTLASER1 line yields two observations (odometry, laser),
-  so the pose after laser ``k`` is step ``2k + 1``.
+* The converted rawlog gives every observation the same time stamp (checked with
+  ``rawlog-edit --export-2d-scans-txt`` on MRPT 2.5.8), and ``icp-slam`` writes its path by step
+  number, not by time. We map the path back to the scans' stamps by index: each ROBOTLASER1 line
+  yields two observations (odometry, laser), so the pose after laser ``k`` is step ``2k + 1``.
 * With constant odometry, ``CMetricMapBuilderICP`` skips ICP while the odometric displacement
   since the last correction is below ``localizationLinDistance``/``AngDistance``; both are set
   to 0 so that every scan is registered.
