@@ -234,8 +234,25 @@ def test_loop_closures_keep_a_moderately_drifting_run_at_centimetre_level():
 
 def test_relax_is_free_between_loop_closures():
     cm, _, _ = loop_map(heading_bias=0.004)
-    assert cm.relax() >= 1
+    assert not cm.converged
+    cm.relax()
+    assert cm.converged
     for k in range(5):
         cm.integrate_odometry((0.2, 0.0, 0.01))
         assert cm.update(1000 + k, True, PC, stamp=100.0 + k).kind == "new"
         assert cm.relax() == 0  # new odometry links are consistent by construction
+
+
+def test_solve_window_moves_only_recent_experiences_to_their_fixed_point():
+    cm, _, _ = loop_map(heading_bias=0.004, config=CognitiveMapConfig(solve_window=30))
+    before = cm.experience_poses
+    cm.relax()
+    after = cm.experience_poses
+    n = len(cm)
+    np.testing.assert_array_equal(after[: n - 30], before[: n - 30])
+    ends = np.array([(lk.source, lk.target) for lk in cm.links])
+    dps = np.array([lk.dp for lk in cm.links])
+    correction = relaxation_correction(after, ends[:, 0], ends[:, 1], dps)
+    # Eq. 14's correction vanishes on every freed experience; it did not before.
+    np.testing.assert_allclose(correction[n - 30 :], 0.0, atol=1e-9)
+    assert np.abs(relaxation_correction(before, ends[:, 0], ends[:, 1], dps)[n - 30 :]).max() > 0.01

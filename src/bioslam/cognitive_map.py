@@ -27,10 +27,12 @@ Relaxation (Eq. 14) — the choices the paper leaves open, written down:
   converge instead of oscillating.
 * Experience 0 defines the map frame and stays fixed (Eq. 14 leaves the gauge free).
 * Sweeps on a long loop converge slowly (the error diffuses ~one node per sweep), so after a loop
-  closure ``relax`` first jumps to the fixed point of Eq. 14 — the state where every node's
+  closure ``relax`` jumps to the fixed point of Eq. 14 — the state where every node's
   correction Δp^i is zero — by solving that sparse linear system directly (headings, then
-  positions with the headings fixed), then confirms it with sweeps. Between loop closures the
-  map is consistent by construction (new links equal the odometry), so ``relax`` costs nothing.
+  positions with the headings fixed). Its cost is linear in the map (band-like Laplacian); on
+  long runs only the ``solve_window`` most recent experiences move, which bounds it. Between
+  loop closures the map is consistent by construction (new links equal the odometry), so
+  ``relax`` costs nothing.
 """
 
 from __future__ import annotations
@@ -74,6 +76,11 @@ class CognitiveMapConfig:
     #: After a loop closure, solve for the fixed point of Eq. 14 directly (sparse, O(map)) before
     #: sweeping; without it only bounded sweeps run and a long loop converges over many scans.
     solve_on_loop: bool = True
+    #: Experiences (the most recent) that a loop closure's direct solve may move; older ones
+    #: are held as fixed boundary conditions. This bounds the cost of a closure (~10-30 ms for
+    #: 5,000 experiences on one core, see ``benchmarks/bench_pose_cells.py``) on long runs;
+    #: ``None`` always frees the whole map.
+    solve_window: int | None = 5000
 
     def __post_init__(self) -> None:
         if self.match_threshold <= 0.0:
@@ -82,6 +89,8 @@ class CognitiveMapConfig:
             raise ValueError(f"correction a must be in (0, 1], got {self.correction}")
         if self.sweeps_per_update < 0:
             raise ValueError("sweeps_per_update must be >= 0")
+        if self.solve_window is not None and self.solve_window < 1:
+            raise ValueError(f"solve_window must be >= 1 or None, got {self.solve_window}")
 
 
 @dataclass
@@ -197,12 +206,13 @@ def _relax_sweep(poses, src, dst, dps, out_ptr, out_e, in_ptr, in_e, a):
 
 
 def _laplacian_lu(src: NDArray[np.int64], dst: NDArray[np.int64], n: int) -> Any:
-    """LU of the graph Laplacian without node 0 (the anchor). Creation order is already close
-    to a band (a chain plus a few loop links), so no fill-reducing permutation is needed."""
+    """LU of the graph Laplacian without its last node (the fixed ground). Creation order is
+    already close to a band (a chain plus a few loop links), so no fill-reducing permutation
+    is needed."""
     rows = np.concatenate([src, dst, src, dst])
     cols = np.concatenate([src, dst, dst, src])
     vals = np.concatenate([np.ones(2 * src.size), -np.ones(2 * src.size)])
-    lap = sp.csc_matrix((vals, (rows, cols)), shape=(n, n))[1:, 1:]
+    lap = sp.csc_matrix((vals, (rows, cols)), shape=(n, n))[:-1, :-1]
     return splu(lap.tocsc(), permc_spec="NATURAL", options={"SymmetricMode": True})
 
 
@@ -472,14 +482,18 @@ class CognitiveMap:
         """Relax the map per Eq. 14; returns the number of sweeps run.
 
         Nothing runs while the map is consistent. After a loop closure the fixed point is
-        solved directly (``solve_on_loop``); then at most ``iterations`` (default
-        ``sweeps_per_update``) in-place sweeps run, stopping once converged.
+        solved directly (``solve_on_loop``, no sweeps needed); otherwise at most ``iterations``
+        (default ``sweeps_per_update``) in-place sweeps run, stopping once converged.
         """
         if not self._dirty or len(self) < 2:
             self._dirty = False
             return 0
         if self._needs_solve and self.config.solve_on_loop:
+            # The solve lands on the fixed point (within its window): nothing left to sweep.
             self.solve()
+            self._needs_solve = False
+            self._dirty = False
+            return 0
         self._needs_solve = False
         n_sweeps = self.config.sweeps_per_update if iterations is None else int(iterations)
         src, dst, out_ptr, out_e, in_ptr, in_e = self._adjacency()
@@ -494,30 +508,41 @@ class CognitiveMap:
                 return k + 1
         return n_sweeps
 
-    def solve(self) -> None:
+    def solve(self, window: int | None = -1) -> None:
         """Jump to the fixed point of Eq. 14 (every Δp^i zero) by a sparse linear solve.
 
-        Headings first (the linearised, anchored Laplacian system of the heading residuals),
-        then positions with the headings fixed: ``min Σ |p_j - p_i - R(θ_i) Δp_ij|²``, whose
-        normal equations are exactly "the sum of each node's residuals is zero".
+        Headings first (the linearised Laplacian system of the heading residuals), then
+        positions with the headings fixed: ``min Σ |p_j - p_i - R(θ_i) Δp_ij|²``, whose normal
+        equations are exactly "the sum of each node's residuals is zero". Only the ``window``
+        most recent experiences move (default ``config.solve_window``; ``None`` = all but
+        experience 0); older ones act as fixed boundary conditions.
         """
         n, m = len(self), self.num_links
         if n < 2 or m == 0:
             return
+        window = self.config.solve_window if window == -1 else window
+        lo = 1 if window is None else max(1, n - int(window))
         src, dst, *_ = self._adjacency()
-        lu = _laplacian_lu(src, dst, n)
+        keep = (src >= lo) | (dst >= lo)
+        s, t = src[keep], dst[keep]
+        free = n - lo
+        # Fixed experiences all map to one ground index (the last), dropped from the system.
+        ls = np.where(s >= lo, s - lo, free)
+        lt = np.where(t >= lo, t - lo, free)
+        lu = _laplacian_lu(ls, lt, free + 1)
         poses = self._poses.view
-        dps = self._link_dp.view
+        dps = self._link_dp.view[keep]
         for _ in range(2):  # a second pass settles residuals that wrapped around ±π
-            r = wrap_angle(poses[src, 2] + dps[:, 2] - poses[dst, 2])
-            poses[1:, 2] = wrap_angle(poses[1:, 2] + lu.solve(_incidence_t(src, dst, r, n)[1:]))
-        c, s = np.cos(poses[src, 2]), np.sin(poses[src, 2])
-        rel = np.stack([c * dps[:, 0] - s * dps[:, 1], s * dps[:, 0] + c * dps[:, 1]], axis=1)
-        # Experience 0 is fixed: move its known terms to the right-hand side.
-        rel = rel + np.where(src == 0, 1.0, 0.0)[:, None] * poses[0, :2]
-        rel = rel - np.where(dst == 0, 1.0, 0.0)[:, None] * poses[0, :2]
-        rhs = np.stack([_incidence_t(src, dst, rel[:, k], n)[1:] for k in range(2)], axis=1)
-        poses[1:, :2] = lu.solve(rhs)
+            r = wrap_angle(poses[s, 2] + dps[:, 2] - poses[t, 2])
+            step = lu.solve(_incidence_t(ls, lt, r, free + 1)[:free])
+            poses[lo:, 2] = wrap_angle(poses[lo:, 2] + step)
+        c, sn = np.cos(poses[s, 2]), np.sin(poses[s, 2])
+        rel = np.stack([c * dps[:, 0] - sn * dps[:, 1], sn * dps[:, 0] + c * dps[:, 1]], axis=1)
+        # Known positions of fixed ends move to the right-hand side.
+        rel = rel + np.where(s < lo, 1.0, 0.0)[:, None] * poses[s, :2]
+        rel = rel - np.where(t < lo, 1.0, 0.0)[:, None] * poses[t, :2]
+        rhs = np.stack([_incidence_t(ls, lt, rel[:, k], free + 1)[:free] for k in range(2)], 1)
+        poses[lo:, :2] = lu.solve(rhs)
 
     # --- output ----------------------------------------------------------------------------
 
