@@ -49,7 +49,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     try:
         summary = args.func(args)
-    except (FileNotFoundError, ValueError) as exc:
+    except (FileNotFoundError, ValueError, RuntimeError) as exc:
         print(f"bioslam {args.command}: error: {exc}", file=sys.stderr)
         return 2
     if summary is not None:

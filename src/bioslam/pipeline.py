@@ -1,0 +1,289 @@
+"""Running BioSLAM over a log and writing its results: progress, timing, files, figures.
+
+The algorithm core (:mod:`bioslam.slam`) never touches files or the terminal; this module does,
+and it does so defensively: a run interrupted (Ctrl-C) or failing half-way keeps what it had
+computed and still writes it.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from tqdm import tqdm
+
+from bioslam.config import SLAMConfig
+from bioslam.evaluation import evaluate, position_errors
+from bioslam.geometry import Pose2D, compose, inverse
+from bioslam.io.jsonio import write_json
+from bioslam.io.mapfile import OccupancyImage, write_map
+from bioslam.io.tum import write_tum
+from bioslam.occupancy_grid import OccupancyGrid
+from bioslam.odometry import LidarOdometry
+from bioslam.plots import figures
+from bioslam.scan import LaserScan
+from bioslam.slam import BioSLAM, StepRecord, thin_points
+from bioslam.trajectory import Trajectory
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass
+class RunOptions:
+    """How a run is carried out and what it keeps for its outputs.
+
+    Attributes:
+        odometry_only: run the LiDAR odometry alone (no views, pose cells or map).
+        progress: show a progress bar on stderr.
+        snapshot_times: seconds after the first scan at which to keep a copy of the cognitive
+            map for the mapping-progress figure (the paper's Fig. 5 uses 200, 400 and 600 s).
+        keyframe_distance, keyframe_angle: a scan is kept for rendering the output map when
+            the robot has moved this far (m) or turned this much (rad) since the last kept one;
+            this bounds memory on long logs while every place still gets drawn.
+        map_resolution: cell size of the output map, metres.
+        map_point_spacing: the kept scans are thinned to one point per this many metres.
+    """
+
+    odometry_only: bool = False
+    progress: bool = True
+    snapshot_times: tuple[float, ...] = ()
+    keyframe_distance: float = 0.1
+    keyframe_angle: float = math.radians(5.0)
+    map_resolution: float = 0.05
+    map_point_spacing: float = 0.025
+
+
+class OdometryOnly:
+    """The LiDAR odometry behind the same interface as :class:`BioSLAM`."""
+
+    def __init__(self, config: SLAMConfig) -> None:
+        self.odometry = LidarOdometry(config.odometry)
+        self._stamps: list[float] = []
+        self._poses: list[FloatArray] = []
+        self.records: list[StepRecord] = []
+
+    def process(self, scan: LaserScan) -> Pose2D:
+        self.odometry.update(scan)
+        self._stamps.append(scan.stamp)
+        self._poses.append(self.odometry.pose.copy())
+        return Pose2D(*self._poses[-1])
+
+    @property
+    def num_scans(self) -> int:
+        return len(self._stamps)
+
+    def trajectory(self) -> Trajectory:
+        if not self._stamps:
+            return Trajectory.empty()
+        return Trajectory(np.asarray(self._stamps), np.asarray(self._poses))
+
+    odometry_trajectory = trajectory
+
+    def finish(self) -> None:
+        """Nothing to settle: the odometry is final as it goes."""
+
+    def summary(self) -> dict[str, int]:
+        return {"views": 0, "experiences": 0, "loop_closures": 0}
+
+
+@dataclass
+class Snapshot:
+    """The cognitive map as it stood at ``elapsed`` seconds into the run."""
+
+    elapsed: float
+    nodes_xy: FloatArray
+    links: list[tuple[int, int, str]]
+
+
+@dataclass
+class RunResult:
+    """Everything a run produced, complete or not."""
+
+    system: BioSLAM | OdometryOnly
+    scan_seconds: list[float] = field(default_factory=list)
+    wall_s: float = 0.0
+    snapshots: list[Snapshot] = field(default_factory=list)
+    keyframe_index: list[int] = field(default_factory=list)
+    keyframe_points: list[NDArray[np.float32]] = field(default_factory=list)
+    map_max_range: float = 30.0
+    interrupted: bool = False
+    error: str | None = None
+
+
+def cognitive_map_snapshot(system: BioSLAM, elapsed: float) -> Snapshot:
+    """Experience positions and links as plain arrays (for figures and JSON)."""
+    cmap = system.cognitive_map
+    nodes = np.array([e.pose[:2] for e in cmap.experiences]).reshape(-1, 2)
+    links = [(int(link.source), int(link.target), str(link.kind)) for link in cmap.links]
+    return Snapshot(elapsed, nodes, links)
+
+
+def _is_keyframe(pose: FloatArray, last: FloatArray | None, options: RunOptions) -> bool:
+    if last is None:
+        return True
+    moved = math.hypot(pose[0] - last[0], pose[1] - last[1])
+    turned = abs(math.remainder(pose[2] - last[2], 2.0 * math.pi))
+    return moved >= options.keyframe_distance or turned >= options.keyframe_angle
+
+
+def run_slam(
+    scans: Iterable[LaserScan],
+    config: SLAMConfig | None = None,
+    options: RunOptions | None = None,
+    total: int | None = None,
+) -> RunResult:
+    """Feed every scan to the system, timing each, keeping what the outputs need.
+
+    Exceptions from the core end the run but not the result: ``RunResult.error`` says what
+    happened and everything computed before is kept.
+    """
+    config = config or SLAMConfig()
+    options = options or RunOptions()
+    system: BioSLAM | OdometryOnly = (
+        OdometryOnly(config) if options.odometry_only else BioSLAM(config)
+    )
+    result = RunResult(system, map_max_range=config.odometry.max_range)
+    pending_snapshots = sorted(options.snapshot_times)
+    last_key: FloatArray | None = None
+    first_stamp: float | None = None
+    bar = tqdm(total=total, unit="scan", disable=not options.progress, file=sys.stderr,
+               dynamic_ncols=True, smoothing=0.05)
+    started = time.perf_counter()
+    try:
+        for scan in scans:
+            t0 = time.perf_counter()
+            system.process(scan)
+            result.scan_seconds.append(time.perf_counter() - t0)
+            first_stamp = scan.stamp if first_stamp is None else first_stamp
+            odo_pose = system.odometry.pose
+            if _is_keyframe(odo_pose, last_key, options):
+                last_key = odo_pose.copy()
+                result.keyframe_index.append(system.num_scans - 1)
+                result.keyframe_points.append(
+                    thin_points(scan.endpoints(), options.map_point_spacing)
+                )
+            while pending_snapshots and scan.stamp - first_stamp >= pending_snapshots[0]:
+                if isinstance(system, BioSLAM):
+                    result.snapshots.append(cognitive_map_snapshot(system, pending_snapshots[0]))
+                pending_snapshots.pop(0)
+            bar.update(1)
+    except KeyboardInterrupt:
+        result.interrupted = True
+    except Exception as exc:  # the run's results must survive a failure half-way
+        result.error = f"{type(exc).__name__}: {exc}"
+    finally:
+        bar.close()
+        result.wall_s = time.perf_counter() - started
+    system.finish()
+    return result
+
+
+def render_map(result: RunResult, trajectory: Trajectory, resolution: float) -> OccupancyImage:
+    """An occupancy map from the kept scans placed at their final (corrected) poses."""
+    grid = OccupancyGrid(resolution, 20.0, origin=(-10.0, -10.0), auto_grow=True)
+    for index, points in zip(result.keyframe_index, result.keyframe_points, strict=True):
+        grid.insert_scan(trajectory.poses[index], points.astype(np.float64), result.map_max_range)
+    probability = grid.probability(unknown=np.nan)
+    return OccupancyImage(probability, grid.resolution, (*map(float, grid.origin), 0.0))
+
+
+def timing_summary(result: RunResult, trajectory: Trajectory) -> dict[str, float]:
+    ms = np.asarray(result.scan_seconds) * 1e3
+    duration = float(trajectory.stamps[-1] - trajectory.stamps[0]) if len(trajectory) > 1 else 0.0
+    compute_s = float(np.sum(result.scan_seconds))
+    return {
+        "wall_s": round(result.wall_s, 3),
+        "duration_s": round(duration, 3),
+        "realtime_factor": round(duration / compute_s, 2) if compute_s > 0 else math.nan,
+        "ms_per_scan_median": round(float(np.median(ms)), 4) if ms.size else math.nan,
+        "ms_per_scan_p99": round(float(np.percentile(ms, 99)), 4) if ms.size else math.nan,
+    }
+
+
+def write_results(
+    result: RunResult,
+    out_dir: str | Path,
+    gt: Trajectory | None = None,
+    options: RunOptions | None = None,
+    extra: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Write trajectories, cognitive map, map, figures and ``summary.json``; return the summary."""
+    options = options or RunOptions()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    system = result.system
+    trajectory = system.trajectory()
+    odometry = system.odometry_trajectory()
+    summary: dict[str, Any] = {"scans": len(trajectory), **timing_summary(result, trajectory)}
+    summary.update(system.summary())
+    write_tum(out / "trajectory.tum", trajectory)
+    write_tum(out / "odometry.tum", odometry)
+    if isinstance(system, BioSLAM):
+        write_json(out / "cognitive_map.json", system.cognitive_map.to_dict())
+    if len(trajectory):
+        image = render_map(result, trajectory, options.map_resolution)
+        write_map(out, image)
+        _write_figures(result, out / "figures", trajectory, odometry, gt, image)
+    if gt is not None and len(trajectory) > 1:
+        summary.update(evaluate(trajectory, gt))
+        summary["odometry"] = evaluate(odometry, gt)
+    if result.interrupted:
+        summary["interrupted"] = True
+    if result.error:
+        summary["error"] = result.error
+    summary.update(extra or {})
+    write_json(out / "summary.json", summary)
+    return summary
+
+
+def _write_figures(
+    result: RunResult,
+    folder: Path,
+    trajectory: Trajectory,
+    odometry: Trajectory,
+    gt: Trajectory | None,
+    image: OccupancyImage,
+) -> None:
+    system = result.system
+    figures.plot_occupancy(folder / "map.png", image, trajectory.poses[:, :2])
+    if not isinstance(system, BioSLAM):
+        return
+    final = cognitive_map_snapshot(system, float(trajectory.stamps[-1] - trajectory.stamps[0]))
+    aligned_gt = _gt_in_map_frame(trajectory, gt) if gt is not None else None
+    figures.plot_cognitive_map(
+        folder / "cognitive_map.png", final.nodes_xy, final.links, aligned_gt
+    )
+    records = system.records
+    stamps = np.array([r.stamp for r in records])
+    view_ids = np.array([r.view_id for r in records])
+    new_mask = np.array([r.view_is_new for r in records])
+    figures.plot_active_view(folder / "active_view.png", stamps, view_ids, new_mask)
+    if gt is None:
+        return
+    err_t, err = position_errors(trajectory, gt)
+    odo_t, odo_err = position_errors(odometry, gt)
+    figures.plot_error_over_time(folder / "error.png", err_t, err, (odo_t, odo_err))
+    figures.plot_views_and_errors(
+        folder / "views_and_error.png", stamps, view_ids, new_mask, err_t, err, (odo_t, odo_err)
+    )
+    if result.snapshots:
+        figures.plot_mapping_progress(
+            folder / "mapping_progress.png",
+            [(s.elapsed, s.nodes_xy, s.links) for s in result.snapshots],
+            aligned_gt,
+        )
+
+
+def _gt_in_map_frame(trajectory: Trajectory, gt: Trajectory) -> FloatArray:
+    """The ground-truth path expressed in the map frame (both start at the first scan), so
+    that figures overlay it on the cognitive map without an alignment."""
+    origin = gt.poses[int(np.argmin(np.abs(gt.stamps - trajectory.stamps[0])))]
+    relative = compose(np.broadcast_to(inverse(origin), gt.poses.shape), gt.poses)
+    return compose(np.broadcast_to(trajectory.poses[0], relative.shape), relative)[:, :2]

@@ -1,0 +1,185 @@
+"""BioSLAM: the paper's system, one LiDAR scan in, one pose out (Fig. 1's data flow).
+
+::
+
+    LaserScan -> LidarOdometry -dp-> PoseCellNetwork -centre-> CognitiveMap -> pose
+        '-----> BoundaryCells -B-> ViewCells -V---^
+
+No file or terminal I/O here: :mod:`bioslam.pipeline` owns progress, timing and results.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bioslam.boundary import BoundaryCells
+from bioslam.cognitive_map import CognitiveMap
+from bioslam.config import SLAMConfig
+from bioslam.geometry import Pose2D, between, compose
+from bioslam.odometry import LidarOdometry, register_scans
+from bioslam.pose_cells import PoseCellNetwork
+from bioslam.scan import LaserScan
+from bioslam.trajectory import Trajectory
+from bioslam.views import ViewCells, ViewMatch
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class StepRecord:
+    """What one scan did to the system, for figures and summaries."""
+
+    stamp: float
+    view_id: int
+    view_is_new: bool
+    event: str
+    experience_id: int
+
+
+def thin_points(points: FloatArray, spacing: float) -> NDArray[np.float32]:
+    """Keep one point per ``spacing``-sized grid cell: a compact scan to store with a place."""
+    if points.shape[0] == 0 or spacing <= 0.0:
+        return points.astype(np.float32)
+    keys = np.floor(points / spacing).astype(np.int64)
+    _, first = np.unique(keys, axis=0, return_index=True)
+    return points[np.sort(first)].astype(np.float32)
+
+
+class BioSLAM:
+    """The LiDAR-based biologically-inspired SLAM system (Sec. III)."""
+
+    def __init__(self, config: SLAMConfig | None = None) -> None:
+        self.config = config or SLAMConfig()
+        cfg = self.config
+        self.odometry = LidarOdometry(cfg.odometry)
+        self.boundary_cells = BoundaryCells(cfg.boundary)
+        self.view_cells = ViewCells(cfg.views)
+        self.pose_cells = PoseCellNetwork(cfg.pose_cells)
+        self.cognitive_map = CognitiveMap.from_pose_cells(cfg.cognitive_map, cfg.pose_cells)
+        self._stamps: list[float] = []
+        self._anchor_ids: list[int] = []
+        self._anchor_offsets: list[FloatArray] = []
+        self._odometry_pose = np.zeros(3)
+        self._odometry_poses: list[FloatArray] = []
+        self._last_stamp: float | None = None
+        self.records: list[StepRecord] = []
+        self._travelled = 0.0
+        self._travelled_at_experience: list[float] = []
+
+    # --- the per-scan update ---------------------------------------------------------------
+
+    def process(self, scan: LaserScan) -> Pose2D:
+        """Feed one scan; return the robot's current pose in the cognitive map's frame."""
+        dp = self._self_motion(scan)
+        points = scan.endpoints()
+        match = self.view_cells.observe(self.boundary_cells.activity(scan))
+        self.pose_cells.path_integrate(dp)
+        self.pose_cells.inject_view(match.view_id, match.activity, match.is_new)
+        self.pose_cells.step()
+        self.cognitive_map.integrate_odometry(dp, scan.stamp)
+        event = self.cognitive_map.update(
+            match.view_id,
+            match.is_new,
+            self.pose_cells.centre(),
+            scan.stamp,
+            payload=thin_points(points, self.config.loop_closure.payload_spacing),
+            refine=self._refiner(points) if self.config.loop_closure.refine else None,
+        )
+        if event.kind == "loop":
+            self.cognitive_map.relax()
+        self._record(scan.stamp, dp, match, event)
+        return Pose2D(*self.cognitive_map.pose())
+
+    def _self_motion(self, scan: LaserScan) -> FloatArray:
+        dp = np.asarray(self.odometry.update(scan), dtype=np.float64).copy()
+        if self.config.heading_bias and self._last_stamp is not None:
+            dp[2] += self.config.heading_bias * max(scan.stamp - self._last_stamp, 0.0)
+        self._last_stamp = scan.stamp
+        return dp
+
+    def _refiner(self, points: FloatArray):
+        """A callable for the cognitive map: the robot's pose in an old experience's frame
+        from registering this scan against the experience's stored scan, or None to reject."""
+        cfg = self.config.loop_closure
+
+        def refine(experience) -> FloatArray | None:
+            reference = experience.payload
+            if reference is None or len(reference) < 3 or points.shape[0] < 3:
+                return None
+            predicted = between(experience.pose, self.cognitive_map.pose())
+            rel, quality = register_scans(reference, points, predicted, cfg.registration)
+            if quality.score < cfg.min_score or (cfg.reject_degenerate and quality.degenerate):
+                return None
+            since = self._travelled - self._travelled_at_experience[experience.id]
+            if not self._plausible_correction(between(predicted, rel), since):
+                return None
+            return rel
+
+        return refine
+
+    def _plausible_correction(self, correction: FloatArray, travelled: float) -> bool:
+        """Whether a closure's correction is within what the odometry can have drifted."""
+        cfg = self.config.loop_closure
+        shift = float(np.hypot(correction[0], correction[1]))
+        turn = abs(float(correction[2]))
+        return (
+            shift <= cfg.drift_floor + cfg.drift_per_metre * travelled
+            and turn <= cfg.drift_angle_floor + cfg.drift_angle_per_metre * travelled
+        )
+
+    def _record(self, stamp: float, dp: FloatArray, match: ViewMatch, event) -> None:
+        self._travelled += float(np.hypot(dp[0], dp[1]))
+        if event.kind == "new":
+            self._travelled_at_experience.append(self._travelled)
+        exp_id, offset = self.cognitive_map.anchor()
+        self._stamps.append(stamp)
+        self._anchor_ids.append(int(exp_id))
+        self._anchor_offsets.append(np.asarray(offset, dtype=np.float64))
+        # Integrating the steps the map received (not odometry.pose) keeps an ablation's
+        # injected drift in the odometry-only trajectory too.
+        self._odometry_pose = compose(self._odometry_pose, dp)
+        self._odometry_poses.append(self._odometry_pose)
+        self.records.append(
+            StepRecord(stamp, match.view_id, match.is_new, event.kind, int(exp_id))
+        )
+
+    def finish(self) -> None:
+        """Settle the cognitive map after the last scan (the final trajectory is re-derived
+        from it)."""
+        if not self.cognitive_map.converged:
+            self.cognitive_map.solve()
+            self.cognitive_map.relax()
+
+    # --- read-outs ---------------------------------------------------------------------------
+
+    @property
+    def num_scans(self) -> int:
+        return len(self._stamps)
+
+    def trajectory(self) -> Trajectory:
+        """Every scan's pose: its experience's relaxed pose composed with the odometry since,
+        so that the whole trajectory follows each correction of the map."""
+        if not self._stamps:
+            return Trajectory.empty()
+        poses = self.cognitive_map.poses_of(
+            np.asarray(self._anchor_ids), np.asarray(self._anchor_offsets)
+        )
+        return Trajectory(np.asarray(self._stamps), poses)
+
+    def odometry_trajectory(self) -> Trajectory:
+        """The LiDAR odometry alone (as the pose cells received it), one pose per scan."""
+        if not self._stamps:
+            return Trajectory.empty()
+        return Trajectory(np.asarray(self._stamps), np.asarray(self._odometry_poses))
+
+    def summary(self) -> dict[str, int]:
+        cmap = self.cognitive_map
+        return {
+            "views": self.view_cells.num_views,
+            "experiences": len(cmap),
+            "loop_closures": cmap.loop_closures,
+            "loop_closures_rejected": cmap.rejected_closures,
+        }
