@@ -9,6 +9,7 @@ from bioslam.boundary import (
     BoundaryCells,
     boundary_cell_update,
     geometric_rings,
+    linear_rings,
 )
 from bioslam.scan import LaserScan
 
@@ -18,7 +19,7 @@ ROOM = [*box(0.0, 0.0, 8.0, 5.0), (3.0, 0.0, 3.0, 3.0)]
 def _dense_eq5(cfg: BoundaryCellConfig, scan: LaserScan, weight: float) -> np.ndarray:
     """Eq. 5 summed over every endpoint and every cell, without truncation."""
     d_i, a_i = cfg.cell_centres()
-    s_d = cfg.sigma_d_ratio * d_i
+    s_d = np.repeat(cfg.sigma_d(), cfg.cells_per_ring)
     r, a = scan.valid_polar()
     out = np.zeros(cfg.num_cells)
     for c in range(cfg.num_cells):
@@ -45,7 +46,9 @@ def test_eq5_hand_computed():
 
 
 def test_activity_equals_untruncated_sum_of_eq5():
-    cfg = BoundaryCellConfig(ring_distances=(0.5, 1.0, 2.0, 4.0), cells_per_ring=12)
+    cfg = BoundaryCellConfig(
+        ring_distances=(0.5, 1.0, 2.0, 4.0), cells_per_ring=12, distance_gain=False
+    )
     scan = cast(ROOM, (1.5, 2.0, 0.4), fov_deg=270.0, beams=91)
     weight = (math.radians(270.0) / 90) / cfg.reference_beam_spacing
     expected = _dense_eq5(cfg, scan, weight)
@@ -57,7 +60,10 @@ def test_activity_equals_untruncated_sum_of_eq5():
 
 def test_single_point_peaks_at_its_cell_with_inverse_distance():
     cfg = BoundaryCellConfig(
-        ring_distances=(1.0, 2.0, 4.0), cells_per_ring=8, weight_by_beam_spacing=False
+        ring_distances=(1.0, 2.0, 4.0),
+        cells_per_ring=8,
+        weight_by_beam_spacing=False,
+        distance_gain=False,
     )
     b = BoundaryCells(cfg).activity_polar(np.array([2.0]), np.array([math.pi / 2]))
     ring, cell = divmod(int(np.argmax(b)), cfg.cells_per_ring)
@@ -65,6 +71,24 @@ def test_single_point_peaks_at_its_cell_with_inverse_distance():
     assert b.max() == pytest.approx(0.5)
     # Cells out of angular reach of the point stay silent.
     assert b.reshape(3, 8)[:, 6].max() == 0.0
+
+
+def test_distance_gain_scales_each_ring_by_its_distance():
+    scan = cast(ROOM, (1.5, 2.0, 0.4))
+    plain = BoundaryCells(BoundaryCellConfig(distance_gain=False)).activity(scan)
+    gained = BoundaryCells(BoundaryCellConfig()).activity(scan)
+    d_i, _ = BoundaryCellConfig().cell_centres()
+    assert np.allclose(gained, plain * d_i)
+
+
+def test_default_rings_overlap_so_no_wall_distance_is_missed():
+    cfg = BoundaryCellConfig(weight_by_beam_spacing=False, distance_gain=False)
+    bc = BoundaryCells(cfg)
+    d = np.linspace(0.5, 15.0, 300)
+    peak = np.array([bc.activity_polar(np.array([x]), np.array([0.0])).max() * x for x in d])
+    # The widest gap is between the first two rings (0.25 m from each, widths 0.15 and 0.2):
+    # a point there still drives the outer cell at exp(-(0.25/0.2)^2) of its peak.
+    assert peak.min() == pytest.approx(math.exp(-((0.25 / 0.2) ** 2)), rel=0.05)
 
 
 def test_rotation_by_one_cell_shifts_every_ring_by_one_cell():
@@ -119,6 +143,9 @@ def test_bad_config_is_rejected():
         BoundaryCellConfig(sigma_d_ratio=0.0)
     with pytest.raises(ValueError):
         geometric_rings(1.0, 0.5, 4)
+    assert linear_rings(0.5, 2.0, 0.5) == (0.5, 1.0, 1.5, 2.0)
+    with pytest.raises(ValueError, match="sigma_d_offset"):
+        BoundaryCellConfig(sigma_d_offset=-0.1)
     rings = geometric_rings(0.5, 8.0, 5)
     assert rings[0] == pytest.approx(0.5) and rings[-1] == pytest.approx(8.0)
     assert np.allclose(np.diff(np.log(rings)), math.log(2.0))
