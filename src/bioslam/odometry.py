@@ -24,7 +24,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from bioslam.geometry import between, compose, transform_points, wrap_angle
-from bioslam.occupancy_grid import LogOddsConfig, MapPyramid, OccupancyGrid, map_point
+from bioslam.occupancy_grid import (
+    LogOddsConfig,
+    MapPyramid,
+    OccupancyGrid,
+    map_point,
+    scan_normals,
+)
 from bioslam.scan import LaserScan
 
 FloatArray = NDArray[np.float64]
@@ -204,9 +210,11 @@ def _normal_equations(g, pts, pose):
 
 
 @numba.njit(cache=True)
-def _guarded_step(H, b, length, ratio, damping):
+def _guarded_step(H, b, length, ratio, damping, hold):
     """Solve ``(H + damping) dp = b`` in the eigenbasis of the scaled Hessian, leaving out
-    directions with curvature below ``ratio`` of the largest (they keep the prediction).
+    the direction ``hold`` (unit, scaled; zeros for none) that the scan's geometry does not
+    constrain, and any direction with curvature below ``ratio`` of the largest: along them
+    the pose keeps the prediction.
 
     ``damping`` is a Levenberg-Marquardt term, a fraction of the largest curvature.
     Returns ``(dp, condition, weakest unit direction, degenerate)``.
@@ -214,6 +222,10 @@ def _guarded_step(H, b, length, ratio, damping):
     scale = np.array([1.0, 1.0, 1.0 / length])
     Hs = H * np.outer(scale, scale)
     bs = b * scale
+    if hold @ hold > 0.5:
+        proj = np.eye(3) - np.outer(hold, hold)
+        Hs = proj @ Hs @ proj + np.trace(Hs) * np.outer(hold, hold)
+        bs = proj @ bs
     w, v = np.linalg.eigh(Hs)
     step = np.zeros(3)
     top = w[2]
@@ -229,7 +241,7 @@ def _guarded_step(H, b, length, ratio, damping):
 
 
 @numba.njit(cache=True)
-def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio):
+def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, hold):
     """Gauss-Newton on one level, with a Levenberg-Marquardt guard: a step that raises the
     cost is refused and retried with more damping, so the bilinear map's kinks at cell
     boundaries cannot make the pose oscillate. Returns ``(pose, H, mean M*, iterations,
@@ -243,7 +255,7 @@ def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio):
         return pose, H, mean, iterations, converged
     for _ in range(max_iter):
         iterations += 1
-        step, _, _, _ = _guarded_step(H, b, length, ratio, damping)
+        step, _, _, _ = _guarded_step(H, b, length, ratio, damping, hold)
         small = math.hypot(step[0], step[1]) < tol and abs(step[2]) * length < tol
         trial = pose + step
         H2, b2, mean2, cost2, inside2 = _normal_equations(g, pts, trial)
@@ -353,6 +365,7 @@ def match_scan_to_map(
     length_scale: float = 3.0,
     degeneracy_ratio: float = 0.01,
     subcell_sigma: float | None = 1.0,
+    normals: FloatArray | None = None,
 ) -> tuple[FloatArray, MatchReport]:
     """Eq. 3: the pose maximising Σ M*(R_p e_i + T_p) (Eq. 4 transform), by Gauss-Newton.
 
@@ -362,27 +375,61 @@ def match_scan_to_map(
     used at level ``k`` (finest first). The report's conditioning refers to the finest level.
     ``subcell_sigma`` (in cells) selects the sub-cell map function
     (:func:`bioslam.occupancy_grid.subcell_point`); ``None`` is Hector's bilinear M*.
+
+    Degeneracy guard: with ``normals`` (sensor-frame surface normals of ``level_points[0]``)
+    the scan's geometry is checked first (:func:`geometric_conditioning`); a direction it
+    does not constrain (a featureless corridor's axis) is held at the initial pose, because
+    the map's texture along a wall would otherwise pull the pose along it.
     """
     pose = np.asarray(initial_pose, dtype=np.float64).copy()
     report = MatchReport(num_points=int(level_points[0].shape[0]))
+    hold = np.zeros(3)
+    if normals is not None:
+        cond, weakest = geometric_conditioning(level_points[0], normals, length_scale)
+        report.condition = cond
+        if cond < degeneracy_ratio:
+            c, s = math.cos(pose[2]), math.sin(pose[2])
+            hold = np.array([c * weakest[0] - s * weakest[1], s * weakest[0] + c * weakest[1],
+                             weakest[2]])  # fmt: skip
+            report.degenerate = True
+            report.degenerate_direction = hold
     iters = max_iterations[::-1]
     for k in range(len(pyramid.grids) - 1, -1, -1):
         pose, H, mean, n, converged = _gauss_newton_level(
             _grid_args(pyramid.grids[k], subcell_sigma), level_points[k], pose,
             iters[len(pyramid.grids) - 1 - k], step_tolerance, length_scale, degeneracy_ratio,
+            hold,
         )  # fmt: skip
         report.iterations += int(n)
     pose[2] = wrap_angle(pose[2])
-    _, cond, weakest, degenerate = _guarded_step(
-        H, np.zeros(3), length_scale, degeneracy_ratio, 0.0
-    )
+    if normals is None:
+        _, cond, weakest, degenerate = _guarded_step(
+            H, np.zeros(3), length_scale, degeneracy_ratio, 0.0, hold
+        )
+        report.condition = float(cond)
+        report.degenerate = bool(degenerate)
+        if degenerate:
+            report.degenerate_direction = np.asarray(weakest, dtype=np.float64)
     report.converged = bool(converged)
     report.score = float(mean)
-    report.condition = float(cond)
-    report.degenerate = bool(degenerate)
-    if degenerate:
-        report.degenerate_direction = np.asarray(weakest, dtype=np.float64)
     return pose, report
+
+
+def geometric_conditioning(
+    points: FloatArray, normals: FloatArray, length_scale: float
+) -> tuple[float, FloatArray]:
+    """How well a scan's surfaces pin down (x, y, theta): each endpoint with a normal n
+    constrains the motion along n and the rotation by ``p x n`` (point-to-line
+    information). Returns the smallest / largest eigenvalue of that information, with theta
+    scaled by ``length_scale``, and its weakest unit direction (x, y, theta * length_scale)
+    in the sensor frame. A featureless corridor gives ~0 along its axis."""
+    ok = np.any(normals != 0.0, axis=1)
+    if np.count_nonzero(ok) < 3:
+        return 0.0, np.array([1.0, 0.0, 0.0])
+    p, n = points[ok], normals[ok]
+    J = np.column_stack([n[:, 0], n[:, 1], (p[:, 0] * n[:, 1] - p[:, 1] * n[:, 0]) / length_scale])
+    w, v = np.linalg.eigh(J.T @ J)
+    return float(max(w[0], 0.0) / w[2]), v[:, 0]
 
 
 class LidarOdometry:
@@ -433,12 +480,12 @@ class LidarOdometry:
         c = self.config
         return bool(math.hypot(d[0], d[1]) >= c.insert_distance or abs(d[2]) >= c.insert_angle)
 
-    def _insert(self, pts: FloatArray) -> None:
+    def _insert(self, pts: FloatArray, normals: FloatArray) -> None:
         c = self.config
         centre = self.pyramid.finest.origin + 0.5 * c.map_size
         if np.max(np.abs(self.pose[:2] - centre)) > c.recenter_distance:
             self.pyramid.recenter(self.pose[0], self.pose[1])
-        self.pyramid.insert_scan(self.pose, pts, c.max_range)
+        self.pyramid.insert_scan(self.pose, pts, c.max_range, normals)
         self._last_inserted = self.pose.copy()
 
     # -- public -------------------------------------------------------------------------------
@@ -450,6 +497,7 @@ class LidarOdometry:
         previous = self.pose.copy()
         predicted = compose(previous, se2_exp(self._twist, dt)) if self.num_scans else previous
         pts = self._sensor_points(scan)
+        normals = scan_normals(pts)
         first = self.num_scans == 0
         self.num_scans += 1
         if pts.shape[0] < c.min_points:
@@ -459,13 +507,15 @@ class LidarOdometry:
         elif first:
             self.last_report = MatchReport(num_points=int(pts.shape[0]))
         else:
+            keep = _subsample_by_spacing(pts, c.point_spacing)
             level_pts = _level_points(pts, c.point_spacing, c.levels)
             self.pose, self.last_report = match_scan_to_map(
                 self.pyramid, level_pts, predicted, c.max_iterations, c.step_tolerance,
                 c.length_scale, c.degeneracy_ratio, c.subcell_sigma,
+                np.ascontiguousarray(normals[keep]),
             )  # fmt: skip
         if not self.last_report.predicted_only and self._should_insert():
-            self._insert(pts)
+            self._insert(pts, normals)
             self.last_report.inserted = True
         self._update_twist(scan.stamp)
         self._last_stamp = scan.stamp
@@ -493,10 +543,12 @@ class RegistrationQuality:
     """How trustworthy a :func:`register_scans` result is; ``float(q)`` is ``q.score``.
 
     Attributes:
-        score: fraction of query points (inside the reference map) whose M* ≥ ``hit_level``
-            after convergence, i.e. that land on cells the reference scan saw occupied. Wrong
-            registrations of real scenes typically score well below 0.5; good ones above 0.7.
-        mean_value: mean M* over those points.
+        score: fraction of query points (inside the reference map) that land within about a
+            cell of a reference endpoint after convergence: the sub-cell map function (kernel
+            one cell wide) is at least ``hit_level`` there. Points in space the reference
+            never saw count as misses. In the tests a correct registration scores above 0.9
+            and a registration of two different places below 0.6.
+        mean_value: mean of that map function over those points.
         overlap: fraction of query points that fall inside the reference map at all.
         converged: the finest level stopped on a small step before its iteration limit.
         degenerate: some direction was unconstrained (corridor): ``rel`` is then only
@@ -529,8 +581,8 @@ class RegistrationConfig:
         max_range: reference/query endpoints beyond this are ignored, metres.
         max_iterations, step_tolerance, length_scale, degeneracy_ratio, subcell_sigma: as in
             OdometryConfig.
-        hit_level: M* at or above which a query point counts as landing on an occupied cell
-            (0.5 = more likely occupied than not).
+        hit_level: map function value at or above which a query point counts as landing on
+            the reference scan (0.5: about one cell from a reference endpoint).
     """
 
     resolution: float = 0.05
@@ -587,13 +639,14 @@ def register_scans(
         _grid_args(top, None), level_pts[-1], guess, c.search_distance, c.search_angle,
         0.5 * top.resolution, 0.5 * top.resolution / radius,
     )  # fmt: skip
+    normals = scan_normals(qry)[_subsample_by_spacing(qry, c.resolution)]
     rel, report = match_scan_to_map(
         pyramid, level_pts, seed, c.max_iterations, c.step_tolerance, c.length_scale,
-        c.degeneracy_ratio, c.subcell_sigma,
+        c.degeneracy_ratio, c.subcell_sigma, np.ascontiguousarray(normals),
     )  # fmt: skip
     fine = pyramid.finest
     world = transform_points(rel, qry)
-    values, _ = fine.value_and_gradient(world)  # bilinear: "lands on an occupied cell"
+    values, _ = fine.value_and_gradient(world, subcell_sigma=1.0)
     inside = _inside(fine, world)
     n_in = int(inside.sum())
     quality = RegistrationQuality(

@@ -1,0 +1,126 @@
+import numpy as np
+import pytest
+
+from bioslam.occupancy_grid import MapPyramid, OccupancyGrid
+
+
+def _wall_scan(x_wall: float, n: int = 181, half_width: float = 1.5) -> np.ndarray:
+    """Endpoints of a scan from the origin of a straight wall at x = x_wall."""
+    y = np.linspace(-half_width, half_width, n)
+    return np.column_stack([np.full(n, x_wall), y])
+
+
+def test_hits_are_occupied_rays_are_free_rest_unknown():
+    grid = OccupancyGrid(0.05, 6.0)
+    grid.insert_scan([0.0, 0.0, 0.0], _wall_scan(2.0))
+    p = grid.probability(unknown=np.nan)
+    (r, c), = grid.world_to_cell([[2.01, 0.0]])
+    assert p[r, c] > 0.5
+    (r, c), = grid.world_to_cell([[1.0, 0.0]])
+    assert p[r, c] < 0.5
+    (r, c), = grid.world_to_cell([[-1.0, 0.0]])
+    assert np.isnan(p[r, c])
+    assert np.all((np.nan_to_num(p, nan=0.5) >= 0.0) & (np.nan_to_num(p, nan=0.5) <= 1.0))
+
+
+def test_row_zero_is_lowest_y_and_pose_is_applied():
+    grid = OccupancyGrid(0.1, 4.0)
+    # sensor at (0, 1) facing +y (theta = pi/2): a point 0.5 m ahead lands at (0, 1.5)
+    grid.insert_scan([0.0, 1.0, np.pi / 2], np.array([[0.5, 0.0]]))
+    r, c = np.unravel_index(np.argmax(grid.logodds), grid.shape)
+    x0, y0 = grid.origin
+    assert x0 + c * 0.1 <= 0.0 < x0 + (c + 1) * 0.1
+    assert y0 + r * 0.1 <= 1.5 < y0 + (r + 1) * 0.1
+
+
+@pytest.mark.parametrize("sigma", [None, 1.0])
+def test_gradient_matches_finite_differences(sigma):
+    grid = OccupancyGrid(0.05, 6.0)
+    rng = np.random.default_rng(1)
+    for k in range(5):
+        angle = rng.uniform(-np.pi, np.pi)
+        grid.insert_scan([0.1 * k, 0.0, angle], _wall_scan(1.3 + 0.07 * k))
+    pts = rng.uniform(-1.8, 1.8, size=(400, 2))
+    val, grad = grid.value_and_gradient(pts, subcell_sigma=sigma)
+    h = 1e-6
+    vx, _ = grid.value_and_gradient(pts + np.array([h, 0.0]), subcell_sigma=sigma)
+    vy, _ = grid.value_and_gradient(pts + np.array([0.0, h]), subcell_sigma=sigma)
+    fd = np.column_stack([(vx - val) / h, (vy - val) / h])
+    # away from the kinks at cell-centre lines the analytic gradient is exact
+    smooth = np.all(np.abs(fd - grad) < 1e-3, axis=1)
+    assert smooth.mean() > 0.97
+    assert np.any(np.abs(grad) > 0.1)
+
+
+@pytest.mark.parametrize("x_wall", [1.003, 1.042, 1.047])
+def test_subcell_map_peaks_at_the_measured_wall_bilinear_at_the_cell_centre(x_wall):
+    # a wall near a boundary of the cell [1.00, 1.05) (centre 1.025), hits with 1 cm range
+    # noise straddling two cells (deep inside a cell the sub-cell map also peaks at the centre)
+    grid = OccupancyGrid(0.05, 6.0, origin=(-3.0, -3.0))
+    rng = np.random.default_rng(2)
+    for _ in range(20):
+        wall = _wall_scan(x_wall)
+        wall[:, 0] += rng.normal(0.0, 0.01, len(wall))
+        grid.insert_scan([0.0, 0.0, 0.0], wall)
+    xs = np.linspace(0.95, 1.10, 1501)
+    along = np.linspace(-0.5, 0.5, 41)  # average along the wall, as a scan does
+
+    def profile(sigma):
+        return np.mean(
+            [grid.value_and_gradient(np.column_stack([xs, np.full_like(xs, y)]), sigma)[0]
+             for y in along], axis=0,
+        )  # fmt: skip
+
+    assert abs(xs[np.argmax(profile(1.0))] - x_wall) < 0.003
+    bilinear_peak = xs[np.argmax(profile(None))]
+    assert abs(bilinear_peak - 1.025) < 0.003 or abs(bilinear_peak - 1.075) < 0.003
+    assert abs(bilinear_peak - x_wall) > 0.015
+
+
+def test_scrolling_keeps_content_in_place_and_memory_constant():
+    grid = OccupancyGrid(0.05, 4.0)
+    grid.insert_scan([0.0, 0.0, 0.0], _wall_scan(1.2))
+    before = grid.nbytes
+    probe = np.array([[1.2, 0.3], [0.6, -0.2]])
+    v0, _ = grid.value_and_gradient(probe)
+    s0, _ = grid.value_and_gradient(probe, subcell_sigma=1.0)
+    grid.recenter(0.8, 0.4)
+    assert grid.nbytes == before
+    assert grid.origin[0] > -2.0  # it moved
+    v1, _ = grid.value_and_gradient(probe)
+    s1, _ = grid.value_and_gradient(probe, subcell_sigma=1.0)
+    assert np.allclose(v0, v1) and np.allclose(s0, s1)
+    grid.recenter(100.0, 100.0)  # far away: everything is forgotten
+    assert not grid.known_mask().any() and grid.nbytes == before
+
+
+def test_grow_to_include_keeps_alignment_and_content():
+    grid = OccupancyGrid(0.05, 2.0, auto_grow=True)
+    grid.insert_scan([0.0, 0.0, 0.0], _wall_scan(0.6, half_width=0.5))
+    v0, _ = grid.value_and_gradient([[0.6, 0.1]])
+    grid.insert_scan([0.0, 0.0, 0.0], np.array([[7.3, -4.1]]))
+    _, ymin, xmax, _ = grid.extent
+    assert xmax > 7.3 and ymin < -4.1
+    v1, _ = grid.value_and_gradient([[0.6, 0.1]])
+    assert np.allclose(v0, v1)
+    assert grid.probability()[tuple(grid.world_to_cell([[7.3, -4.1]])[0])] > 0.5
+
+
+def test_pyramid_levels_stay_aligned_when_scrolling():
+    pyr = MapPyramid(0.05, 8.0, 3)
+    assert [g.resolution for g in pyr.grids] == [0.05, 0.1, 0.2]
+    pyr.insert_scan([0.0, 0.0, 0.0], _wall_scan(1.0))
+    pyr.recenter(1.37, -2.11)
+    extents = np.array([g.extent for g in pyr.grids])
+    assert np.allclose(extents, extents[0])
+    for g in pyr.grids:
+        (r, c), = g.world_to_cell([[1.01, 0.0]])
+        assert g.logodds[r, c] > 0
+
+
+def test_bad_input_is_rejected():
+    with pytest.raises(ValueError, match="resolution"):
+        OccupancyGrid(0.0, 1.0)
+    grid = OccupancyGrid(0.1, 1.0)
+    with pytest.raises(ValueError, match=r"\(N, 2\)"):
+        grid.insert_scan([0, 0, 0], np.zeros((3, 3)))
