@@ -150,3 +150,16 @@ def test_bad_config_is_rejected():
     rings = geometric_rings(0.5, 8.0, 5)
     assert rings[0] == pytest.approx(0.5) and rings[-1] == pytest.approx(8.0)
     assert np.allclose(np.diff(np.log(rings)), math.log(2.0))
+
+
+def test_activity_figure_is_written(tmp_path):
+    from bioslam.plots.boundary import plot_boundary_activity
+
+    cfg = BoundaryCellConfig()
+    scan = cast(ROOM, (1.5, 2.0, 0.4))
+    out = plot_boundary_activity(
+        tmp_path / "rings.png", BoundaryCells(cfg).activity(scan), cfg, scan.endpoints()
+    )
+    assert out.exists() and out.stat().st_size > 10_000
+    with pytest.raises(ValueError, match="cells"):
+        plot_boundary_activity(tmp_path / "bad.png", np.zeros(3), cfg)

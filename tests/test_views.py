@@ -146,3 +146,30 @@ def test_activity_vector_and_payloads():
         vc.observe(np.zeros(5))
     with pytest.raises(ValueError, match="s_t"):
         ViewCellConfig(s_t=0.0)
+
+
+def test_heading_gate_rejects_a_view_learned_facing_another_way():
+    b = np.linspace(0.0, 1.0, 8)
+    vc = ViewCells(ViewCellConfig(heading_gate=math.radians(45.0)))
+    assert vc.observe(b, heading=0.0).is_new
+    # Same egocentric view, but the robot heads 90 deg elsewhere: a rotated twin.
+    assert vc.observe(b, heading=math.pi / 2).is_new
+    # Within the gate (and across the +-pi wrap for the second view) it matches.
+    assert vc.observe(b, heading=math.radians(30.0)) == ViewMatch(0, 1.0, False, 0.0)
+    assert vc.observe(b, heading=math.radians(100.0)).view_id == 1
+    # Without a heading every stored view is a candidate: the paper's matching.
+    assert not vc.observe(b).is_new
+
+
+def test_similarities_above_threshold_are_skipped_but_matches_are_exact():
+    rng = np.random.default_rng(7)
+    stored = rng.random((200, 72))
+    vc = ViewCells(ViewCellConfig(prematch=False, s_t=0.05, bound_block=10))
+    for row in stored:
+        vc.learn(row)
+    query = stored[17] + rng.normal(0.0, 0.05, 72)
+    m = vc.observe(query)
+    exact = np.array([view_similarity(row, query) for row in stored])
+    assert m.view_id == int(np.argmin(exact)) == 17
+    assert m.similarity == pytest.approx(exact.min())
+    assert np.allclose(vc.activities(), view_cell_activity(exact, 0.05))

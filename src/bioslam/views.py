@@ -230,12 +230,7 @@ class ViewCells:
         head-direction state), if the caller has one. Stored views learned with a heading
         then match only within ``heading_gate`` of it (module docstring).
         """
-        b = np.ascontiguousarray(B, dtype=np.float64)
-        if b.ndim != 1 or b.size == 0:
-            raise ValueError(f"boundary activity must be a non-empty 1-D array, got {b.shape}")
-        if self.num_views and b.size != self._store.shape[1]:
-            raise ValueError(f"boundary activity has {b.size} cells, views have "
-                             f"{self._store.shape[1]}")
+        b = self._checked(B)
         h = coarse_view_feature(b, self.config.ds)
         ids = self._candidates(h)
         if heading is not None and ids.size:
@@ -265,6 +260,21 @@ class ViewCells:
             return -1
         best = int(np.argmin(sims))
         return best if sims[best] < self.config.s_t else -1
+
+    def learn(self, B: ArrayLike, payload: Any = None, heading: float | None = None) -> int:
+        """Store ``B`` as a new view without matching it (e.g. to seed a map); its id."""
+        b = self._checked(B)
+        return self._learn(coarse_view_feature(b, self.config.ds), b, payload, heading)
+
+    def _checked(self, B: ArrayLike) -> FloatArray:
+        b = np.ascontiguousarray(B, dtype=np.float64)
+        if b.ndim != 1 or b.size == 0:
+            raise ValueError(f"boundary activity must be a non-empty 1-D array, got {b.shape}")
+        if self.num_views and b.size != self._store.shape[1]:
+            raise ValueError(
+                f"boundary activity has {b.size} cells, views have {self._store.shape[1]}"
+            )
+        return b
 
     def _candidates(self, h: int) -> IntArray:
         if not self.config.prematch:

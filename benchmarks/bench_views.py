@@ -1,0 +1,267 @@
+"""Boundary cells and view cells (paper Sec. III-B, issue 4): place-recognition precision and
+recall on the simulated maze, the hash-bucket split, query cost vs number of views, and the
+cost of computing B.
+
+Printed (all measured in this run):
+
+1. precision / recall over the 600 s maze run (UTM-30LX, 40 Hz, every ``--step``-th scan
+   processed, figures per processed scan). A match is true when the matched view was learned
+   within 0.5 m and 20 deg of the current pose. "Loop" matches are those to views learned
+   at least ``--revisit-gap`` seconds earlier; a "revisit" scan is one for which such an old
+   view within 0.5 m / 20 deg exists, and recall is the share of revisit scans matched to one.
+   Rows: the defaults with the heading of the project's LiDAR odometry (what the pipeline
+   passes), without a heading (the paper's matching), and with the paper's equal-``h`` rule;
+2. the bucket split: over the true matches that brute force finds, the share whose stored
+   view sits in another ``h`` bucket (lost by the paper's equal-``h`` rule) or more than one
+   bucket away (lost even with ``h +- 1``);
+3. query cost with 10,000 stored views (maze views from random poses): median / p99 ms per
+   ``observe`` with the pre-match, and brute force over the same views, and the median number
+   of candidates compared;
+4. ``BoundaryCells.activity`` on 1081-beam scans: median / p99 ms.
+
+Figures (PNG, ``--out``): the boundary-cell activity of one scan on its rings, and the active
+view id over time for the maze run.
+
+    python benchmarks/bench_views.py [--step 4] [--views 10000] [--out benchmarks/results]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np
+
+from bioslam.boundary import BoundaryCellConfig, BoundaryCells
+from bioslam.odometry import LidarOdometry
+from bioslam.plots.boundary import plot_boundary_activity
+from bioslam.plots.figures import plot_active_view
+from bioslam.scan import LaserScan
+from bioslam.sim import LIDAR_PRESETS, make_route, maze_world, simulate_scans
+from bioslam.sim.raycast import cast_rays
+from bioslam.views import ViewCellConfig, ViewCells, coarse_view_feature
+
+TRUE_DISTANCE = 0.5
+TRUE_ANGLE = math.radians(20.0)
+
+
+@dataclass
+class Run:
+    stamps: np.ndarray
+    poses: np.ndarray
+    B: np.ndarray
+    headings: np.ndarray
+    example: LaserScan
+
+
+def _angle_diff(a: np.ndarray | float, b: np.ndarray | float) -> np.ndarray:
+    return np.abs(np.pi - np.mod(np.pi - (np.asarray(a) - np.asarray(b)), 2.0 * np.pi))
+
+
+def _close(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Whether poses ``q`` (..., 3) lie within 0.5 m and 20 deg of pose ``p``."""
+    d = np.hypot(q[..., 0] - p[0], q[..., 1] - p[1])
+    return (d <= TRUE_DISTANCE) & (_angle_diff(q[..., 2], p[2]) <= TRUE_ANGLE)
+
+
+def simulate(step: int, duration: float, seed: int) -> Run:
+    world = maze_world()
+    lidar = LIDAR_PRESETS["utm30lx"]
+    route = make_route(world, duration=duration, seed=seed)
+    bc = BoundaryCells()
+    odo: LidarOdometry | None = None
+    stamps, poses, B, heads = [], [], [], []
+    example = None
+    for k, (scan, pose) in enumerate(simulate_scans(world, lidar, route, seed=seed)):
+        if k % step:
+            continue
+        if odo is None:
+            odo = LidarOdometry(initial_pose=pose)
+        odo.update(scan)
+        stamps.append(scan.stamp)
+        poses.append(pose)
+        B.append(bc.activity(scan))
+        heads.append(float(odo.pose[2]))
+        if example is None and scan.stamp >= 30.0:
+            example = scan
+    return Run(np.array(stamps), np.array(poses), np.array(B), np.array(heads), example)
+
+
+def replay(run: Run, config: ViewCellConfig, use_heading: bool, gap: float) -> dict:
+    vc = ViewCells(config)
+    learned: list[int] = []
+    matches = true = loops = loops_true = revisits = recalled = 0
+    ids = np.empty(len(run.B), dtype=np.int64)
+    new = np.zeros(len(run.B), dtype=bool)
+    for i, b in enumerate(run.B):
+        old = np.asarray(learned, dtype=np.int64)
+        old = old[run.stamps[old] <= run.stamps[i] - gap]
+        revisit = bool(_close(run.poses[i], run.poses[old]).any())
+        m = vc.observe(b, payload=i, heading=run.headings[i] if use_heading else None)
+        ids[i], new[i] = m.view_id, m.is_new
+        revisits += revisit
+        if m.is_new:
+            learned.append(i)
+            continue
+        j = vc.payload(m.view_id)
+        ok = bool(_close(run.poses[i], run.poses[j]))
+        is_loop = run.stamps[j] <= run.stamps[i] - gap
+        matches += 1
+        true += ok
+        loops += is_loop
+        loops_true += ok and is_loop
+        recalled += revisit and ok and is_loop
+    return {
+        "views": vc.num_views,
+        "matches": matches,
+        "precision": true / max(matches, 1),
+        "loops": loops,
+        "loop_precision": loops_true / max(loops, 1),
+        "revisits": revisits,
+        "recall": recalled / max(revisits, 1),
+        "ids": ids,
+        "new": new,
+    }
+
+
+def bucket_split(run: Run, config: ViewCellConfig) -> tuple[int, float, float]:
+    """Over true matches found by brute force: share with h differing by >= 1 and by >= 2."""
+    vc = ViewCells(replace(config, prematch=False))
+    dh = []
+    for i, b in enumerate(run.B):
+        m = vc.observe(b, payload=i, heading=run.headings[i])
+        if m.is_new:
+            continue
+        j = vc.payload(m.view_id)
+        if _close(run.poses[i], run.poses[j]):
+            dh.append(abs(vc.view(m.view_id).h - coarse_view_feature(b, config.ds)))
+    dh_arr = np.array(dh)
+    return len(dh_arr), float(np.mean(dh_arr >= 1)), float(np.mean(dh_arr >= 2))
+
+
+def random_views(n: int, seed: int) -> np.ndarray:
+    """B of ``n`` scans from random poses along the maze's corridors, random headings."""
+    world = maze_world()
+    lidar = LIDAR_PRESETS["utm30lx"]
+    road = world.roadmap
+    rng = np.random.default_rng(seed)
+    e = road.edges[rng.integers(len(road.edges), size=n)]
+    a, b = road.nodes[e[:, 0]], road.nodes[e[:, 1]]
+    xy = a + (b - a) * rng.random((n, 1))
+    xy += rng.uniform(-0.3, 0.3, size=(n, 2))
+    th = rng.uniform(-np.pi, np.pi, size=n)
+    angles = lidar.angles()
+    ranges = cast_rays(world.grid, xy[:, None, :], th[:, None] + angles[None, :], lidar.range_max)
+    measured = lidar.measure(ranges, rng)
+    bc = BoundaryCells()
+    return np.array([
+        bc.activity(LaserScan(0.0, r, angles, lidar.range_min, lidar.range_max)) for r in measured
+    ])
+
+
+def _timed(fn, items) -> np.ndarray:
+    out = []
+    for it in items:
+        t0 = time.perf_counter()
+        fn(it)
+        out.append(time.perf_counter() - t0)
+    return np.array(out) * 1e3
+
+
+def query_cost(stored: np.ndarray, queries: np.ndarray) -> dict:
+    out = {}
+    for name, prematch in (("pre-match", True), ("brute force", False)):
+        vc = ViewCells(ViewCellConfig(prematch=prematch))
+        for b in stored:
+            vc.learn(b)
+        vc.observe(queries[0])  # compile
+        cands = []
+
+        def one(b: np.ndarray, vc: ViewCells = vc, cands: list = cands) -> None:
+            vc.observe(b)
+            cands.append(vc._last_ids.size)
+
+        ms = _timed(one, queries[1:])
+        out[name] = (float(np.median(ms)), float(np.percentile(ms, 99)), float(np.median(cands)))
+    return out
+
+
+def activity_cost(scan: LaserScan, repeats: int) -> tuple[float, float]:
+    bc = BoundaryCells()
+    bc.activity(scan)
+    ms = _timed(lambda _: bc.activity(scan), range(repeats))
+    return float(np.median(ms)), float(np.percentile(ms, 99))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--step", type=int, default=4, help="process every step-th scan (40 Hz)")
+    ap.add_argument("--duration", type=float, default=600.0)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--revisit-gap", type=float, default=10.0, help="seconds")
+    ap.add_argument("--views", type=int, default=10_000)
+    ap.add_argument("--queries", type=int, default=300)
+    ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
+    args = ap.parse_args()
+
+    t0 = time.perf_counter()
+    run = simulate(args.step, args.duration, args.seed)
+    head_err = np.degrees(_angle_diff(run.headings, run.poses[:, 2]).max())
+    print(f"maze run: {len(run.B)} scans processed (every {args.step}th of 40 Hz), "
+          f"{time.perf_counter() - t0:.0f} s; odometry heading error max {head_err:.2f} deg")
+
+    cfg = ViewCellConfig()
+    rows = [
+        ("defaults, odometry heading", cfg, True),
+        ("defaults, no heading", cfg, False),
+        ("paper equal-h, odometry heading", replace(cfg, neighbour_buckets=0), True),
+    ]
+    print(f"\n1. place recognition (s_t={cfg.s_t}, ds={cfg.ds}, true = within 0.5 m and 20 deg; "
+          f"loop = view >= {args.revisit_gap:.0f} s old)")
+    print(f"{'case':34s} {'views':>6s} {'matches':>8s} {'precision':>9s} {'loops':>6s} "
+          f"{'loop prec':>9s} {'revisits':>8s} {'recall':>7s}")
+    main_run = None
+    for name, c, use_heading in rows:
+        r = replay(run, c, use_heading, args.revisit_gap)
+        main_run = main_run or r
+        print(f"{name:34s} {r['views']:6d} {r['matches']:8d} {r['precision']:9.4f} "
+              f"{r['loops']:6d} {r['loop_precision']:9.4f} {r['revisits']:8d} {r['recall']:7.3f}")
+
+    n, lost0, lost1 = bucket_split(run, cfg)
+    print(f"\n2. bucket split over {n} true brute-force matches: lost by equal-h "
+          f"{100 * lost0:.1f} %, lost with h+-1 {100 * lost1:.2f} %")
+
+    stored = random_views(args.views, args.seed + 1)
+    picks = np.random.default_rng(args.seed).choice(len(run.B), args.queries + 1, replace=False)
+    cost = query_cost(stored, run.B[picks])
+    print(f"\n3. observe() with {args.views} stored views (median ms / p99 ms / median candidates)")
+    for name, (med, p99, nc) in cost.items():
+        print(f"{name:12s} {med:8.3f} {p99:8.3f} {nc:8.0f}")
+    print(f"ratio brute/pre-match (median): {cost['brute force'][0] / cost['pre-match'][0]:.1f}x")
+
+    med, p99 = activity_cost(run.example, 1000)
+    print(f"\n4. BoundaryCells.activity, {run.example.num_beams}-beam scan, "
+          f"{BoundaryCellConfig().num_cells} cells: median {med:.3f} ms, p99 {p99:.3f} ms")
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    bc = BoundaryCells()
+    title = f"boundary cells, maze scan at t = {run.example.stamp:.0f} s"
+    p1 = plot_boundary_activity(
+        args.out / "boundary_activity.png", bc.activity(run.example), bc.config,
+        run.example.endpoints(), title=title,
+    )
+    p2 = plot_active_view(args.out / "views_over_time.png", run.stamps, main_run["ids"],
+                          main_run["new"])
+    print(f"\nfigures: {p1}, {p2}")
+
+
+if __name__ == "__main__":
+    main()
