@@ -24,7 +24,8 @@ def plot_boundary_activity(
     title: str = "",
     dpi: int = 120,
 ) -> Path:
-    """Draw every cell as a wedge on its ring, coloured by its activity in ``B``.
+    """Draw every cell as a wedge on its ring, coloured by its activity in ``B``; cells below
+    1 % of the strongest are left blank.
 
     ``endpoints`` ``(N, 2)`` (sensor frame, metres) are overlaid as dots. Silent cells are left
     blank, so a limited field of view shows as an empty sector. Writes ``path`` (PNG).
@@ -43,8 +44,11 @@ def plot_boundary_activity(
     fig = Figure(figsize=(6.4, 6.0))
     ax = fig.add_subplot(projection="polar")
     ax.set_theta_zero_location("N")
+    # Gaussian tails make nearly every cell in reach non-zero; below 1 % of the peak a cell
+    # is drawn as silent so the figure shows where the activity is.
+    floor = 0.01 * float(grid.max())
     for r in range(rings.size):
-        active = grid[r] > 0.0
+        active = grid[r] > floor
         ax.bar(
             config.cell_angles()[active],
             edges[r + 1] - edges[r],
@@ -59,7 +63,6 @@ def plot_boundary_activity(
                    color="red", label="scan endpoints")
         ax.legend(loc="lower left", fontsize="small")
     ax.set_ylim(0.0, edges[-1])
-    ax.set_rticks(rings[:: max(1, rings.size // 6)])
     ax.tick_params(labelsize="small")
     fig.colorbar(
         ScalarMappable(norm=norm, cmap=cmap), ax=ax, shrink=0.7, label="boundary-cell activity"
