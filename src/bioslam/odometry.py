@@ -452,6 +452,7 @@ class LidarOdometry:
         self.num_scans = 0
         self.num_predicted_only = 0
         self._twist = np.zeros(3)
+        self._last_delta = np.zeros(3)
         self._last_stamp: float | None = None
         self._history: deque[tuple[float, FloatArray]] = deque()
         self._last_inserted: FloatArray | None = None
@@ -509,8 +510,9 @@ class LidarOdometry:
         else:
             keep = _subsample_by_spacing(pts, c.point_spacing)
             level_pts = _level_points(pts, c.point_spacing, c.levels)
+            start = self._best_start(level_pts[-1], previous, predicted)
             self.pose, self.last_report = match_scan_to_map(
-                self.pyramid, level_pts, predicted, c.max_iterations, c.step_tolerance,
+                self.pyramid, level_pts, start, c.max_iterations, c.step_tolerance,
                 c.length_scale, c.degeneracy_ratio, c.subcell_sigma,
                 np.ascontiguousarray(normals[keep]),
             )  # fmt: skip
@@ -519,7 +521,19 @@ class LidarOdometry:
             self.last_report.inserted = True
         self._update_twist(scan.stamp)
         self._last_stamp = scan.stamp
-        return between(previous, self.pose)
+        self._last_delta = between(previous, self.pose)
+        return self._last_delta.copy()
+
+    def _best_start(self, coarse_pts: FloatArray, previous: FloatArray, predicted: FloatArray):
+        """The initial pose with the lowest cost on the coarsest level among: the
+        constant-velocity prediction, the previous scan's motion repeated, and no motion.
+        Logged timestamps often jitter (CARMEN logs stamp scans when written, not when
+        measured): a robot turning at a steady rate per scan then gets a prediction off by
+        tens of degrees from the time-based model alone."""
+        candidates = (predicted, compose(previous, self._last_delta), previous)
+        grid = _grid_args(self.pyramid.grids[-1], self.config.subcell_sigma)
+        costs = [_normal_equations(grid, coarse_pts, p)[3] for p in candidates]
+        return candidates[int(np.argmin(costs))]
 
     def _update_twist(self, stamp: float) -> None:
         """Constant-velocity estimate over the last ``velocity_window`` seconds: differencing

@@ -1,0 +1,185 @@
+"""LiDAR odometry: accuracy, robustness and speed (issue 3's targets).
+
+Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
+
+- ``maze``: simulated maze, 600 s, Hokuyo UTM-30LX (sigma 1 cm, 40 Hz): RPE over 1 m,
+  end-point drift as % of the distance travelled, CPU ms per scan (median, p99).
+- ``lowcost``: the 360° low-cost preset (sigma 3 cm, 7 Hz) with 20 % random dropouts.
+- ``fastturns``: corners at 1 rad/s, the UTM-30LX run at 10 Hz (a 25 ms -> 100 ms sweep).
+- ``person``: three people walking along the robot's route through the scans.
+- ``deskew``: the fast-turn run with and without de-skewing.
+- ``mapfunc``: Hector's bilinear M* against the sub-cell map function, maze 120 s.
+- ``freiburg``: freiburg-079 (LiDAR only), RPE over 1 m against the log's corrected poses.
+- ``maps``: occupancy maps built from the odometry poses of exp1.dat, the ROS 1 bag and
+  freiburg-079, written to ``benchmarks/results/odometry_map_<name>.png``.
+
+Per-scan time is the CPU time of ``LidarOdometry.update`` in this thread (matching plus the
+amortised map update), so other processes on the machine do not inflate it.
+
+Usage: ``python benchmarks/bench_odometry.py [--quick] [--only maze,freiburg,...]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bioslam.evaluation import rpe_distance
+from bioslam.io.logs import open_log
+from bioslam.occupancy_grid import OccupancyGrid
+from bioslam.odometry import LidarOdometry, OdometryConfig
+from bioslam.sim import LIDAR_PRESETS, MovingObstacle, make_route, maze_world, simulate_scans
+from bioslam.trajectory import Trajectory
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = REPO.parent / "shared" / "data"
+RESULTS = REPO / "benchmarks" / "results"
+
+
+def run_odometry(scans, config: OdometryConfig | None = None, keep_scans: bool = False):
+    """Feed scans to a fresh LidarOdometry; returns (estimate, truth or None, cpu ms, extra)."""
+    odo = None
+    stamps, est, truth, times, kept = [], [], [], [], []
+    degenerate = 0
+    for item in scans:
+        scan, true = item if isinstance(item, tuple) else (item, None)
+        if odo is None:
+            odo = LidarOdometry(config, initial_pose=true if true is not None else (0, 0, 0))
+        t0 = time.thread_time()
+        odo.update(scan)
+        times.append(time.thread_time() - t0)
+        degenerate += odo.last_report.degenerate
+        stamps.append(scan.stamp)
+        est.append(odo.pose.copy())
+        if true is not None:
+            truth.append(true)
+        if keep_scans:
+            kept.append(scan.endpoints())
+    est_t = Trajectory(np.array(stamps), np.array(est))
+    gt_t = Trajectory(np.array(stamps), np.array(truth)) if truth else None
+    extra = {"degenerate": degenerate, "predicted_only": odo.num_predicted_only, "scans": kept}
+    return est_t, gt_t, np.array(times[1:]) * 1e3, extra
+
+
+def summary(name: str, est: Trajectory, gt: Trajectory, ms: np.ndarray, extra: dict) -> dict:
+    rpe = rpe_distance(est, gt, 1.0)
+    length = gt.path_length()
+    end = float(np.hypot(*(est.poses[-1, :2] - gt.poses[-1, :2])))
+    row = {
+        "case": name,
+        "scans": len(est),
+        "path_m": round(length, 1),
+        "rpe1m_cm": round(100 * rpe["trans_rmse_m"], 2),
+        "rpe1m_deg": round(rpe["rot_rmse_deg"], 3),
+        "end_drift_pct": round(100 * end / max(length, 1e-9), 3),
+        "max_err_m": round(float(np.max(np.hypot(*(est.poses[:, :2] - gt.poses[:, :2]).T))), 3),
+        "ms_median": round(float(np.median(ms)), 3),
+        "ms_p99": round(float(np.percentile(ms, 99)), 3),
+        "degenerate_scans": int(extra["degenerate"]),
+        "predicted_only": int(extra["predicted_only"]),
+    }
+    print("  ".join(f"{k}={v}" for k, v in row.items()), flush=True)
+    return row
+
+
+def sim_case(name, lidar, duration, config=None, fast_turns=False, obstacles=(), seed=0):
+    world = maze_world()
+    route = make_route(world, duration=duration, seed=seed, fast_turns=fast_turns)
+    obstacles = obstacles(route) if callable(obstacles) else obstacles
+    scans = simulate_scans(world, lidar, route, seed=seed, obstacles=obstacles)
+    est, gt, ms, extra = run_odometry(scans, config)
+    return summary(name, est, gt, ms, extra)
+
+
+def people_on_route(route) -> list[MovingObstacle]:
+    """Three people walking back and forth along stretches of the robot's own route."""
+    d = route.duration
+    spans = [(0.15, 0.2), (0.45, 0.5), (0.75, 0.8)]
+    return [
+        MovingObstacle(tuple(route.pose_at(a * d)[:2]), tuple(route.pose_at(b * d)[:2]), 1.2)
+        for a, b in spans
+    ]
+
+
+def occupancy_png(name: str, est: Trajectory, scans: list[np.ndarray], resolution=0.05):
+    from PIL import Image
+
+    grid = OccupancyGrid(resolution, 20.0, origin=est.poses[0, :2] - 10.0, auto_grow=True)
+    for pose, pts in zip(est.poses, scans, strict=True):
+        if len(pts):
+            grid.insert_scan(pose, pts, max_range=30.0)
+    prob = grid.probability()
+    img = np.where(grid.known_mask(), 255 * (1.0 - prob), 205).astype(np.uint8)[::-1]
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    path = RESULTS / f"odometry_map_{name}.png"
+    Image.fromarray(img).save(path)
+    print(f"map {name}: {path.relative_to(REPO)} ({img.shape[1]}x{img.shape[0]} px, "
+          f"{resolution} m/px)", flush=True)  # fmt: skip
+    return path
+
+
+def log_case(name: str, filename: str, make_png: bool, config=None) -> dict | None:
+    path = DATA / filename
+    if not path.exists():
+        print(f"{name}: skipped, {path} not found", flush=True)
+        return None
+    source = open_log(path)
+    est, _, ms, extra = run_odometry(iter(source), config, keep_scans=make_png)
+    ref = getattr(source, "reference", None)
+    row = {"case": name, "scans": len(est), "path_m": round(est.path_length(), 1),
+           "ms_median": round(float(np.median(ms)), 3),
+           "ms_p99": round(float(np.percentile(ms, 99)), 3),
+           "degenerate_scans": int(extra["degenerate"])}  # fmt: skip
+    if ref is not None and len(ref):
+        rpe = rpe_distance(est, ref, 1.0)
+        row.update(rpe1m_cm=round(100 * rpe["trans_rmse_m"], 2),
+                   rpe1m_deg=round(rpe["rot_rmse_deg"], 3), pairs=rpe["pairs"])  # fmt: skip
+    print("  ".join(f"{k}={v}" for k, v in row.items()), flush=True)
+    if make_png:
+        occupancy_png(name, est, extra["scans"])
+    return row
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="120 s simulated runs")
+    parser.add_argument("--only", default="", help="comma-separated case names")
+    args = parser.parse_args()
+    only = set(filter(None, args.only.split(",")))
+    duration = 120.0 if args.quick else 600.0
+    utm = LIDAR_PRESETS["utm30lx"]
+    utm10 = dataclasses.replace(utm, rate_hz=10.0)
+    cases = {
+        "maze": lambda: sim_case("maze utm30lx", utm, duration),
+        "lowcost": lambda: sim_case(
+            "maze rplidar 20% dropouts",
+            dataclasses.replace(LIDAR_PRESETS["rplidar"], dropout_prob=0.2), duration,
+        ),
+        "fastturns": lambda: sim_case("fast turns 1 rad/s, 10 Hz", utm10, 120.0, fast_turns=True),
+        "person": lambda: sim_case("3 people walking", utm, 120.0, obstacles=people_on_route),
+        "deskew": lambda: [
+            sim_case(f"fast turns 10 Hz deskew={flag}", utm10, 120.0,
+                     OdometryConfig(deskew=flag), fast_turns=True)
+            for flag in (True, False)
+        ],
+        "mapfunc": lambda: [
+            sim_case(f"maze 120 s subcell_sigma={s}", utm, 120.0, OdometryConfig(subcell_sigma=s))
+            for s in (1.0, None)
+        ],
+        "freiburg": lambda: log_case("freiburg079", "freiburg-079-corrected.log.gz", True),
+        "maps": lambda: [
+            log_case("exp1", "exp1.dat", True),
+            log_case("rosbag1", "laser_scan_matcher_demo.bag", True),
+        ],
+    }
+    for name, case in cases.items():
+        if not only or name in only:
+            case()
+
+
+if __name__ == "__main__":
+    main()
