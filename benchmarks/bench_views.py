@@ -18,7 +18,10 @@ Printed (all measured in this run):
    ``observe`` with the pre-match; brute force over the same views (``prematch=False``: the
    same bounded second stage on every view), and a naive NumPy Eq. 8 against every view; and
    the median number of candidates compared;
-4. ``BoundaryCells.activity`` on 1081-beam scans: median / p99 ms.
+4. ``BoundaryCells.activity`` on 1081-beam scans: median / p99 ms;
+5. tolerance: the share of places whose own view still matches when the scan is re-taken
+   a few centimetres or degrees away (the simulated route drives the same centre-lines on
+   every pass, so section 1's recall is an upper bound for a hand-driven robot).
 
 Figures (PNG, ``--out``): the boundary-cell activity of one scan on its rings, and the active
 view id over time for the maze run.
@@ -168,6 +171,50 @@ def random_views(n: int, seed: int) -> np.ndarray:
     ])
 
 
+def _scans_at(poses: np.ndarray, seed: int) -> list[LaserScan]:
+    world = maze_world()
+    lidar = LIDAR_PRESETS["utm30lx"]
+    angles = lidar.angles()
+    ranges = cast_rays(
+        world.grid, poses[:, None, :2], poses[:, 2:3] + angles[None, :], lidar.range_max
+    )
+    measured = lidar.measure(ranges, np.random.default_rng(seed))
+    return [LaserScan(0.0, r, angles, lidar.range_min, lidar.range_max) for r in measured]
+
+
+def tolerance(run: Run, n: int, seed: int) -> list[tuple[str, float]]:
+    """Share of places re-recognised (matched to their own view) when the scan is re-taken
+    with a lateral, longitudinal or heading offset: how far a revisit may stray."""
+    rng = np.random.default_rng(seed)
+    base = run.poses[rng.choice(len(run.poses), n, replace=False)]
+    bc = BoundaryCells()
+    out = []
+    offsets = [("lateral", d) for d in (0.02, 0.05, 0.1, 0.2)]
+    offsets += [("along", d) for d in (0.05, 0.1, 0.2)]
+    offsets += [("heading", math.radians(a)) for a in (1.0, 2.0, 5.0, 10.0)]
+    own = [bc.activity(s) for s in _scans_at(base, seed)]
+    for kind, amount in offsets:
+        moved = base.copy()
+        c, s_ = np.cos(base[:, 2]), np.sin(base[:, 2])
+        if kind == "lateral":
+            moved[:, 0] -= amount * s_
+            moved[:, 1] += amount * c
+        elif kind == "along":
+            moved[:, 0] += amount * c
+            moved[:, 1] += amount * s_
+        else:
+            moved[:, 2] += amount
+        hits = 0
+        for k, scan in enumerate(_scans_at(moved, seed + 1)):
+            vc = ViewCells()
+            vc.learn(own[k])
+            hits += not vc.observe(bc.activity(scan)).is_new
+        label = f"{kind} {math.degrees(amount):.0f} deg" if kind == "heading" else \
+            f"{kind} {100 * amount:.0f} cm"
+        out.append((label, hits / n))
+    return out
+
+
 def _timed(fn, items) -> np.ndarray:
     out = []
     for it in items:
@@ -255,6 +302,9 @@ def main() -> None:
     med, p99 = activity_cost(run.example, 1000)
     print(f"\n4. BoundaryCells.activity, {run.example.num_beams}-beam scan, "
           f"{BoundaryCellConfig().num_cells} cells: median {med:.3f} ms, p99 {p99:.3f} ms")
+
+    print("\n5. re-recognition of a place with the scan re-taken off-pose (share of 200 places)")
+    print("   " + ", ".join(f"{label}: {share:.2f}" for label, share in tolerance(run, 200, 5)))
 
     args.out.mkdir(parents=True, exist_ok=True)
     bc = BoundaryCells()
