@@ -70,6 +70,8 @@ class OdometryConfig:
         subcell_sigma: width of the sub-cell map function's kernels in cells of each level
             (:func:`bioslam.occupancy_grid.subcell_point`); ``None`` uses Hector's bilinear
             M*, which biases the match towards cell centres (benchmark: more drift).
+        start_margin: the repeated-motion or standstill start replaces the prediction only if
+            its coarse-level cost is lower by this fraction (ours; see ``_best_start``).
         velocity_window: seconds of past poses the constant-velocity estimate (prediction and
             de-skew) is taken over; ours, about the time constant of a robot's acceleration,
             and several scans of a 40 Hz scanner.
@@ -92,6 +94,7 @@ class OdometryConfig:
     length_scale: float = 3.0
     degeneracy_ratio: float = 0.01
     velocity_window: float = 0.1
+    start_margin: float = 0.1
     subcell_sigma: float | None = 1.0
     deskew: bool = True
     min_points: int = 20
@@ -529,11 +532,16 @@ class LidarOdometry:
         constant-velocity prediction, the previous scan's motion repeated, and no motion.
         Logged timestamps often jitter (CARMEN logs stamp scans when written, not when
         measured): a robot turning at a steady rate per scan then gets a prediction off by
-        tens of degrees from the time-based model alone."""
+        tens of degrees from the time-based model alone. An alternative must beat the
+        prediction clearly (``start_margin``), so that where the scan cannot tell the
+        candidates apart (a featureless corridor) the prediction is kept."""
         candidates = (predicted, compose(previous, self._last_delta), previous)
         grid = _grid_args(self.pyramid.grids[-1], self.config.subcell_sigma)
-        costs = [_normal_equations(grid, coarse_pts, p)[3] for p in candidates]
-        return candidates[int(np.argmin(costs))]
+        costs = np.array([_normal_equations(grid, coarse_pts, p)[3] for p in candidates])
+        best = int(np.argmin(costs))
+        if costs[best] < (1.0 - self.config.start_margin) * costs[0]:
+            return candidates[best]
+        return predicted
 
     def _update_twist(self, stamp: float) -> None:
         """Constant-velocity estimate over the last ``velocity_window`` seconds: differencing
