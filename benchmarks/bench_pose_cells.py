@@ -186,7 +186,9 @@ def max_link_residual(cm: CognitiveMap) -> float:
     return float(np.max(np.hypot(d[:, 0], d[:, 1])))
 
 
-def build_and_close(n_nodes: int, lap: int, bias: float) -> dict[str, float]:
+def build_and_close(
+    n_nodes: int, lap: int, bias: float, config: CognitiveMapConfig
+) -> dict[str, float]:
     """Drive ``n_nodes`` experiences around a circle with a biased gyro; at every lap's start
     the robot recognises the previous lap's first place (closure refined with the true pose,
     like a precise scan registration) and relaxes. Times ``update``, the closures' ``relax``
@@ -196,7 +198,7 @@ def build_and_close(n_nodes: int, lap: int, bias: float) -> dict[str, float]:
     for d in steps[:-1]:
         truth.append(compose(truth[-1], d))
     truth_arr = np.array(truth)
-    cm = CognitiveMap(CognitiveMapConfig())
+    cm = CognitiveMap(config)
     update_t: list[float] = []
     loop_t: list[float] = []
     quiet_t: list[float] = []
@@ -245,9 +247,19 @@ def bench_relaxation(sizes: list[int]) -> None:
         " max error of closed laps vs truth m |"
     )
     print("|---|---|---|---|---|---|---|---|")
-    for n in sizes:
-        r = build_and_close(n, lap=max(10, min(100, n // 7)), bias=0.001)
+    default_window = CognitiveMapConfig().solve_window
+    runs = [(n, CognitiveMapConfig()) for n in sizes]
+    runs += [(n, CognitiveMapConfig(solve_window=None)) for n in sizes if n > default_window]
+    for n, config in runs:
+        r = build_and_close(n, max(10, min(100, n // 7)), 0.001, config)
         cm = r["cm"]
+        label = (
+            f"{n}"
+            if config.solve_window is None or n <= config.solve_window
+            else (f"{n} (window {config.solve_window})")
+        )
+        if config.solve_window is None:
+            label = f"{n} (no window)"
         src, dst, out_ptr, out_e, in_ptr, in_e = cm._adjacency()
         poses = cm.experience_poses
         dps = np.array([lk.dp for lk in cm.links])
@@ -257,7 +269,7 @@ def bench_relaxation(sizes: list[int]) -> None:
             _relax_sweep(poses, src, dst, dps, out_ptr, out_e, in_ptr, in_e, 0.5)
             sweeps.append(time.perf_counter() - t0)
         print(
-            f"| {n} | {r['loops']} | {r['update'] * 1e3:.4f} | {r['quiet'] * 1e3:.4f} |"
+            f"| {label} | {r['loops']} | {r['update'] * 1e3:.4f} | {r['quiet'] * 1e3:.4f} |"
             f" {r['loop'] * 1e3:.2f} | {statistics.median(sweeps) * 1e3:.3f} |"
             f" {r['misfit_before']:.3f} / {r['misfit_after']:.4f} | {r['err']:.3f} |"
         )
