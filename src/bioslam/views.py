@@ -112,7 +112,7 @@ def _similarities(
 
 
 def _grow(a: FloatArray) -> FloatArray:
-    grown = np.empty((2 * a.shape[0], a.shape[1]))
+    grown = np.empty((2 * a.shape[0], *a.shape[1:]))
     grown[: a.shape[0]] = a
     return grown
 
@@ -196,7 +196,7 @@ class ViewCells:
         self._sums = np.empty((0, 0))
         self._h: list[int] = []
         self._payloads: list[Any] = []
-        self._headings: list[float] = []
+        self._headings = np.empty(0)
         self._buckets: dict[int, list[int]] = {}
         self._bucket_arrays: dict[int, IntArray] = {}
         self._last_ids: IntArray = np.empty(0, dtype=np.int64)
@@ -298,8 +298,8 @@ class ViewCells:
         return arr
 
     def _gate(self, ids: IntArray, heading: float) -> IntArray:
-        stored = np.asarray(self._headings)[ids]
-        diff = np.abs(np.pi - np.mod(np.pi - (stored - heading), 2.0 * np.pi))
+        """Drop views learned facing more than ``heading_gate`` away (NaN: no heading, kept)."""
+        diff = np.abs(np.pi - np.mod(np.pi - (self._headings[ids] - heading), 2.0 * np.pi))
         return ids[~(diff > self.config.heading_gate)]
 
     def _learn(self, h: int, b: FloatArray, payload: Any, heading: float | None) -> int:
@@ -308,15 +308,17 @@ class ViewCells:
         if new_id == 0:
             self._store = np.empty((16, b.size))
             self._sums = np.empty((16, sums.size))
+            self._headings = np.empty(16)
         elif new_id == self._store.shape[0]:
             # Doubling keeps appends amortised O(1) as thousands of views accumulate.
             self._store = _grow(self._store)
             self._sums = _grow(self._sums)
+            self._headings = _grow(self._headings)
         self._store[new_id] = b
         self._sums[new_id] = sums
+        self._headings[new_id] = math.nan if heading is None else float(heading)
         self._h.append(h)
         self._payloads.append(payload)
-        self._headings.append(math.nan if heading is None else float(heading))
         self._buckets.setdefault(h, []).append(new_id)
         self._bucket_arrays.pop(h, None)
         return new_id
