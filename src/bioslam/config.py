@@ -50,6 +50,12 @@ class LoopClosureConfig:
             The defaults allow 5% drift, ten times what the LiDAR odometry shows on its
             benchmarks, so that real closures after long loops still pass.
         drift_angle_floor, drift_angle_per_metre: the same for the heading, radians.
+        recognition_radius: how far (m) from a place its boundary view is still recognised;
+            a candidate that the map puts farther than this plus the drift bound is rejected
+            before any registration (the pose cells wrap, so their packet alone cannot tell
+            two places a network-width apart).
+        retry_distance: after a registration against an experience fails, it is not tried
+            again until the robot has moved this far (m): consecutive scans see the same.
         payload_spacing: spacing (m) of the scan points kept with each experience.
         registration: the pairwise registration's parameters.
     """
@@ -61,6 +67,8 @@ class LoopClosureConfig:
     drift_per_metre: float = 0.05
     drift_angle_floor: float = 0.1
     drift_angle_per_metre: float = 0.005
+    recognition_radius: float = 1.0
+    retry_distance: float = 0.25
     payload_spacing: float = 0.05
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)
 

@@ -10,6 +10,7 @@ No file or terminal I/O here: :mod:`bioslam.pipeline` owns progress, timing and 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,8 +44,10 @@ def thin_points(points: FloatArray, spacing: float) -> NDArray[np.float32]:
     """Keep one point per ``spacing``-sized grid cell: a compact scan to store with a place."""
     if points.shape[0] == 0 or spacing <= 0.0:
         return points.astype(np.float32)
-    keys = np.floor(points / spacing).astype(np.int64)
-    _, first = np.unique(keys, axis=0, return_index=True)
+    cells = np.floor(points / spacing).astype(np.int64)
+    # One integer key per cell (a 1-D unique is far cheaper than a row-wise one).
+    keys = (cells[:, 0] << 32) + (cells[:, 1] & 0xFFFFFFFF)
+    _, first = np.unique(keys, return_index=True)
     return points[np.sort(first)].astype(np.float32)
 
 
@@ -68,6 +71,7 @@ class BioSLAM:
         self.records: list[StepRecord] = []
         self._travelled = 0.0
         self._travelled_at_experience: list[float] = []
+        self._rejected_at: dict[int, float] = {}
 
     # --- the per-scan update ---------------------------------------------------------------
 
@@ -109,26 +113,45 @@ class BioSLAM:
             reference = experience.payload
             if reference is None or len(reference) < 3 or points.shape[0] < 3:
                 return None
-            predicted = between(experience.pose, self.cognitive_map.pose())
-            rel, quality = register_scans(reference, points, predicted, cfg.registration)
-            if quality.score < cfg.min_score or (cfg.reject_degenerate and quality.degenerate):
+            last_rejection = self._rejected_at.get(experience.id)
+            if last_rejection is not None and self._travelled - last_rejection < cfg.retry_distance:
                 return None
+            predicted = between(experience.pose, self.cognitive_map.pose())
             since = self._travelled - self._travelled_at_experience[experience.id]
-            if not self._plausible_correction(between(predicted, rel), since):
+            drift, drift_angle = self._drift_bound(since)
+            if np.hypot(predicted[0], predicted[1]) > cfg.recognition_radius + drift:
+                return None
+            # The map's prediction is good to within the drift bound, so the registration
+            # need not search wider: re-recognising a place just left costs little.
+            registration = dataclasses.replace(
+                cfg.registration,
+                search_distance=min(cfg.registration.search_distance, drift),
+                search_angle=min(cfg.registration.search_angle, drift_angle),
+            )
+            rel, quality = register_scans(reference, points, predicted, registration)
+            fits = quality.score >= cfg.min_score and not (
+                cfg.reject_degenerate and quality.degenerate
+            )
+            if not (fits and self._plausible_correction(between(predicted, rel), since)):
+                self._rejected_at[experience.id] = self._travelled
                 return None
             return rel
 
         return refine
 
+    def _drift_bound(self, travelled: float) -> tuple[float, float]:
+        """How far (m, rad) the odometry may have drifted over ``travelled`` metres."""
+        cfg = self.config.loop_closure
+        return (
+            cfg.drift_floor + cfg.drift_per_metre * travelled,
+            cfg.drift_angle_floor + cfg.drift_angle_per_metre * travelled,
+        )
+
     def _plausible_correction(self, correction: FloatArray, travelled: float) -> bool:
         """Whether a closure's correction is within what the odometry can have drifted."""
-        cfg = self.config.loop_closure
+        drift, drift_angle = self._drift_bound(travelled)
         shift = float(np.hypot(correction[0], correction[1]))
-        turn = abs(float(correction[2]))
-        return (
-            shift <= cfg.drift_floor + cfg.drift_per_metre * travelled
-            and turn <= cfg.drift_angle_floor + cfg.drift_angle_per_metre * travelled
-        )
+        return shift <= drift and abs(float(correction[2])) <= drift_angle
 
     def _record(self, stamp: float, dp: FloatArray, match: ViewMatch, event) -> None:
         self._travelled += float(np.hypot(dp[0], dp[1]))

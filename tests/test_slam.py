@@ -1,0 +1,73 @@
+"""End-to-end: the whole system on a short simulated drive that must close a loop."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from loop_world import ring_route, ring_world
+
+from bioslam.config import SLAMConfig, config_from_dict
+from bioslam.evaluation import ate
+from bioslam.sim import LIDAR_PRESETS, simulate_scans
+from bioslam.slam import BioSLAM, thin_points
+from bioslam.trajectory import Trajectory
+
+
+@pytest.fixture(scope="module")
+def ring_drive() -> tuple[list, Trajectory]:
+    route = ring_route(laps=2.0)
+    scans, poses = [], []
+    for scan, pose in simulate_scans(ring_world(), LIDAR_PRESETS["urg04lx"], route, seed=3):
+        scans.append(scan)
+        poses.append(pose)
+    return scans, Trajectory(np.array([s.stamp for s in scans]), np.array(poses))
+
+
+def run(scans: list, config: SLAMConfig) -> BioSLAM:
+    slam = BioSLAM(config)
+    for scan in scans:
+        slam.process(scan)
+    slam.finish()
+    return slam
+
+
+def test_loop_closes_and_pulls_injected_drift_back(ring_drive):
+    scans, gt = ring_drive
+    # A gyro-like heading bias makes the odometry drift by ~6° per lap, so the second lap
+    # arrives visibly off the first; recognising the places must pull it back.
+    config = dataclasses.replace(SLAMConfig(), heading_bias=0.002)
+    slam = run(scans, config)
+    summary = slam.summary()
+    assert summary["loop_closures"] >= 1
+    full = ate(slam.trajectory(), gt)["rmse"]
+    odometry = ate(slam.odometry_trajectory(), gt)["rmse"]
+    assert odometry > 0.1, "the injected drift should be large"
+    assert full < 0.5 * odometry
+    assert len(slam.trajectory()) == len(scans)
+
+
+def test_drift_free_run_stays_accurate(ring_drive):
+    scans, gt = ring_drive
+    slam = run(scans, SLAMConfig())
+    assert ate(slam.trajectory(), gt)["rmse"] < 0.05
+    records = slam.records
+    assert records[0].view_is_new and records[0].event == "new"
+    # The second lap re-recognises views learned on the first.
+    revisits = [r for r in records[len(records) // 2 + 50 :] if not r.view_is_new]
+    assert len(revisits) > 0.3 * (len(records) // 2 - 50)
+
+
+def test_config_overrides_are_checked():
+    cfg = config_from_dict({"loop_closure": {"min_score": 0.9}, "heading_bias": 0.001})
+    assert cfg.loop_closure.min_score == 0.9 and cfg.heading_bias == 0.001
+    with pytest.raises(ValueError, match="unknown setting 'nope'"):
+        config_from_dict({"views": {"nope": 1}})
+
+
+def test_thin_points_keeps_one_point_per_cell():
+    pts = np.array([[0.01, 0.01], [0.02, 0.03], [0.06, 0.0], [1.0, 1.0]])
+    kept = thin_points(pts, 0.05)
+    assert kept.shape == (3, 2)
+    assert np.allclose(kept[0], pts[0])
