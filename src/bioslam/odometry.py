@@ -345,6 +345,18 @@ def deskew_points(points: ArrayLike, beam_times: ArrayLike, twist: ArrayLike) ->
 # Matching
 
 
+def thinned_normals(points: FloatArray, keep: NDArray[np.bool_]) -> FloatArray:
+    """Surface normals of all endpoints, computed on the thinned ones (``keep``) and passed
+    on to the raw endpoints that follow each in scan order: on dense scans the neighbour
+    windows of the raw points are long and the cost of the normals grows with their square,
+    while at the thinning spacing (a few cm) the normal of a wall does not change."""
+    if not np.any(keep):
+        return np.zeros_like(points)
+    sub = scan_normals(np.ascontiguousarray(points[keep]))
+    owner = np.maximum(np.cumsum(keep) - 1, 0)
+    return np.ascontiguousarray(sub[owner])
+
+
 def _grid_args(grid: OccupancyGrid, subcell_sigma: float | None) -> tuple:
     kind = 0 if subcell_sigma is None else 1
     sigma = grid.resolution * (subcell_sigma or 1.0)
@@ -501,7 +513,8 @@ class LidarOdometry:
         previous = self.pose.copy()
         predicted = compose(previous, se2_exp(self._twist, dt)) if self.num_scans else previous
         pts = self._sensor_points(scan)
-        normals = scan_normals(pts)
+        keep = _subsample_by_spacing(pts, c.point_spacing)
+        normals = thinned_normals(pts, keep)
         first = self.num_scans == 0
         self.num_scans += 1
         if pts.shape[0] < c.min_points:
@@ -511,7 +524,6 @@ class LidarOdometry:
         elif first:
             self.last_report = MatchReport(num_points=int(pts.shape[0]))
         else:
-            keep = _subsample_by_spacing(pts, c.point_spacing)
             level_pts = _level_points(pts, c.point_spacing, c.levels)
             start = self._best_start(level_pts[-1], previous, predicted)
             self.pose, self.last_report = match_scan_to_map(
@@ -661,7 +673,8 @@ def register_scans(
         _grid_args(top, None), level_pts[-1], guess, c.search_distance, c.search_angle,
         0.5 * top.resolution, 0.5 * top.resolution / radius,
     )  # fmt: skip
-    normals = scan_normals(qry)[_subsample_by_spacing(qry, c.resolution)]
+    keep = _subsample_by_spacing(qry, c.resolution)
+    normals = thinned_normals(qry, keep)[keep]
     rel, report = match_scan_to_map(
         pyramid, level_pts, seed, c.max_iterations, c.step_tolerance, c.length_scale,
         c.degeneracy_ratio, c.subcell_sigma, np.ascontiguousarray(normals),
