@@ -191,6 +191,42 @@ def scan_normals(pts, radius=0.15, max_gap=0.3):
 
 
 @numba.njit(cache=True)
+def subsample_by_spacing(pts, spacing):
+    """Keep endpoints at least ``spacing`` from the previously kept one (scan order)."""
+    n = pts.shape[0]
+    keep = np.zeros(n, dtype=np.bool_)
+    if n == 0:
+        return keep
+    keep[0] = True
+    lx, ly = pts[0, 0], pts[0, 1]
+    s2 = spacing * spacing
+    for k in range(1, n):
+        dx = pts[k, 0] - lx
+        dy = pts[k, 1] - ly
+        if dx * dx + dy * dy >= s2:
+            keep[k] = True
+            lx, ly = pts[k, 0], pts[k, 1]
+    return keep
+
+
+def thinned_normals(
+    points: FloatArray, keep: NDArray[np.bool_] | None = None, spacing: float = 0.05
+) -> FloatArray:
+    """Surface normals of all endpoints, computed on the thinned ones (``keep``) and passed
+    on to the raw endpoints that follow each in scan order: on dense scans the neighbour
+    windows of the raw points are long and the cost of the normals grows with their square,
+    while at the thinning spacing (a few cm) the normal of a wall does not change. Without
+    ``keep`` the endpoints are thinned to ``spacing`` metres (:func:`subsample_by_spacing`)."""
+    if keep is None:
+        keep = subsample_by_spacing(points, spacing)
+    if not np.any(keep):
+        return np.zeros_like(points)
+    sub = scan_normals(np.ascontiguousarray(points[keep]))
+    owner = np.maximum(np.cumsum(keep) - 1, 0)
+    return np.ascontiguousarray(sub[owner])
+
+
+@numba.njit(cache=True)
 def _prob(logodd: float) -> float:
     return 1.0 / (1.0 + math.exp(-logodd))
 
@@ -413,12 +449,13 @@ class OccupancyGrid:
             endpoints: ``(N, 2)`` beam endpoints in the sensor frame (valid returns only), in
                 scan order (their neighbours give the surface normals).
             max_range: endpoints farther than this are ignored (their rays too).
-            normals: ``(N, 2)`` sensor-frame surface normals, if already computed
-                (:func:`scan_normals`).
+            normals: ``(N, 2)`` sensor-frame surface normals (:func:`thinned_normals`), used
+                by the sub-cell map function; without them cells get none (isotropic bumps),
+                which is all a map drawn for display needs.
         """
         pose = np.asarray(pose, dtype=np.float64).reshape(3)
         pts = _as_points(endpoints)
-        nrm = scan_normals(pts) if normals is None else _as_points(normals)
+        nrm = np.zeros_like(pts) if normals is None else _as_points(normals)
         if np.isfinite(max_range):
             near = np.einsum("ij,ij->i", pts, pts) <= max_range * max_range
             pts, nrm = pts[near], nrm[near]
@@ -540,7 +577,7 @@ class MapPyramid:
         normals: ArrayLike | None = None,
     ) -> None:
         pts = _as_points(endpoints)
-        normals = scan_normals(pts) if normals is None else _as_points(normals)
+        normals = thinned_normals(pts) if normals is None else _as_points(normals)
         for grid in self.grids:
             grid.insert_scan(pose, pts, max_range, normals)
 

@@ -29,7 +29,8 @@ from bioslam.occupancy_grid import (
     MapPyramid,
     OccupancyGrid,
     map_point,
-    scan_normals,
+    subsample_by_spacing,
+    thinned_normals,
 )
 from bioslam.scan import LaserScan
 
@@ -140,25 +141,6 @@ class MatchReport:
 
 # --------------------------------------------------------------------------------------------
 # Numba kernels
-
-
-@numba.njit(cache=True)
-def _subsample_by_spacing(pts, spacing):
-    """Keep endpoints at least ``spacing`` from the previously kept one (scan order)."""
-    n = pts.shape[0]
-    keep = np.zeros(n, dtype=np.bool_)
-    if n == 0:
-        return keep
-    keep[0] = True
-    lx, ly = pts[0, 0], pts[0, 1]
-    s2 = spacing * spacing
-    for k in range(1, n):
-        dx = pts[k, 0] - lx
-        dy = pts[k, 1] - ly
-        if dx * dx + dy * dy >= s2:
-            keep[k] = True
-            lx, ly = pts[k, 0], pts[k, 1]
-    return keep
 
 
 @numba.njit(cache=True)
@@ -345,18 +327,6 @@ def deskew_points(points: ArrayLike, beam_times: ArrayLike, twist: ArrayLike) ->
 # Matching
 
 
-def thinned_normals(points: FloatArray, keep: NDArray[np.bool_]) -> FloatArray:
-    """Surface normals of all endpoints, computed on the thinned ones (``keep``) and passed
-    on to the raw endpoints that follow each in scan order: on dense scans the neighbour
-    windows of the raw points are long and the cost of the normals grows with their square,
-    while at the thinning spacing (a few cm) the normal of a wall does not change."""
-    if not np.any(keep):
-        return np.zeros_like(points)
-    sub = scan_normals(np.ascontiguousarray(points[keep]))
-    owner = np.maximum(np.cumsum(keep) - 1, 0)
-    return np.ascontiguousarray(sub[owner])
-
-
 def _grid_args(grid: OccupancyGrid, subcell_sigma: float | None) -> tuple:
     kind = 0 if subcell_sigma is None else 1
     sigma = grid.resolution * (subcell_sigma or 1.0)
@@ -366,7 +336,7 @@ def _grid_args(grid: OccupancyGrid, subcell_sigma: float | None) -> tuple:
 
 def _level_points(points: FloatArray, spacing: float, levels: int) -> list[FloatArray]:
     return [
-        np.ascontiguousarray(points[_subsample_by_spacing(points, spacing * 2**k)])
+        np.ascontiguousarray(points[subsample_by_spacing(points, spacing * 2**k)])
         for k in range(levels)
     ]
 
@@ -513,7 +483,7 @@ class LidarOdometry:
         previous = self.pose.copy()
         predicted = compose(previous, se2_exp(self._twist, dt)) if self.num_scans else previous
         pts = self._sensor_points(scan)
-        keep = _subsample_by_spacing(pts, c.point_spacing)
+        keep = subsample_by_spacing(pts, c.point_spacing)
         normals = thinned_normals(pts, keep)
         first = self.num_scans == 0
         self.num_scans += 1
@@ -673,7 +643,7 @@ def register_scans(
         _grid_args(top, None), level_pts[-1], guess, c.search_distance, c.search_angle,
         0.5 * top.resolution, 0.5 * top.resolution / radius,
     )  # fmt: skip
-    keep = _subsample_by_spacing(qry, c.resolution)
+    keep = subsample_by_spacing(qry, c.resolution)
     normals = thinned_normals(qry, keep)[keep]
     rel, report = match_scan_to_map(
         pyramid, level_pts, seed, c.max_iterations, c.step_tolerance, c.length_scale,
