@@ -303,6 +303,10 @@ class CognitiveMap:
         """(N, 3) relaxed experience poses (a copy)."""
         return self._poses.view.copy()
 
+    def are_linked(self, a: int, b: int) -> bool:
+        """Whether a link joins experiences ``a`` and ``b`` (either direction)."""
+        return (a, b) in self._linked or (b, a) in self._linked
+
     def experience(self, eid: int) -> Experience:
         """A snapshot of experience ``eid``."""
         return Experience(

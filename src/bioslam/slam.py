@@ -72,6 +72,7 @@ class BioSLAM:
         self._travelled = 0.0
         self._travelled_at_experience: list[float] = []
         self._rejected_at: dict[int, float] = {}
+        self._travelled_at_entry = 0.0
 
     # --- the per-scan update ---------------------------------------------------------------
 
@@ -79,7 +80,10 @@ class BioSLAM:
         """Feed one scan; return the robot's current pose in the cognitive map's frame."""
         dp = self._self_motion(scan)
         points = scan.endpoints()
-        match = self.view_cells.observe(self.boundary_cells.activity(scan))
+        # Egocentric views of corridors running in different directions look alike; the map
+        # heading lets the view cells compare only views learned facing the same way.
+        heading = self.cognitive_map.pose()[2] + dp[2] if len(self.cognitive_map) else dp[2]
+        match = self.view_cells.observe(self.boundary_cells.activity(scan), heading=heading)
         self.pose_cells.path_integrate(dp)
         self.pose_cells.inject_view(match.view_id, match.activity, match.is_new)
         self.pose_cells.step()
@@ -116,8 +120,14 @@ class BioSLAM:
             last_rejection = self._rejected_at.get(experience.id)
             if last_rejection is not None and self._travelled - last_rejection < cfg.retry_distance:
                 return None
-            predicted = between(experience.pose, self.cognitive_map.pose())
-            since = self._travelled - self._travelled_at_experience[experience.id]
+            cmap = self.cognitive_map
+            predicted = between(experience.pose, cmap.pose())
+            if cmap.are_linked(cmap.current, experience.id):
+                # Along a known link the map already relates the two places: only the odometry
+                # since entering the current experience can be off.
+                since = self._travelled - self._travelled_at_entry
+            else:
+                since = self._travelled - self._travelled_at_experience[experience.id]
             drift, drift_angle = self._drift_bound(since)
             if np.hypot(predicted[0], predicted[1]) > cfg.recognition_radius + drift:
                 return None
@@ -157,6 +167,8 @@ class BioSLAM:
         self._travelled += float(np.hypot(dp[0], dp[1]))
         if event.kind == "new":
             self._travelled_at_experience.append(self._travelled)
+        if event.kind != "none":
+            self._travelled_at_entry = self._travelled
         exp_id, offset = self.cognitive_map.anchor()
         self._stamps.append(stamp)
         self._anchor_ids.append(int(exp_id))
