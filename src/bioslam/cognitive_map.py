@@ -48,7 +48,7 @@ from numba import njit
 from numpy.typing import ArrayLike, NDArray
 from scipy.sparse.linalg import splu
 
-from bioslam.geometry import between, compose, inverse, wrap_angle
+from bioslam.geometry import compose, inverse, wrap_angle
 from bioslam.pose_cells import PoseCellConfig, wrapped_cell_distance
 
 FloatArray = NDArray[np.float64]
@@ -441,19 +441,14 @@ class CognitiveMap:
         if target == current:
             return MapEvent("none", current, matched=target)
         arrival = np.zeros(3)
-        linked = (current, target) in self._linked or (target, current) in self._linked
-        if refine is not None and linked:
-            # The graph already relates the two experiences: where the robot stands relative
-            # to the target follows from the map, no registration needed.
-            arrival = between(self._poses.data[target], self.pose())
-        elif refine is not None:
+        if refine is not None:
             refined = refine(self.experience(target))
             if refined is None:
                 self.rejected_closures += 1
                 return MapEvent("none", current, rejected=True, matched=target)
             arrival = np.asarray(refined, dtype=np.float64).reshape(3)
         kind: EventKind = "link"
-        if not linked:
+        if (current, target) not in self._linked:
             # p_current ⊕ offset = p_target ⊕ arrival, so Δp = offset ⊕ arrival⁻¹.
             dp = compose(self._offset, inverse(arrival))
             self._add_link(current, target, dp, stamp, "loop")
