@@ -76,6 +76,11 @@ class OdometryConfig:
         velocity_window: seconds of past poses the constant-velocity estimate (prediction and
             de-skew) is taken over; ours, about the time constant of a robot's acceleration,
             and several scans of a 40 Hz scanner.
+        velocity_scans: ... and over at least this many scan intervals: a 360° scanner
+            sweeps during the whole scan period, so a velocity error de-skews the next scan
+            wrongly by up to a period's worth of motion; averaging 3 intervals keeps that
+            loop stable (measured: the 7 Hz low-cost preset diverges with 1, drifts 0.5 %
+            with 3).
         deskew: correct per-beam motion when ``scan.time_increment > 0``.
         min_points: fewer valid endpoints than this give a prediction-only update.
         log_odds: hit/miss increments of the map cells.
@@ -95,6 +100,7 @@ class OdometryConfig:
     length_scale: float = 3.0
     degeneracy_ratio: float = 0.01
     velocity_window: float = 0.1
+    velocity_scans: int = 3
     start_margin: float = 0.1
     subcell_sigma: float | None = 1.0
     deskew: bool = True
@@ -531,7 +537,8 @@ class LidarOdometry:
         that, fed back through the prediction and the de-skew, makes the estimate oscillate."""
         history = self._history
         history.append((stamp, self.pose.copy()))
-        while len(history) > 2 and stamp - history[1][0] >= self.config.velocity_window:
+        c = self.config
+        while len(history) > c.velocity_scans + 1 and stamp - history[1][0] >= c.velocity_window:
             history.popleft()
         t0, p0 = history[0]
         if stamp > t0:
