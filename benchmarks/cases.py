@@ -171,7 +171,10 @@ def prepare(case: Case, work: Path) -> PreparedCase:
     """Generate or locate the input, load its scans and write the reference TUM if any."""
     from bioslam.io.logs import open_log
 
-    folder = work / "cases" / case.name
+    # The simulator's settings are part of the folder name: a cached bag is reused only when
+    # it was generated with the same lidar, duration and seed.
+    sim_key = f"-{case.lidar}-{case.duration_s:g}s-seed{case.seed}" if case.source == "sim" else ""
+    folder = work / "cases" / f"{case.name}{sim_key}"
     folder.mkdir(parents=True, exist_ok=True)
     notes: list[str] = []
     if case.source == "sim":

@@ -181,8 +181,20 @@ def markdown_table(records: list[dict], columns: list[tuple[str, str, str]] = CO
     return "\n".join(lines)
 
 
+def code_version() -> str:
+    """The commit benchmarked, marked ``+dirty`` when the working tree has local changes."""
+    import subprocess
+
+    def git(*a: str) -> str:
+        return subprocess.run(["git", *a], cwd=HERE, capture_output=True, text=True).stdout
+
+    dirty = "+dirty" if git("status", "--porcelain", "--untracked-files=no").strip() else ""
+    return git("rev-parse", "--short", "HEAD").strip() + dirty
+
+
 def machine_info() -> dict:
     return {
+        "code": code_version(),
         "host_cpus": os.cpu_count(),
         "platform": platform.platform(),
         "python": platform.python_version(),
@@ -201,7 +213,7 @@ def write_results(
     md = [
         f"# bioslam benchmark {stem}",
         "",
-        f"Command: `{meta['command']}`  ",
+        f"Command: `{meta['command']}` at commit {meta['code']}  ",
         f"Machine: {meta['host_cpus']} CPUs, {meta['platform']}, shared with other jobs during "
         f"the run (load average {meta['loadavg_start'][0]:.1f} at start, "
         f"{meta['loadavg_end'][0]:.1f} at end); wall {meta['total_wall_s']:.0f} s.  ",
