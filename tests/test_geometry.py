@@ -55,3 +55,12 @@ def test_quaternion_round_trip():
     q = yaw_to_quaternion(yaw)
     assert np.allclose(np.linalg.norm(q, axis=1), 1.0)
     assert np.allclose(quaternion_to_yaw(q), yaw)
+
+
+def test_single_pose_path_matches_vectorised():
+    a, b = random_poses(30), random_poses(30)
+    batched = compose(a, b)
+    single = np.array([compose(a[i], b[i]) for i in range(30)])
+    assert np.allclose(single, batched)
+    assert np.allclose(np.array([inverse(p) for p in a]), inverse(a))
+    assert np.allclose(np.array([between(a[i], b[i]) for i in range(30)]), between(a, b))

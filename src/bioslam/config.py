@@ -50,6 +50,10 @@ class LoopClosureConfig:
             The defaults allow 5% drift, ten times what the LiDAR odometry shows on its
             benchmarks, so that real closures after long loops still pass.
         drift_angle_floor, drift_angle_per_metre: the same for the heading, radians.
+        link_floor, link_angle_floor: the floors instead when the map already links the
+            current experience to the recognised one, so that only the odometry since
+            entering the current experience and the registration's error can be off; a
+            registration sliding along a corridor is caught here.
         recognition_radius: how far (m) from a place its boundary view is still recognised;
             a candidate that the map puts farther than this plus the drift bound is rejected
             before any registration (the pose cells wrap, so their packet alone cannot tell
@@ -67,6 +71,8 @@ class LoopClosureConfig:
     drift_per_metre: float = 0.05
     drift_angle_floor: float = 0.1
     drift_angle_per_metre: float = 0.005
+    link_floor: float = 0.05
+    link_angle_floor: float = 0.03
     recognition_radius: float = 1.0
     retry_distance: float = 0.25
     payload_spacing: float = 0.05

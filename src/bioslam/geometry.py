@@ -6,6 +6,7 @@ A pose is ``(x, y, theta)`` in metres and radians, the map frame; arrays of pose
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -39,9 +40,24 @@ def _as_poses(p: ArrayLike) -> FloatArray:
     return arr
 
 
+def _wrap_scalar(angle: float) -> float:
+    return math.pi - (math.pi - angle) % (2.0 * math.pi)
+
+
+def _compose_single(a: FloatArray, b: FloatArray) -> FloatArray:
+    # The per-scan path composes single poses thousands of times a second; plain floats
+    # avoid the array machinery of the vectorised form.
+    ax, ay, at = float(a[0]), float(a[1]), float(a[2])
+    bx, by, bt = float(b[0]), float(b[1]), float(b[2])
+    c, s = math.cos(at), math.sin(at)
+    return np.array([ax + c * bx - s * by, ay + s * bx + c * by, _wrap_scalar(at + bt)])
+
+
 def compose(a: ArrayLike, b: ArrayLike) -> FloatArray:
     """``a ⊕ b``: apply the relative pose ``b`` in the frame of ``a``."""
     a, b = _as_poses(a), _as_poses(b)
+    if a.ndim == 1 and b.ndim == 1:
+        return _compose_single(a, b)
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     x = a[..., 0] + c * b[..., 0] - s * b[..., 1]
     y = a[..., 1] + s * b[..., 0] + c * b[..., 1]
@@ -51,6 +67,10 @@ def compose(a: ArrayLike, b: ArrayLike) -> FloatArray:
 def inverse(p: ArrayLike) -> FloatArray:
     """``⊖p``, so that ``compose(p, inverse(p))`` is the identity."""
     p = _as_poses(p)
+    if p.ndim == 1:
+        x, y, t = float(p[0]), float(p[1]), float(p[2])
+        c, s = math.cos(t), math.sin(t)
+        return np.array([-c * x - s * y, s * x - c * y, _wrap_scalar(-t)])
     c, s = np.cos(p[..., 2]), np.sin(p[..., 2])
     x = -c * p[..., 0] - s * p[..., 1]
     y = s * p[..., 0] - c * p[..., 1]

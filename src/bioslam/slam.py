@@ -11,13 +11,15 @@ No file or terminal I/O here: :mod:`bioslam.pipeline` owns progress, timing and 
 from __future__ import annotations
 
 import dataclasses
+import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
 from bioslam.boundary import BoundaryCells
-from bioslam.cognitive_map import CognitiveMap
+from bioslam.cognitive_map import CognitiveMap, Experience, MapEvent
 from bioslam.config import SLAMConfig
 from bioslam.geometry import Pose2D, between, compose
 from bioslam.odometry import LidarOdometry, register_scans
@@ -108,62 +110,69 @@ class BioSLAM:
         self._last_stamp = scan.stamp
         return dp
 
-    def _refiner(self, points: FloatArray):
-        """A callable for the cognitive map: the robot's pose in an old experience's frame
-        from registering this scan against the experience's stored scan, or None to reject."""
+    def _refiner(self, points: FloatArray) -> Callable[[Experience], FloatArray | None]:
+        """A callable for the cognitive map that refines a move to a recognised experience."""
+        return functools.partial(self._refine, points=points)
+
+    def _refine(self, experience: Experience, points: FloatArray) -> FloatArray | None:
+        """The robot's pose in ``experience``'s frame, from registering this scan against the
+        scan stored with it, or None to reject the recognition."""
         cfg = self.config.loop_closure
+        reference = experience.payload
+        if reference is None or len(reference) < 3 or points.shape[0] < 3:
+            return None
+        last_rejection = self._rejected_at.get(experience.id)
+        if last_rejection is not None and self._travelled - last_rejection < cfg.retry_distance:
+            return None
+        predicted = between(experience.pose, self.cognitive_map.pose())
+        linked, since = self._odometry_relation(experience.id)
+        drift, drift_angle = self._drift_bound(since, linked)
+        if np.hypot(predicted[0], predicted[1]) > cfg.recognition_radius + drift:
+            return None
+        # The map's prediction is good to within the drift bound, so the registration need
+        # not search wider: re-recognising a place just left costs little.
+        registration = dataclasses.replace(
+            cfg.registration,
+            search_distance=min(cfg.registration.search_distance, drift),
+            search_angle=min(cfg.registration.search_angle, drift_angle),
+        )
+        rel, quality = register_scans(reference, points, predicted, registration)
+        fits = quality.score >= cfg.min_score and not (cfg.reject_degenerate and quality.degenerate)
+        if not (fits and self._plausible_correction(between(predicted, rel), since, linked)):
+            self._rejected_at[experience.id] = self._travelled
+            return None
+        return rel
 
-        def refine(experience) -> FloatArray | None:
-            reference = experience.payload
-            if reference is None or len(reference) < 3 or points.shape[0] < 3:
-                return None
-            last_rejection = self._rejected_at.get(experience.id)
-            if last_rejection is not None and self._travelled - last_rejection < cfg.retry_distance:
-                return None
-            cmap = self.cognitive_map
-            predicted = between(experience.pose, cmap.pose())
-            if cmap.are_linked(cmap.current, experience.id):
-                # Along a known link the map already relates the two places: only the odometry
-                # since entering the current experience can be off.
-                since = self._travelled - self._travelled_at_entry
-            else:
-                since = self._travelled - self._travelled_at_experience[experience.id]
-            drift, drift_angle = self._drift_bound(since)
-            if np.hypot(predicted[0], predicted[1]) > cfg.recognition_radius + drift:
-                return None
-            # The map's prediction is good to within the drift bound, so the registration
-            # need not search wider: re-recognising a place just left costs little.
-            registration = dataclasses.replace(
-                cfg.registration,
-                search_distance=min(cfg.registration.search_distance, drift),
-                search_angle=min(cfg.registration.search_angle, drift_angle),
-            )
-            rel, quality = register_scans(reference, points, predicted, registration)
-            fits = quality.score >= cfg.min_score and not (
-                cfg.reject_degenerate and quality.degenerate
-            )
-            if not (fits and self._plausible_correction(between(predicted, rel), since)):
-                self._rejected_at[experience.id] = self._travelled
-                return None
-            return rel
+    def _odometry_relation(self, experience_id: int) -> tuple[bool, float]:
+        """Whether the map links the current experience to ``experience_id``, and the
+        distance over which the odometry alone relates the robot to it: since entering the
+        current experience when they are linked, else since the experience was made."""
+        cmap = self.cognitive_map
+        if cmap.are_linked(cmap.current, experience_id):
+            return True, self._travelled - self._travelled_at_entry
+        return False, self._travelled - self._travelled_at_experience[experience_id]
 
-        return refine
-
-    def _drift_bound(self, travelled: float) -> tuple[float, float]:
-        """How far (m, rad) the odometry may have drifted over ``travelled`` metres."""
+    def _drift_bound(self, travelled: float, linked: bool) -> tuple[float, float]:
+        """How far (m, rad) the map's prediction may be off after ``travelled`` metres of
+        odometry: a known link leaves only the registration's own error as a floor."""
         cfg = self.config.loop_closure
+        floor, angle_floor = (
+            (cfg.link_floor, cfg.link_angle_floor)
+            if linked
+            else (cfg.drift_floor, cfg.drift_angle_floor)
+        )
         return (
-            cfg.drift_floor + cfg.drift_per_metre * travelled,
-            cfg.drift_angle_floor + cfg.drift_angle_per_metre * travelled,
+            floor + cfg.drift_per_metre * travelled,
+            angle_floor + cfg.drift_angle_per_metre * travelled,
         )
 
-    def _plausible_correction(self, correction: FloatArray, travelled: float) -> bool:
-        """Whether a closure's correction is within what the odometry can have drifted."""
-        drift, drift_angle = self._drift_bound(travelled)
+    def _plausible_correction(self, correction: FloatArray, travelled: float, linked: bool) -> bool:
+        """Whether a correction is within what the odometry can have drifted."""
+        drift, drift_angle = self._drift_bound(travelled, linked)
         shift = float(np.hypot(correction[0], correction[1]))
         return shift <= drift and abs(float(correction[2])) <= drift_angle
 
-    def _record(self, stamp: float, dp: FloatArray, match: ViewMatch, event) -> None:
+    def _record(self, stamp: float, dp: FloatArray, match: ViewMatch, event: MapEvent) -> None:
         self._travelled += float(np.hypot(dp[0], dp[1]))
         if event.kind == "new":
             self._travelled_at_experience.append(self._travelled)
