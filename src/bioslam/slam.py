@@ -19,21 +19,21 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bioslam.boundary import BoundaryCells
-from bioslam.cognitive_map import CognitiveMap, Experience, MapEvent
+from bioslam.cognitive_map import CognitiveMap, Experience
 from bioslam.config import SLAMConfig
 from bioslam.geometry import Pose2D, between, compose
 from bioslam.odometry import LidarOdometry, register_scans
 from bioslam.pose_cells import PoseCellNetwork
 from bioslam.scan import LaserScan
 from bioslam.trajectory import Trajectory
-from bioslam.views import ViewCells, ViewMatch
+from bioslam.views import ViewCells
 
 FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
 class StepRecord:
-    """What one scan did to the system, for figures and summaries."""
+    """What one look (a scan that reached the view cells) did, for figures and summaries."""
 
     stamp: float
     view_id: int
@@ -75,12 +75,32 @@ class BioSLAM:
         self._travelled_at_experience: list[float] = []
         self._rejected_at: dict[int, float] = {}
         self._travelled_at_entry = 0.0
+        self._pending = np.zeros(3)
 
     # --- the per-scan update ---------------------------------------------------------------
 
     def process(self, scan: LaserScan) -> Pose2D:
         """Feed one scan; return the robot's current pose in the cognitive map's frame."""
         dp = self._self_motion(scan)
+        self._pending = compose(self._pending, dp)
+        if self._due():
+            self._perceive(scan, self._pending)
+            self._pending = np.zeros(3)
+        self._record(scan.stamp, dp)
+        return Pose2D(*compose(self.cognitive_map.pose(), self._pending))
+
+    def _due(self) -> bool:
+        """Whether the robot has moved enough since the last view to look again. Between two
+        looks only the odometry runs; its motion reaches the pose cells and the map at the
+        next look (path integration takes steps of any size)."""
+        cfg = self.config
+        return len(self.cognitive_map) == 0 or (
+            np.hypot(self._pending[0], self._pending[1]) >= cfg.view_distance
+            or abs(self._pending[2]) >= cfg.view_angle
+        )
+
+    def _perceive(self, scan: LaserScan, dp: FloatArray) -> None:
+        """The view cells, pose cells and cognitive map for one scan, after motion ``dp``."""
         points = scan.endpoints()
         # Egocentric views of corridors running in different directions look alike; the map
         # heading lets the view cells compare only views learned facing the same way.
@@ -100,8 +120,14 @@ class BioSLAM:
         )
         if event.kind == "loop":
             self.cognitive_map.relax()
-        self._record(scan.stamp, dp, match, event)
-        return Pose2D(*self.cognitive_map.pose())
+        self._travelled += float(np.hypot(dp[0], dp[1]))
+        if event.kind == "new":
+            self._travelled_at_experience.append(self._travelled)
+        if event.kind != "none":
+            self._travelled_at_entry = self._travelled
+        self.records.append(
+            StepRecord(scan.stamp, match.view_id, match.is_new, event.kind, event.experience)
+        )
 
     def _self_motion(self, scan: LaserScan) -> FloatArray:
         dp = np.asarray(self.odometry.update(scan), dtype=np.float64).copy()
@@ -172,23 +198,15 @@ class BioSLAM:
         shift = float(np.hypot(correction[0], correction[1]))
         return shift <= drift and abs(float(correction[2])) <= drift_angle
 
-    def _record(self, stamp: float, dp: FloatArray, match: ViewMatch, event: MapEvent) -> None:
-        self._travelled += float(np.hypot(dp[0], dp[1]))
-        if event.kind == "new":
-            self._travelled_at_experience.append(self._travelled)
-        if event.kind != "none":
-            self._travelled_at_entry = self._travelled
+    def _record(self, stamp: float, dp: FloatArray) -> None:
         exp_id, offset = self.cognitive_map.anchor()
         self._stamps.append(stamp)
         self._anchor_ids.append(int(exp_id))
-        self._anchor_offsets.append(np.asarray(offset, dtype=np.float64))
+        self._anchor_offsets.append(compose(offset, self._pending))
         # Integrating the steps the map received (not odometry.pose) keeps an ablation's
         # injected drift in the odometry-only trajectory too.
         self._odometry_pose = compose(self._odometry_pose, dp)
         self._odometry_poses.append(self._odometry_pose)
-        self.records.append(
-            StepRecord(stamp, match.view_id, match.is_new, event.kind, int(exp_id))
-        )
 
     def finish(self) -> None:
         """Settle the cognitive map after the last scan (the final trajectory is re-derived
