@@ -41,12 +41,11 @@ def ring_route(laps: float = 2.0, speed: float = 0.4, radius: float = 0.5) -> Ro
         arc = np.linspace(a0, a0 + np.pi / 2, max(2, int(radius * np.pi / 2 / step)))
         points.append(np.column_stack([cx + radius * np.cos(arc), cy + radius * np.sin(arc)]))
     lap = np.concatenate(points)
-    n_laps = int(np.ceil(laps))
-    path = np.concatenate([lap] * n_laps)
-    path = path[np.concatenate([[True], np.hypot(*np.diff(path, axis=0).T) > 1e-9])]
-    seg = np.hypot(*np.diff(path, axis=0).T)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    keep = s <= laps * s[len(lap) - 1] + 1e-9
+    lap = lap[np.concatenate([[True], np.hypot(*np.diff(lap, axis=0).T) > 1e-9])]
+    lap_length = float(np.sum(np.hypot(*np.diff(np.vstack([lap, lap[:1]]), axis=0).T)))
+    path = np.concatenate([lap] * int(np.ceil(laps)))
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])
+    keep = s <= laps * lap_length + 1e-9
     path, s = path[keep], s[keep]
     heading = np.unwrap(np.arctan2(np.gradient(path[:, 1]), np.gradient(path[:, 0])))
     return Route(s / speed, np.column_stack([path, heading]))

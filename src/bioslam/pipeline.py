@@ -185,11 +185,23 @@ def run_slam(
     return result
 
 
-def render_map(result: RunResult, trajectory: Trajectory, resolution: float) -> OccupancyImage:
-    """An occupancy map from the kept scans placed at their final (corrected) poses."""
-    grid = OccupancyGrid(resolution, 20.0, origin=(-10.0, -10.0), auto_grow=True)
-    for index, points in zip(result.keyframe_index, result.keyframe_points, strict=True):
-        grid.insert_scan(trajectory.poses[index], points.astype(np.float64), result.map_max_range)
+def render_map(
+    result: RunResult, trajectory: Trajectory, resolution: float, max_cells: int = 4000
+) -> OccupancyImage:
+    """An occupancy map from the kept scans placed at their final (corrected) poses.
+
+    The cell size grows beyond ``resolution`` when the map would be wider than ``max_cells``
+    cells, so that a huge or diverged trajectory cannot exhaust memory.
+    """
+    poses = trajectory.poses[result.keyframe_index]
+    reach = np.array([np.max(np.abs(p), initial=0.0) for p in result.keyframe_points])
+    reach = np.minimum(reach, result.map_max_range)
+    lo = np.min(poses[:, :2] - reach[:, None], axis=0) - 1.0
+    hi = np.max(poses[:, :2] + reach[:, None], axis=0) + 1.0
+    cell = max(resolution, float(np.max(hi - lo)) / max_cells)
+    grid = OccupancyGrid.from_extent(cell, (lo[0], lo[1], hi[0], hi[1]))
+    for pose, points in zip(poses, result.keyframe_points, strict=True):
+        grid.insert_scan(pose, points.astype(np.float64), result.map_max_range)
     probability = grid.probability(unknown=np.nan)
     return OccupancyImage(probability, grid.resolution, (*map(float, grid.origin), 0.0))
 

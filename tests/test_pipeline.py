@@ -1,0 +1,113 @@
+"""The pipeline around the core: running, timing, writing results, and the `run`/`demo` CLI."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from loop_world import ring_route, ring_world
+
+from bioslam.cli import main
+from bioslam.io.mapfile import read_map
+from bioslam.io.tum import read_tum
+from bioslam.pipeline import RunOptions, run_slam, write_results
+from bioslam.sim import LIDAR_PRESETS, simulate_scans
+from bioslam.trajectory import Trajectory
+
+RUN_KEYS = {
+    "scans", "wall_s", "realtime_factor", "ms_per_scan_median", "ms_per_scan_p99", "views",
+    "experiences", "loop_closures",
+}
+EVAL_KEYS = {"ate_rmse_m", "ate_mean_m", "ate_max_m", "rpe_1m_trans_m", "rpe_1m_rot_deg"}
+
+
+@pytest.fixture(scope="module")
+def short_drive():
+    route = ring_route(laps=0.6)
+    pairs = list(simulate_scans(ring_world(), LIDAR_PRESETS["urg04lx"], route, seed=1))
+    scans = [s for s, _ in pairs]
+    gt = Trajectory(np.array([s.stamp for s in scans]), np.array([p for _, p in pairs]))
+    return scans, gt
+
+
+def last_json(capsys) -> dict:
+    lines = capsys.readouterr().out.strip().splitlines()
+    return json.loads(lines[-1])
+
+
+def test_results_are_written_and_consistent(short_drive, tmp_path):
+    scans, gt = short_drive
+    options = RunOptions(progress=False, snapshot_times=(5.0, 10.0))
+    result = run_slam(scans, options=options)
+    summary = write_results(result, tmp_path, gt, options)
+    assert set(summary) >= RUN_KEYS | EVAL_KEYS
+    assert summary["scans"] == len(scans)
+    trajectory = read_tum(tmp_path / "trajectory.tum")
+    assert len(trajectory) == len(scans) == len(read_tum(tmp_path / "odometry.tum"))
+    assert summary["ate_max_m"] < 0.1
+    graph = json.loads((tmp_path / "cognitive_map.json").read_text())
+    assert len(graph["nodes"]) == summary["experiences"] > 0
+    assert {"from", "to", "dp", "dt", "time", "kind"} <= set(graph["links"][0])
+    image = read_map(tmp_path / "map.yaml")
+    occupied = np.nan_to_num(image.occupancy) > 0.65
+    assert occupied.sum() > 100
+    for name in ("map.png", "cognitive_map.png", "active_view.png", "error.png",
+                 "views_and_error.png", "mapping_progress.png"):
+        assert (tmp_path / "figures" / name).stat().st_size > 1000
+    assert json.loads((tmp_path / "summary.json").read_text())["scans"] == len(scans)
+
+
+def test_a_failure_half_way_keeps_what_was_computed(short_drive, tmp_path):
+    scans, _ = short_drive
+
+    def failing():
+        yield from scans[:40]
+        raise OSError("disk went away")
+
+    result = run_slam(failing(), options=RunOptions(progress=False))
+    assert result.error == "OSError: disk went away"
+    summary = write_results(result, tmp_path)
+    assert summary["error"] == "OSError: disk went away"
+    assert len(read_tum(tmp_path / "trajectory.tum")) == 40
+
+
+def test_odometry_only_mode(short_drive, tmp_path):
+    scans, _ = short_drive
+    options = RunOptions(progress=False, odometry_only=True)
+    summary = write_results(run_slam(scans, options=options), tmp_path, options=options)
+    assert summary["experiences"] == 0
+    a, b = read_tum(tmp_path / "trajectory.tum"), read_tum(tmp_path / "odometry.tum")
+    assert np.allclose(a.poses, b.poses)
+
+
+def test_run_command_on_a_simulated_bag(tmp_path, capsys):
+    sim = tmp_path / "sim"
+    assert main(["sim", "--lidar", "urg04lx", "--duration", "12", "--seed", "2",
+                 "--out", str(sim)]) == 0
+    capsys.readouterr()
+    out = tmp_path / "run"
+    assert main(["run", str(sim / "scans"), "--out", str(out), "--gt", str(sim / "gt.tum"),
+                 "--no-progress"]) == 0
+    summary = last_json(capsys)
+    assert set(summary) >= RUN_KEYS | EVAL_KEYS
+    assert summary["format"] == "rosbag2" and summary["scans"] == 120
+    assert summary["ate_rmse_m"] < 0.05
+
+
+def test_run_command_reports_a_missing_input(tmp_path, capsys):
+    assert main(["run", str(tmp_path / "nope.bag"), "--out", str(tmp_path / "o")]) == 2
+    assert "nope.bag" in capsys.readouterr().err
+
+
+def test_demo_writes_the_papers_figures(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--duration", "15", "--out", str(out), "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    summary = json.loads(text.strip().splitlines()[-1])
+    assert "mean position error" in text and "2.84 cm" in text
+    assert set(summary) >= RUN_KEYS | EVAL_KEYS
+    assert summary["scans"] == 600
+    for name in ("gt.tum", "trajectory.tum", "world.png", "figures/mapping_progress.png",
+                 "figures/views_and_error.png"):
+        assert (out / name).exists()
