@@ -34,6 +34,8 @@ class Case:
     ``lidar`` / ``duration_s`` / ``seed``: the simulator's settings (sim cases).
     ``max_scans``: read only the first scans of a real log (quick runs); ``None`` = all.
     ``repeats``: the most timed repetitions worth spending on this case (long cases run once).
+    ``settings``: JSON overrides of the bioslam configuration for both bioslam rows (e.g. an
+    injected heading drift for the ablation); empty = defaults.
     """
 
     name: str
@@ -44,6 +46,7 @@ class Case:
     seed: int = 1
     max_scans: int | None = None
     repeats: int = 3
+    settings: str = ""
 
 
 @dataclass
@@ -55,6 +58,7 @@ class PreparedCase:
     scans: list[LaserScan]
     reference_tum: Path | None
     notes: list[str] = field(default_factory=list)
+    config_path: Path | None = None
 
     @property
     def stamps(self) -> np.ndarray:
@@ -78,18 +82,27 @@ def full_cases() -> list[Case]:
              lidar="rplidar", duration_s=1200.0, seed=2, repeats=1),
         Case("sim-maze-utm30lx", "sim", "simulated maze of the demo, 600 s, Hokuyo UTM-30LX",
              lidar="utm30lx", duration_s=600.0, repeats=1),
+        Case("sim-long-gyro-bias", "sim",
+             "ablation: the 20 min RPLIDAR route with a gyro-like heading drift of 0.05 deg/s "
+             "added to the odometry", lidar="rplidar", duration_s=1200.0, seed=2, repeats=1,
+             settings=GYRO_BIAS_SETTINGS),
     ]  # fmt: skip
+
+
+#: The ablation's injected drift: 0.05 deg/s, the bias of a cheap MEMS gyro left uncalibrated.
+GYRO_BIAS_SETTINGS = '{"heading_bias": 0.00087}'
 
 
 def quick_cases() -> list[Case]:
     """Short versions of the same cases (``--quick``, about 5 min), one timed run each."""
-    short = {"sim-maze-utm30lx": 20.0, "sim-long-rplidar": 60.0}
+    short = {"sim-maze-utm30lx": 20.0, "sim-long-rplidar": 60.0, "sim-long-gyro-bias": 60.0}
     heads = {"freiburg-079": 300, "intel": 150, "exp1": 300, "ros1-bag": None}
     out = []
     for c in full_cases():
         if c.source == "sim":
             out.append(
-                Case(c.name, c.source, c.description, c.lidar, short[c.name], c.seed, repeats=1)
+                Case(c.name, c.source, c.description, c.lidar, short[c.name], c.seed, repeats=1,
+                     settings=c.settings)
             )
         else:
             out.append(Case(c.name, c.source, c.description, max_scans=heads[c.name], repeats=1))
@@ -173,8 +186,9 @@ def prepare(case: Case, work: Path) -> PreparedCase:
 
     # The simulator's settings are part of the folder name: a cached bag is reused only when
     # it was generated with the same lidar, duration and seed.
-    sim_key = f"-{case.lidar}-{case.duration_s:g}s-seed{case.seed}" if case.source == "sim" else ""
-    folder = work / "cases" / f"{case.name}{sim_key}"
+    # Cases driving the same simulated route share its folder.
+    sim_key = f"sim-{case.lidar}-{case.duration_s:g}s-seed{case.seed}"
+    folder = work / "cases" / (sim_key if case.source == "sim" else case.name)
     folder.mkdir(parents=True, exist_ok=True)
     notes: list[str] = []
     if case.source == "sim":
@@ -191,7 +205,11 @@ def prepare(case: Case, work: Path) -> PreparedCase:
     if reference is None and log.reference is not None and len(log.reference):
         reference = folder / "reference.tum"
         write_tum(reference, log.reference)
-    return PreparedCase(case, Path(input_path), scans, reference, notes)
+    config_path = None
+    if case.settings:
+        config_path = folder / f"{case.name}-config.json"
+        config_path.write_text(case.settings)
+    return PreparedCase(case, Path(input_path), scans, reference, notes, config_path)
 
 
 def read_reference(prepared: PreparedCase) -> Trajectory | None:

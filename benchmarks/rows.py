@@ -120,6 +120,8 @@ def run_bioslam(
     cmd = [*bioslam_cli(), "run", str(prepared.input_path), "--out", str(out), "--no-progress"]
     if odometry_only:
         cmd.append("--odometry-only")
+    if prepared.config_path is not None:
+        cmd += ["--config", str(prepared.config_path)]
     t = run_timed(cmd, out / "stdout.txt")
     if t.returncode != 0:
         raise RuntimeError(f"bioslam run exited {t.returncode}: {_tail(out / 'stdout.txt')}")

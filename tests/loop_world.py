@@ -42,6 +42,8 @@ def ring_route(laps: float = 2.0, speed: float = 0.4, radius: float = 0.5) -> Ro
         points.append(np.column_stack([cx + radius * np.cos(arc), cy + radius * np.sin(arc)]))
     lap = np.concatenate(points)
     lap = lap[np.concatenate([[True], np.hypot(*np.diff(lap, axis=0).T) > 1e-9])]
+    if np.allclose(lap[0], lap[-1]):
+        lap = lap[:-1]
     lap_length = float(np.sum(np.hypot(*np.diff(np.vstack([lap, lap[:1]]), axis=0).T)))
     path = np.concatenate([lap] * int(np.ceil(laps)))
     s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(path, axis=0).T))])

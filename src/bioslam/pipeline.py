@@ -29,7 +29,7 @@ from bioslam.occupancy_grid import OccupancyGrid
 from bioslam.odometry import LidarOdometry
 from bioslam.plots import figures
 from bioslam.scan import LaserScan
-from bioslam.slam import BioSLAM, StepRecord, thin_points
+from bioslam.slam import BioSLAM, SelfMotion, StepRecord, thin_points
 from bioslam.trajectory import Trajectory
 
 FloatArray = NDArray[np.float64]
@@ -61,19 +61,23 @@ class RunOptions:
 
 
 class OdometryOnly:
-    """The LiDAR odometry behind the same interface as :class:`BioSLAM`."""
+    """The self-motion cue alone (Sec. III-A) behind the same interface as :class:`BioSLAM`."""
 
     def __init__(self, config: SLAMConfig) -> None:
-        self.odometry = LidarOdometry(config.odometry)
+        self.self_motion = SelfMotion(config)
         self._stamps: list[float] = []
         self._poses: list[FloatArray] = []
         self.records: list[StepRecord] = []
 
+    @property
+    def odometry(self) -> LidarOdometry:
+        return self.self_motion.odometry
+
     def process(self, scan: LaserScan) -> Pose2D:
-        self.odometry.update(scan)
+        self.self_motion.step(scan)
         self._stamps.append(scan.stamp)
-        self._poses.append(self.odometry.pose.copy())
-        return Pose2D(*self._poses[-1])
+        self._poses.append(self.self_motion.pose)
+        return Pose2D(*self.self_motion.pose)
 
     @property
     def num_scans(self) -> int:
@@ -162,7 +166,7 @@ def run_slam(
             system.process(scan)
             result.scan_seconds.append(time.perf_counter() - t0)
             first_stamp = scan.stamp if first_stamp is None else first_stamp
-            odo_pose = system.odometry.pose
+            odo_pose = system.self_motion.pose
             if _is_keyframe(odo_pose, last_key, options):
                 last_key = odo_pose.copy()
                 result.keyframe_index.append(system.num_scans - 1)

@@ -53,13 +53,35 @@ def thin_points(points: FloatArray, spacing: float) -> NDArray[np.float32]:
     return points[np.sort(first)].astype(np.float32)
 
 
+class SelfMotion:
+    """The self-motion cue: the LiDAR odometry's step per scan, integrated into a pose.
+
+    ``heading_bias`` (rad/s) adds an artificial gyro-like drift to every step, for ablations.
+    """
+
+    def __init__(self, config: SLAMConfig) -> None:
+        self.odometry = LidarOdometry(config.odometry)
+        self.heading_bias = config.heading_bias
+        self.pose = np.zeros(3)
+        self._last_stamp: float | None = None
+
+    def step(self, scan: LaserScan) -> FloatArray:
+        """The motion since the previous scan, in the previous robot frame."""
+        dp = np.asarray(self.odometry.update(scan), dtype=np.float64).copy()
+        if self.heading_bias and self._last_stamp is not None:
+            dp[2] += self.heading_bias * max(scan.stamp - self._last_stamp, 0.0)
+        self._last_stamp = scan.stamp
+        self.pose = compose(self.pose, dp)
+        return dp
+
+
 class BioSLAM:
     """The LiDAR-based biologically-inspired SLAM system (Sec. III)."""
 
     def __init__(self, config: SLAMConfig | None = None) -> None:
         self.config = config or SLAMConfig()
         cfg = self.config
-        self.odometry = LidarOdometry(cfg.odometry)
+        self.self_motion = SelfMotion(cfg)
         self.boundary_cells = BoundaryCells(cfg.boundary)
         self.view_cells = ViewCells(cfg.views)
         self.pose_cells = PoseCellNetwork(cfg.pose_cells)
@@ -67,9 +89,7 @@ class BioSLAM:
         self._stamps: list[float] = []
         self._anchor_ids: list[int] = []
         self._anchor_offsets: list[FloatArray] = []
-        self._odometry_pose = np.zeros(3)
         self._odometry_poses: list[FloatArray] = []
-        self._last_stamp: float | None = None
         self.records: list[StepRecord] = []
         self._travelled = 0.0
         self._travelled_at_experience: list[float] = []
@@ -81,12 +101,12 @@ class BioSLAM:
 
     def process(self, scan: LaserScan) -> Pose2D:
         """Feed one scan; return the robot's current pose in the cognitive map's frame."""
-        dp = self._self_motion(scan)
+        dp = self.self_motion.step(scan)
         self._pending = compose(self._pending, dp)
         if self._due():
             self._perceive(scan, self._pending)
             self._pending = np.zeros(3)
-        self._record(scan.stamp, dp)
+        self._record(scan.stamp)
         return Pose2D(*compose(self.cognitive_map.pose(), self._pending))
 
     def _due(self) -> bool:
@@ -128,13 +148,6 @@ class BioSLAM:
         self.records.append(
             StepRecord(scan.stamp, match.view_id, match.is_new, event.kind, event.experience)
         )
-
-    def _self_motion(self, scan: LaserScan) -> FloatArray:
-        dp = np.asarray(self.odometry.update(scan), dtype=np.float64).copy()
-        if self.config.heading_bias and self._last_stamp is not None:
-            dp[2] += self.config.heading_bias * max(scan.stamp - self._last_stamp, 0.0)
-        self._last_stamp = scan.stamp
-        return dp
 
     def _refiner(self, points: FloatArray) -> Callable[[Experience], FloatArray | None]:
         """A callable for the cognitive map that refines a move to a recognised experience."""
@@ -198,15 +211,12 @@ class BioSLAM:
         shift = float(np.hypot(correction[0], correction[1]))
         return shift <= drift and abs(float(correction[2])) <= drift_angle
 
-    def _record(self, stamp: float, dp: FloatArray) -> None:
+    def _record(self, stamp: float) -> None:
         exp_id, offset = self.cognitive_map.anchor()
         self._stamps.append(stamp)
         self._anchor_ids.append(int(exp_id))
         self._anchor_offsets.append(compose(offset, self._pending))
-        # Integrating the steps the map received (not odometry.pose) keeps an ablation's
-        # injected drift in the odometry-only trajectory too.
-        self._odometry_pose = compose(self._odometry_pose, dp)
-        self._odometry_poses.append(self._odometry_pose)
+        self._odometry_poses.append(self.self_motion.pose)
 
     def finish(self) -> None:
         """Settle the cognitive map after the last scan (the final trajectory is re-derived
@@ -216,6 +226,10 @@ class BioSLAM:
             self.cognitive_map.relax()
 
     # --- read-outs ---------------------------------------------------------------------------
+
+    @property
+    def odometry(self) -> LidarOdometry:
+        return self.self_motion.odometry
 
     @property
     def num_scans(self) -> int:
@@ -232,7 +246,7 @@ class BioSLAM:
         return Trajectory(np.asarray(self._stamps), poses)
 
     def odometry_trajectory(self) -> Trajectory:
-        """The LiDAR odometry alone (as the pose cells received it), one pose per scan."""
+        """The self-motion cue alone (as the pose cells received it), one pose per scan."""
         if not self._stamps:
             return Trajectory.empty()
         return Trajectory(np.asarray(self._stamps), np.asarray(self._odometry_poses))
