@@ -177,9 +177,17 @@ class BioSLAM:
         )
         rel, quality = register_scans(reference, points, predicted, registration)
         fits = quality.score >= cfg.min_score and not (cfg.reject_degenerate and quality.degenerate)
-        if not (fits and self._plausible_correction(between(predicted, rel), since, linked)):
+        correction = between(predicted, rel)
+        if not (fits and self._plausible_correction(correction, since, linked)):
             self._rejected_at[experience.id] = self._travelled
             return None
+        if (
+            np.hypot(correction[0], correction[1]) < cfg.deadband
+            and abs(correction[2]) < cfg.deadband_angle
+        ):
+            # The map already agrees with the registration to within the registration's own
+            # error: keep the map's estimate rather than inject that error into the map.
+            return predicted
         return rel
 
     def _odometry_relation(self, experience_id: int) -> tuple[bool, float]:
