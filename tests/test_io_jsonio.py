@@ -54,3 +54,17 @@ def test_read_json_names_file_and_line(tmp_path):
     (tmp_path / "bad.json").write_text('{\n  "a": 1,\n}\n')
     with pytest.raises(ValueError, match=r"bad.json:3:"):
         read_json(tmp_path / "bad.json")
+
+
+def test_atomic_writes_get_ordinary_permissions(tmp_path):
+    import os
+    import stat
+
+    from bioslam.io.jsonio import atomic_write_bytes
+
+    mask = os.umask(0o022)
+    try:
+        path = atomic_write_bytes(tmp_path / "x.bin", b"abc")
+    finally:
+        os.umask(mask)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o644

@@ -38,8 +38,12 @@ def last_json(capsys) -> dict:
 
 def test_results_are_written_and_consistent(short_drive, tmp_path):
     scans, gt = short_drive
-    options = RunOptions(progress=False, snapshot_times=(5.0, 10.0))
+    end = float(gt.stamps[-1] - gt.stamps[0])
+    options = RunOptions(progress=False, snapshot_times=(5.0, 10.0, end + 0.5, end + 100.0))
     result = run_slam(scans, options=options)
+    # The time just past the end gets the final map; one far beyond it gets nothing.
+    assert [s.elapsed for s in result.snapshots] == [5.0, 10.0, end + 0.5]
+    assert len(result.snapshots[-1].nodes_xy) > len(result.snapshots[0].nodes_xy)
     summary = write_results(result, tmp_path, gt, options)
     assert set(summary) >= RUN_KEYS | EVAL_KEYS
     assert summary["scans"] == len(scans)

@@ -44,6 +44,8 @@ class RunOptions:
         progress: show a progress bar on stderr.
         snapshot_times: seconds after the first scan at which to keep a copy of the cognitive
             map for the mapping-progress figure (the paper's Fig. 5 uses 200, 400 and 600 s).
+        snapshot_tolerance: a snapshot time at most this many seconds past the last scan
+            gets the final map.
         keyframe_distance, keyframe_angle: a scan is kept for rendering the output map when
             the robot has moved this far (m) or turned this much (rad) since the last kept one;
             this bounds memory on long logs while every place still gets drawn.
@@ -58,6 +60,7 @@ class RunOptions:
     keyframe_angle: float = math.radians(5.0)
     map_resolution: float = 0.05
     map_point_spacing: float = 0.025
+    snapshot_tolerance: float = 1.0
 
 
 class OdometryOnly:
@@ -157,6 +160,7 @@ def run_slam(
     pending_snapshots = sorted(options.snapshot_times)
     last_key: FloatArray | None = None
     first_stamp: float | None = None
+    last_stamp = 0.0
     bar = tqdm(total=total, unit="scan", disable=not options.progress, file=sys.stderr,
                dynamic_ncols=True, smoothing=0.05)
     started = time.perf_counter()
@@ -166,6 +170,7 @@ def run_slam(
             system.process(scan)
             result.scan_seconds.append(time.perf_counter() - t0)
             first_stamp = scan.stamp if first_stamp is None else first_stamp
+            last_stamp = scan.stamp
             odo_pose = system.self_motion.pose
             if _is_keyframe(odo_pose, last_key, options):
                 last_key = odo_pose.copy()
@@ -186,6 +191,14 @@ def run_slam(
         bar.close()
         result.wall_s = time.perf_counter() - started
     system.finish()
+    if isinstance(system, BioSLAM) and first_stamp is not None:
+        # A snapshot asked for at the very end (600 s of a 600 s run) falls a scan period
+        # after the last stamp: it is the final map.
+        result.snapshots += [
+            cognitive_map_snapshot(system, wanted)
+            for wanted in pending_snapshots
+            if wanted - (last_stamp - first_stamp) <= options.snapshot_tolerance
+        ]
     return result
 
 
