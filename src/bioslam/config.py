@@ -50,8 +50,11 @@ class LoopClosureConfig:
             ``drift_floor + drift_per_metre * d`` metres, ``d`` being the distance travelled
             since that experience was made: a larger correction is more than the odometry can
             have drifted, so the recognition was of a look-alike place (repetitive corridors).
-            The defaults allow 5% drift, ten times what the LiDAR odometry shows on its
-            benchmarks, so that real closures after long loops still pass.
+            The defaults allow 2% drift, four times the worst the LiDAR odometry shows on
+            its benchmarks, so that real closures after long loops still pass.
+        max_drift, max_drift_angle: caps on those bounds (m, rad). Without them a place made
+            hundreds of metres ago could be matched metres away from where the map puts it,
+            which in repetitive corridors is a look-alike, not the same place.
         drift_angle_floor, drift_angle_per_metre: the same for the heading, radians.
         link_floor, link_angle_floor: the floors instead when the map already links the
             current experience to the recognised one, so that only the odometry since
@@ -65,8 +68,10 @@ class LoopClosureConfig:
             than this (m, rad), about the registration's own error, confirms the place but
             leaves the map's estimate as it is; otherwise loop closures on a map whose
             odometry barely drifted only add registration noise.
-        retry_distance: after a registration against an experience fails, it is not tried
-            again until the robot has moved this far (m): consecutive scans see the same.
+        registration_interval: at most one registration per this many metres of travel;
+            it bounds the cost of place recognition where views keep matching but
+            registrations keep failing (noisy sensors, clutter): consecutive scans that
+            close say the same thing anyway.
         payload_spacing: spacing (m) of the scan points kept with each experience.
         registration: the pairwise registration's parameters.
     """
@@ -75,15 +80,17 @@ class LoopClosureConfig:
     min_score: float = 0.9
     reject_degenerate: bool = True
     drift_floor: float = 0.3
-    drift_per_metre: float = 0.05
+    drift_per_metre: float = 0.02
     drift_angle_floor: float = 0.1
     drift_angle_per_metre: float = 0.005
+    max_drift: float = 2.0
+    max_drift_angle: float = 0.5
     link_floor: float = 0.05
     link_angle_floor: float = 0.03
     recognition_radius: float = 1.0
     deadband: float = 0.03
     deadband_angle: float = 0.006
-    retry_distance: float = 0.25
+    registration_interval: float = 0.25
     payload_spacing: float = 0.02
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)
 

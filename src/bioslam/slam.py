@@ -93,7 +93,7 @@ class BioSLAM:
         self.records: list[StepRecord] = []
         self._travelled = 0.0
         self._travelled_at_experience: list[float] = []
-        self._rejected_at: dict[int, float] = {}
+        self._last_registration = -np.inf
         self._travelled_at_entry = 0.0
         self._pending = np.zeros(3)
 
@@ -160,8 +160,7 @@ class BioSLAM:
         reference = experience.payload
         if reference is None or len(reference) < 3 or points.shape[0] < 3:
             return None
-        last_rejection = self._rejected_at.get(experience.id)
-        if last_rejection is not None and self._travelled - last_rejection < cfg.retry_distance:
+        if self._travelled - self._last_registration < cfg.registration_interval:
             return None
         predicted = between(experience.pose, self.cognitive_map.pose())
         linked, since = self._odometry_relation(experience.id)
@@ -175,11 +174,11 @@ class BioSLAM:
             search_distance=min(cfg.registration.search_distance, drift),
             search_angle=min(cfg.registration.search_angle, drift_angle),
         )
+        self._last_registration = self._travelled
         rel, quality = register_scans(reference, points, predicted, registration)
         fits = quality.score >= cfg.min_score and not (cfg.reject_degenerate and quality.degenerate)
         correction = between(predicted, rel)
         if not (fits and self._plausible_correction(correction, since, linked)):
-            self._rejected_at[experience.id] = self._travelled
             return None
         if (
             np.hypot(correction[0], correction[1]) < cfg.deadband
@@ -209,8 +208,8 @@ class BioSLAM:
             else (cfg.drift_floor, cfg.drift_angle_floor)
         )
         return (
-            floor + cfg.drift_per_metre * travelled,
-            angle_floor + cfg.drift_angle_per_metre * travelled,
+            min(floor + cfg.drift_per_metre * travelled, cfg.max_drift),
+            min(angle_floor + cfg.drift_angle_per_metre * travelled, cfg.max_drift_angle),
         )
 
     def _plausible_correction(self, correction: FloatArray, travelled: float, linked: bool) -> bool:
