@@ -26,13 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"bioslam {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in SUBCOMMAND_MODULES:
-        try:
-            module = importlib.import_module(f"bioslam.cli.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"bioslam.cli.{name}":
-                raise
-            continue
-        module.register(subparsers)
+        importlib.import_module(f"bioslam.cli.{name}").register(subparsers)
     return parser
 
 
