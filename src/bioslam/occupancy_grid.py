@@ -65,8 +65,8 @@ def _add_clamped(grid, r, c, delta, lo, hi) -> None:
 
 @numba.njit(cache=True)
 def _insert_scan_kernel(
-    logodds, stamps, means, hits, stamp, ox, oy, res, sx, sy, world_pts, normals, l_hit, l_miss,
-    l_min, l_max, memory,
+    logodds, stamps, means, hits, weights, stamp, ox, oy, res, sx, sy, world_pts, normals,
+    l_hit, l_miss, l_min, l_max, memory,
 ) -> None:  # fmt: skip
     rows, cols = logodds.shape
     n = world_pts.shape[0]
@@ -81,6 +81,7 @@ def _insert_scan_kernel(
         if stamps[r, c] != stamp:
             stamps[r, c] = stamp
             _add_clamped(logodds, r, c, l_hit, l_min, l_max)
+            weights[r, c] = _prob(logodds[r, c])
         if hits[r, c] < memory:
             hits[r, c] += 1
         w = 1.0 / hits[r, c]
@@ -103,6 +104,8 @@ def _insert_scan_kernel(
                 if stamps[r, c] != stamp:
                     stamps[r, c] = stamp
                     _add_clamped(logodds, r, c, l_miss, l_min, l_max)
+                    if hits[r, c] > 0:
+                        weights[r, c] = _prob(logodds[r, c])
             elif (r < 0 and sr < 0) or (r >= rows and sr > 0) or (c < 0 and sc < 0) or (
                 c >= cols and sc > 0
             ):
@@ -116,13 +119,19 @@ def _insert_scan_kernel(
                 r += sr
 
 
+# Surface normals average the endpoints within this radius, enough to turn 1-3 cm range
+# noise into a few degrees of normal error, along runs without gaps above NORMAL_MAX_GAP.
+NORMAL_RADIUS = 0.15
+NORMAL_MAX_GAP = 0.3
+
+
 @numba.njit(cache=True)
-def scan_normals(pts, radius=0.15, max_gap=0.3):
+def scan_normals(pts, radius, max_gap):
     """Unit surface normals ``(N, 2)`` of endpoints given in scan order, pointing towards the
     sensor at the origin: the principal axis of the run of scan neighbours within ``radius``
     of the endpoint (no gap between consecutive ones above ``max_gap``), metres. Zero where
-    fewer than 3 neighbours or the run is not line-like (no direction there). The radius is
-    large enough to average 1-3 cm range noise into a few degrees of normal error."""
+    fewer than 3 neighbours or the run is not line-like (no direction there). (No default
+    arguments: Numba dispatches calls that omit some through a slow Python path.)"""
     n = pts.shape[0]
     out = np.zeros((n, 2))
     r2 = radius * radius
@@ -219,11 +228,21 @@ def thinned_normals(
     ``keep`` the endpoints are thinned to ``spacing`` metres (:func:`subsample_by_spacing`)."""
     if keep is None:
         keep = subsample_by_spacing(points, spacing)
-    if not np.any(keep):
-        return np.zeros_like(points)
-    sub = scan_normals(np.ascontiguousarray(points[keep]))
-    owner = np.maximum(np.cumsum(keep) - 1, 0)
-    return np.ascontiguousarray(sub[owner])
+    return _spread_normals(np.ascontiguousarray(points, dtype=np.float64), keep)
+
+
+@numba.njit(cache=True)
+def _spread_normals(points, keep):
+    sub = scan_normals(points[keep], NORMAL_RADIUS, NORMAL_MAX_GAP)
+    out = np.zeros_like(points)
+    if sub.shape[0] == 0:
+        return out
+    owner = -1
+    for k in range(points.shape[0]):
+        if keep[k]:
+            owner += 1
+        out[k] = sub[max(owner, 0)]
+    return out
 
 
 @numba.njit(cache=True)
@@ -260,12 +279,12 @@ def interpolate_point(logodds, ox: float, oy: float, res: float, x: float, y: fl
 
 
 @numba.njit(cache=True)
-def _map_many(kind, logodds, means, hits, ox, oy, res, sigma, pts):
+def _map_many(kind, logodds, means, weights, ox, oy, res, sigma, pts):
     n = pts.shape[0]
     out = np.empty((n, 3))
     for k in range(n):
         val, dx, dy, _ = map_point(
-            kind, logodds, means, hits, ox, oy, res, sigma, pts[k, 0], pts[k, 1]
+            kind, logodds, means, weights, ox, oy, res, sigma, pts[k, 0], pts[k, 1]
         )
         out[k, 0] = val
         out[k, 1] = dx
@@ -274,7 +293,7 @@ def _map_many(kind, logodds, means, hits, ox, oy, res, sigma, pts):
 
 
 @numba.njit(cache=True)
-def subcell_point(logodds, means, hits, ox, oy, res, sigma, x, y):
+def subcell_point(means, weights, ox, oy, res, sigma, x, y):
     """A sub-cell accurate map function and its gradient (our variant of Eq. 3's M*).
 
     The bilinear M* peaks at cell centres, so a wall between two centres pulls the scan by up
@@ -286,9 +305,10 @@ def subcell_point(logodds, means, hits, ox, oy, res, sigma, x, y):
     the blend sits near the measured wall instead of a cell centre. (On noise-free, one
     cell thick walls the bilinear weights still pull towards the centre; a 3x3 "noisy-OR"
     of the bumps avoids that but measured worse on the simulated maze.) Returns ``(value,
-    d/dx, d/dy, inside)``; 0 where no cell nearby was ever hit.
+    d/dx, d/dy, inside)``; 0 where no cell nearby was ever hit. ``weights`` holds each
+    cell's occupancy probability, 0 for cells never hit (:attr:`OccupancyGrid.weights`).
     """
-    rows, cols = logodds.shape
+    rows, cols = weights.shape
     u = (x - ox) / res - 0.5
     v = (y - oy) / res - 0.5
     c0 = math.floor(u)
@@ -305,7 +325,8 @@ def subcell_point(logodds, means, hits, ox, oy, res, sigma, x, y):
         for dc in range(2):
             r = r0 + dr
             c = c0 + dc
-            if hits[r, c] == 0:
+            w = weights[r, c]
+            if w == 0.0:
                 continue
             ex = ox + c * res + means[r, c, 0] - x
             ey = oy + r * res + means[r, c, 1] - y
@@ -316,7 +337,7 @@ def subcell_point(logodds, means, hits, ox, oy, res, sigma, x, y):
             spread = 1.0 - (nx * nx + ny * ny)
             dn = ex * nx + ey * ny
             d2 = dn * dn + spread * (ex * ex + ey * ey)
-            g = _prob(logodds[r, c]) * math.exp(-0.5 * d2 * inv_s2)
+            g = w * math.exp(-0.5 * d2 * inv_s2)
             px = dn * nx + spread * ex
             py = dn * ny + spread * ey
             bu = fu if dc == 1 else 1.0 - fu
@@ -330,11 +351,11 @@ def subcell_point(logodds, means, hits, ox, oy, res, sigma, x, y):
 
 
 @numba.njit(cache=True)
-def map_point(kind, logodds, means, hits, ox, oy, res, sigma, x, y):
+def map_point(kind, logodds, means, weights, ox, oy, res, sigma, x, y):
     """The map function selected by ``kind`` (0 = Hector's bilinear M*, 1 = sub-cell)."""
     if kind == 0:
         return interpolate_point(logodds, ox, oy, res, x, y)
-    return subcell_point(logodds, means, hits, ox, oy, res, sigma, x, y)
+    return subcell_point(means, weights, ox, oy, res, sigma, x, y)
 
 
 # --------------------------------------------------------------------------------------------
@@ -361,7 +382,7 @@ class OccupancyGrid:
             of unknown extent; a local map leaves it off and scrolls with :meth:`recenter`.
     """
 
-    _LAYERS = ("logodds", "_stamps", "means", "hits")
+    _LAYERS = ("logodds", "_stamps", "means", "hits", "weights")
 
     def __init__(
         self,
@@ -388,6 +409,10 @@ class OccupancyGrid:
         # surface normal there, and the number of hits averaged (see subcell_point).
         self.means = np.zeros((rows, cols, 4), dtype=np.float32)
         self.hits = np.zeros((rows, cols), dtype=np.uint16)
+        # The occupancy probability of every cell ever hit (0 elsewhere), kept up to date by
+        # the updates: the matcher reads it at four cells per point and iteration, where
+        # converting log-odds each time would cost a third of its time.
+        self.weights = np.zeros((rows, cols), dtype=np.float32)
         self._stamp = 0
 
     @classmethod
@@ -470,9 +495,9 @@ class OccupancyGrid:
         self._stamp += 1
         u = self.update
         _insert_scan_kernel(
-            self.logodds, self._stamps, self.means, self.hits, self._stamp, self.origin[0],
-            self.origin[1], self.resolution, pose[0], pose[1], world, world_normals, u.l_hit,
-            u.l_miss, u.l_min, u.l_max, u.mean_memory,
+            self.logodds, self._stamps, self.means, self.hits, self.weights, self._stamp,
+            self.origin[0], self.origin[1], self.resolution, pose[0], pose[1], world,
+            world_normals, u.l_hit, u.l_miss, u.l_min, u.l_max, u.mean_memory,
         )  # fmt: skip
 
     def value_and_gradient(
@@ -484,7 +509,7 @@ class OccupancyGrid:
         pts = _as_points(points)
         kind = 0 if subcell_sigma is None else 1
         out = _map_many(
-            kind, self.logodds, self.means, self.hits, self.origin[0], self.origin[1],
+            kind, self.logodds, self.means, self.weights, self.origin[0], self.origin[1],
             self.resolution, subcell_sigma or 1.0, pts,
         )  # fmt: skip
         return out[:, 0], out[:, 1:]

@@ -61,8 +61,10 @@ class OdometryConfig:
             scans at no measurable accuracy cost (benchmark). Metres.
         max_iterations: Gauss-Newton iterations per level, coarsest first (Hector runs a few
             per level; more are cheap because a converged level stops early).
-        step_tolerance: stop a level when the step is below this, metres (and this divided by
-            ``length_scale``, radians).
+        step_tolerance: stop a level when the step is below this fraction of the level's
+            cell (and that divided by ``length_scale``, radians): a coarse level only has to
+            bring the pose into the next level's basin. At 0.05 (2.5 mm at the finest level)
+            the maze's RPE is that of 0.002 with a third fewer iterations (benchmark).
         length_scale: metres that make a radian commensurate with a metre when judging how
             well-conditioned the problem is (a typical indoor endpoint distance).
         degeneracy_ratio: a direction whose curvature is below this fraction of the strongest
@@ -99,7 +101,7 @@ class OdometryConfig:
     insert_angle: float = 0.15
     point_spacing: float = 0.05
     max_iterations: tuple[int, ...] = (10, 10, 15)
-    step_tolerance: float = 1e-4
+    step_tolerance: float = 0.05
     length_scale: float = 3.0
     degeneracy_ratio: float = 0.01
     velocity_window: float = 0.1
@@ -206,13 +208,16 @@ def _normal_equations(g, pts, pose):
 
 @numba.njit(cache=True)
 def _guarded_step(H, b, length, ratio, damping, hold):
-    """Solve ``(H + damping) dp = b`` in the eigenbasis of the scaled Hessian, leaving out
-    the direction ``hold`` (unit, scaled; zeros for none) that the scan's geometry does not
-    constrain, and any direction with curvature below ``ratio`` of the largest: along them
-    the pose keeps the prediction.
+    """Solve ``H dp = b`` in the eigenbasis of the scaled Hessian, leaving out the direction
+    ``hold`` (unit, scaled; zeros for none) that the scan's geometry does not constrain,
+    and any direction with curvature below ``ratio`` of the largest: along them the pose
+    keeps the prediction.
 
-    ``damping`` is a Levenberg-Marquardt term, a fraction of the largest curvature.
-    Returns ``(dp, condition, weakest unit direction, degenerate)``.
+    ``damping`` is Marquardt's scaled form: every eigen-curvature grows by that fraction
+    of itself, so the step shortens by ``1 + damping`` without turning away from weakly
+    constrained directions (an additive term would freeze those, and a robot in a
+    corridor would fall behind its true motion). Returns ``(dp, condition, weakest unit
+    direction, degenerate)``.
     """
     scale = np.array([1.0, 1.0, 1.0 / length])
     Hs = H * np.outer(scale, scale)
@@ -231,19 +236,21 @@ def _guarded_step(H, b, length, ratio, damping, hold):
         if w[k] < ratio * top:
             degenerate = True
             continue
-        step += v[:, k] * (v[:, k] @ bs) / (w[k] + damping * top)
+        step += v[:, k] * (v[:, k] @ bs) / (w[k] * (1.0 + damping))
     return step * scale, max(w[0], 0.0) / top, v[:, 0].copy(), degenerate
 
 
 @numba.njit(cache=True)
 def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, hold):
-    """Gauss-Newton on one level, with a Levenberg-Marquardt guard: a step that raises the
-    cost is refused and retried with more damping, so the bilinear map's kinks at cell
-    boundaries cannot make the pose oscillate. Returns ``(pose, H, mean M*, iterations,
-    converged)``."""
+    """Gauss-Newton on one level with Levenberg-Marquardt damping (Nielsen's schedule): a
+    step that raises the cost is refused and retried shorter, and the damping of an
+    accepted step shrinks by how well the quadratic model predicted the gain, so that the
+    map function's kinks at cell boundaries cannot make the pose oscillate. Returns
+    ``(pose, H, mean M*, iterations, converged)``."""
     pose = pose.copy()
     H, b, mean, cost, inside = _normal_equations(g, pts, pose)
     damping = 0.0
+    growth = 2.0
     iterations = 0
     converged = False
     if inside < 3:
@@ -251,16 +258,23 @@ def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, hold):
     for _ in range(max_iter):
         iterations += 1
         step, _, _, _ = _guarded_step(H, b, length, ratio, damping, hold)
-        small = math.hypot(step[0], step[1]) < tol and abs(step[2]) * length < tol
+        # judged on the undamped step: a damped one is short without being converged
+        full = step * (1.0 + damping)
+        small = math.hypot(full[0], full[1]) < tol and abs(full[2]) * length < tol
         trial = pose + step
         H2, b2, mean2, cost2, inside2 = _normal_equations(g, pts, trial)
+        # the gain Gauss-Newton's quadratic model predicts for residuals r = 1 - M*
+        predicted = 2.0 * (step @ b) - step @ (H @ step)
         if cost2 <= cost and inside2 >= 3:
+            rho = (cost - cost2) / predicted if predicted > 0.0 else 1.0
             pose, H, b, mean, cost = trial, H2, b2, mean2, cost2
-            damping *= 0.1
-            if damping < 1e-4:
+            damping *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            if damping < 1e-6:
                 damping = 0.0
+            growth = 2.0
         else:
-            damping = max(10.0 * damping, 1e-3)
+            damping = max(growth * damping, 1e-3)
+            growth *= 2.0
         if small:
             converged = True
             break
@@ -300,9 +314,23 @@ def _correlative_search(g, pts, pose, half_xy, half_th, step_xy, step_th):
 # SE(2) with a constant twist
 
 
+@numba.njit(cache=True)
+def _se2_exp_scalar(vx: float, vy: float, w: float, t: float) -> tuple[float, float, float]:
+    th = w * t
+    if abs(w) < 1e-9:
+        a = t
+        bb = 0.5 * w * t * t
+    else:
+        a = math.sin(th) / w
+        bb = (1.0 - math.cos(th)) / w
+    return vx * a - vy * bb, vx * bb + vy * a, th
+
+
 def se2_exp(twist: ArrayLike, t: ArrayLike = 1.0) -> FloatArray:
     """The relative pose reached after time ``t`` (array) moving with body twist (vx, vy, w)."""
     vx, vy, w = np.asarray(twist, dtype=np.float64)
+    if np.isscalar(t):
+        return np.array(_se2_exp_scalar(vx, vy, w, float(t)))
     t = np.asarray(t, dtype=np.float64)
     th = w * t
     small = abs(w) < 1e-9
@@ -322,15 +350,49 @@ def se2_log(delta: ArrayLike) -> FloatArray:
     return np.array([(a * x + bb * y) / det, (-bb * x + a * y) / det, th])
 
 
+@numba.njit(cache=True)
+def _deskew_kernel(pts, times, vx, vy, w):
+    out = np.empty((pts.shape[0], 2))
+    for k in range(pts.shape[0]):
+        mx, my, th = _se2_exp_scalar(vx, vy, w, times[k])
+        c = math.cos(th)
+        s = math.sin(th)
+        out[k, 0] = c * pts[k, 0] - s * pts[k, 1] + mx
+        out[k, 1] = s * pts[k, 0] + c * pts[k, 1] + my
+    return out
+
+
 def deskew_points(points: ArrayLike, beam_times: ArrayLike, twist: ArrayLike) -> FloatArray:
     """Move each endpoint ``(N, 2)``, measured ``beam_times`` after the scan stamp, into the
     sensor frame at the stamp, assuming a constant body twist (vx, vy, w)."""
-    pts = np.asarray(points, dtype=np.float64)
-    motion = se2_exp(twist, np.asarray(beam_times, dtype=np.float64))
-    c, s = np.cos(motion[:, 2]), np.sin(motion[:, 2])
-    return np.column_stack(
-        [c * pts[:, 0] - s * pts[:, 1] + motion[:, 0], s * pts[:, 0] + c * pts[:, 1] + motion[:, 1]]
-    )
+    pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 2))
+    times = np.ascontiguousarray(np.asarray(beam_times, dtype=np.float64).reshape(-1))
+    vx, vy, w = (float(v) for v in np.asarray(twist, dtype=np.float64).reshape(3))
+    return _deskew_kernel(pts, times, vx, vy, w)
+
+
+@numba.njit(cache=True)
+def _usable_endpoints(ranges, angles, lo, hi, time_increment, vx, vy, w):
+    """Sensor-frame endpoints of the finite returns within ``[lo, hi]`` metres, each beam
+    ``k`` de-skewed from ``k * time_increment`` back to the scan stamp with the body twist
+    (vx, vy, w) when ``time_increment > 0``."""
+    out = np.empty((ranges.shape[0], 2))
+    n = 0
+    for k in range(ranges.shape[0]):
+        r = float(ranges[k])
+        if not (r >= lo and r <= hi and math.isfinite(r)):  # NaN fails every comparison
+            continue
+        px = r * math.cos(angles[k])
+        py = r * math.sin(angles[k])
+        if time_increment > 0.0:
+            mx, my, th = _se2_exp_scalar(vx, vy, w, k * time_increment)
+            c = math.cos(th)
+            s = math.sin(th)
+            px, py = c * px - s * py + mx, s * px + c * py + my
+        out[n, 0] = px
+        out[n, 1] = py
+        n += 1
+    return out[:n].copy()
 
 
 # --------------------------------------------------------------------------------------------
@@ -341,7 +403,7 @@ def _grid_args(grid: OccupancyGrid, subcell_sigma: float | None) -> tuple:
     kind = 0 if subcell_sigma is None else 1
     sigma = grid.resolution * (subcell_sigma or 1.0)
     o = grid.origin
-    return (kind, grid.logodds, grid.means, grid.hits, o[0], o[1], grid.resolution, sigma)
+    return (kind, grid.logodds, grid.means, grid.weights, o[0], o[1], grid.resolution, sigma)
 
 
 def _level_points(points: FloatArray, spacing: float, levels: int) -> list[FloatArray]:
@@ -356,7 +418,7 @@ def match_scan_to_map(
     level_points: list[FloatArray],
     initial_pose: ArrayLike,
     max_iterations: tuple[int, ...],
-    step_tolerance: float = 1e-4,
+    step_tolerance: float = 0.05,
     length_scale: float = 3.0,
     degeneracy_ratio: float = 0.01,
     subcell_sigma: float | None = 1.0,
@@ -392,8 +454,8 @@ def match_scan_to_map(
     for k in range(len(pyramid.grids) - 1, -1, -1):
         pose, H, mean, n, converged = _gauss_newton_level(
             _grid_args(pyramid.grids[k], subcell_sigma), level_points[k], pose,
-            iters[len(pyramid.grids) - 1 - k], step_tolerance, length_scale, degeneracy_ratio,
-            hold,
+            iters[len(pyramid.grids) - 1 - k], step_tolerance * pyramid.grids[k].resolution,
+            length_scale, degeneracy_ratio, hold,
         )  # fmt: skip
         report.iterations += int(n)
     pose[2] = wrap_angle(pose[2])
@@ -418,13 +480,37 @@ def geometric_conditioning(
     information). Returns the smallest / largest eigenvalue of that information, with theta
     scaled by ``length_scale``, and its weakest unit direction (x, y, theta * length_scale)
     in the sensor frame. A featureless corridor gives ~0 along its axis."""
-    ok = np.any(normals != 0.0, axis=1)
-    if np.count_nonzero(ok) < 3:
+    return _conditioning_kernel(
+        np.ascontiguousarray(points, dtype=np.float64),
+        np.ascontiguousarray(normals, dtype=np.float64),
+        float(length_scale),
+    )
+
+
+@numba.njit(cache=True)
+def _conditioning_kernel(points, normals, length_scale):
+    info = np.zeros((3, 3))
+    used = 0
+    for k in range(points.shape[0]):
+        nx = normals[k, 0]
+        ny = normals[k, 1]
+        if nx == 0.0 and ny == 0.0:
+            continue
+        used += 1
+        nt = (points[k, 0] * ny - points[k, 1] * nx) / length_scale
+        info[0, 0] += nx * nx
+        info[0, 1] += nx * ny
+        info[0, 2] += nx * nt
+        info[1, 1] += ny * ny
+        info[1, 2] += ny * nt
+        info[2, 2] += nt * nt
+    info[1, 0] = info[0, 1]
+    info[2, 0] = info[0, 2]
+    info[2, 1] = info[1, 2]
+    if used < 3:
         return 0.0, np.array([1.0, 0.0, 0.0])
-    p, n = points[ok], normals[ok]
-    J = np.column_stack([n[:, 0], n[:, 1], (p[:, 0] * n[:, 1] - p[:, 1] * n[:, 0]) / length_scale])
-    w, v = np.linalg.eigh(J.T @ J)
-    return float(max(w[0], 0.0) / w[2]), v[:, 0]
+    w, v = np.linalg.eigh(info)
+    return max(w[0], 0.0) / w[2], v[:, 0].copy()
 
 
 class LidarOdometry:
@@ -462,12 +548,11 @@ class LidarOdometry:
 
     def _sensor_points(self, scan: LaserScan) -> FloatArray:
         c = self.config
-        ranges, _ = scan.valid_polar()
-        keep = (ranges >= c.min_range) & (ranges <= c.max_range)
-        pts = scan.endpoints()[keep]
-        if c.deskew and scan.time_increment > 0 and pts.shape[0]:
-            pts = deskew_points(pts, scan.beam_times()[keep], self._twist)
-        return np.ascontiguousarray(pts)
+        lo = max(c.min_range, scan.range_min, np.nextafter(0.0, 1.0))
+        hi = min(c.max_range, scan.range_max)
+        increment = scan.time_increment if c.deskew else 0.0
+        vx, vy, w = self._twist
+        return _usable_endpoints(scan.ranges, scan.angles, lo, hi, increment, vx, vy, w)
 
     def _should_insert(self) -> bool:
         if self._last_inserted is None:
@@ -623,7 +708,7 @@ class RegistrationConfig:
     search_angle: float = math.radians(25.0)
     max_range: float = 30.0
     max_iterations: tuple[int, ...] = (10, 10, 20)
-    step_tolerance: float = 1e-4
+    step_tolerance: float = 0.01
     length_scale: float = 3.0
     degeneracy_ratio: float = 0.01
     subcell_sigma: float | None = 1.0
