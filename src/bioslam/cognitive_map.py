@@ -369,7 +369,9 @@ class CognitiveMap:
 
     def pose(self) -> FloatArray:
         """The robot's current map pose."""
-        return self.poses_of([self._current], self._offset[None, :])[0]
+        if self._current < 0:
+            return self._offset.copy()
+        return compose(self._poses.data[self._current], self._offset)
 
     # --- topology (Eq. 12-13) --------------------------------------------------------------
 
