@@ -84,12 +84,14 @@ def test_distance_gain_scales_each_ring_by_its_distance():
 def test_default_rings_overlap_so_no_wall_distance_is_missed():
     cfg = BoundaryCellConfig(weight_by_beam_spacing=False, distance_gain=False)
     bc = BoundaryCells(cfg)
-    d = np.linspace(0.5, 15.0, 300)
+    d = np.linspace(1.5, 15.0, 300)
     peak = np.array([bc.activity_polar(np.array([x]), np.array([0.0])).max() * x for x in d])
-    # The widest gap is between the first two rings (0.25 m from each, widths 0.15 and 0.2):
-    # a point there still drives a cell at about exp(-(0.25/0.2)^2) = 0.21 of a peak.
-    assert 0.15 < peak.min() < 0.25
-    assert np.all(peak[d > 2.0] > 0.5) and np.all(peak[d > 6.0] > 0.85)
+    # The widest gap is between the first two rings (0.25 m from each, widths 0.25 and 0.3):
+    # a point there still drives a cell at about exp(-(0.25/0.3)^2) = 0.5 of a peak.
+    assert 0.4 < peak.min() < 0.6
+    assert np.all(peak[d > 6.0] > 0.85)
+    # walls right beside the robot are left out on purpose (BoundaryCellConfig)
+    assert bc.activity_polar(np.array([0.7]), np.array([0.0])).max() * 0.7 < 0.01
 
 
 def test_rotation_by_one_cell_shifts_every_ring_by_one_cell():
