@@ -162,6 +162,24 @@ def _lookup(g, x, y):
 
 
 @numba.njit(cache=True)
+def _add_outer(M, a, b, c):
+    """Add the upper triangle of the outer product of (a, b, c) to the 3x3 ``M``."""
+    M[0, 0] += a * a
+    M[0, 1] += a * b
+    M[0, 2] += a * c
+    M[1, 1] += b * b
+    M[1, 2] += b * c
+    M[2, 2] += c * c
+
+
+@numba.njit(cache=True)
+def _mirror_upper(M):
+    M[1, 0] = M[0, 1]
+    M[2, 0] = M[0, 2]
+    M[2, 1] = M[1, 2]
+
+
+@numba.njit(cache=True)
 def _normal_equations(g, pts, pose):
     """Gauss-Newton normal equations of Eq. 3 linearised at ``pose``.
 
@@ -193,15 +211,8 @@ def _normal_equations(g, pts, pose):
         b[0] += gx * r
         b[1] += gy * r
         b[2] += j2 * r
-        H[0, 0] += gx * gx
-        H[0, 1] += gx * gy
-        H[0, 2] += gx * j2
-        H[1, 1] += gy * gy
-        H[1, 2] += gy * j2
-        H[2, 2] += j2 * j2
-    H[1, 0] = H[0, 1]
-    H[2, 0] = H[0, 2]
-    H[2, 1] = H[1, 2]
+        _add_outer(H, gx, gy, j2)
+    _mirror_upper(H)
     mean = total / inside if inside > 0 else 0.0
     return H, b, mean, cost, inside
 
@@ -497,16 +508,8 @@ def _conditioning_kernel(points, normals, length_scale):
         if nx == 0.0 and ny == 0.0:
             continue
         used += 1
-        nt = (points[k, 0] * ny - points[k, 1] * nx) / length_scale
-        info[0, 0] += nx * nx
-        info[0, 1] += nx * ny
-        info[0, 2] += nx * nt
-        info[1, 1] += ny * ny
-        info[1, 2] += ny * nt
-        info[2, 2] += nt * nt
-    info[1, 0] = info[0, 1]
-    info[2, 0] = info[0, 2]
-    info[2, 1] = info[1, 2]
+        _add_outer(info, nx, ny, (points[k, 0] * ny - points[k, 1] * nx) / length_scale)
+    _mirror_upper(info)
     if used < 3:
         return 0.0, np.array([1.0, 0.0, 0.0])
     w, v = np.linalg.eigh(info)
