@@ -1,6 +1,6 @@
 """Ablation: odometry alone vs the full system on the demo's maze, with and without an injected
 gyro-like heading drift, in one run. Prints a table and writes it to
-``benchmarks/results/ablation/maze-<date>.md``.
+``benchmarks/results/ablation/maze-<duration>s-<date>.md``.
 
     python benchmarks/ablation.py [--duration 600] [--bias 0.0005]
 """
@@ -65,7 +65,7 @@ def main() -> None:
     text = "\n".join(lines) + "\n"
     print(text)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    out = RESULTS / f"maze-{datetime.date.today().isoformat()}.md"
+    out = RESULTS / f"maze-{args.duration:g}s-{datetime.date.today().isoformat()}.md"
     out.write_text(text)
     print(f"written: {out}")
 
