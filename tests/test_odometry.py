@@ -5,7 +5,9 @@ from bioslam.geometry import between, compose
 from bioslam.odometry import (
     LidarOdometry,
     OdometryConfig,
+    RegistrationConfig,
     RegistrationQuality,
+    densify_scan,
     deskew_points,
     register_scans,
     se2_exp,
@@ -112,6 +114,32 @@ def test_register_scans_quality_rejects_a_different_place():
     _, bad = register_scans(ref.endpoints(), qry.endpoints())
     _, good = register_scans(good_ref.endpoints(), qry.endpoints())
     assert good.score > 0.7 and bad.score < 0.6 and good.score > bad.score + 0.2
+
+
+def test_a_noisy_sparse_scan_scores_a_correct_registration_as_such():
+    # a low-cost 360 deg LiDAR: 1 deg beams, 3 cm range noise
+    rng = np.random.default_rng(6)
+    full = 2 * np.pi * 359 / 360
+    base = np.array([-1.0, 0.5, 0.3])
+    ref = make_scan(ROOM, base, sigma=0.03, rng=rng, beams=360, fov=full)
+    qry = make_scan(ROOM, compose(base, (0.1, 0.05, 0.03)), sigma=0.03, rng=rng, beams=360,
+                    fov=full)  # fmt: skip
+    other = make_scan(ROOM, (4.5, 2.5, 2.5), sigma=0.03, rng=rng, beams=360, fov=full)
+    _, quality = register_scans(ref.endpoints(), qry.endpoints())
+    _, wrong = register_scans(ref.endpoints(), other.endpoints())
+    assert quality.score > 0.75 and wrong.score < 0.2
+    # judged on 5 cm cells, range noise alone fails nearly half of the points
+    _, strict = register_scans(ref.endpoints(), qry.endpoints(),
+                               config=RegistrationConfig(score_level=0))  # fmt: skip
+    assert strict.score < quality.score - 0.15
+
+
+def test_densify_scan_fills_surfaces_but_not_gaps():
+    pts = np.array([[0.0, 0.0], [0.1, 0.0], [1.0, 0.0], [1.05, 0.0]])
+    dense = densify_scan(pts, 0.025, 0.3)
+    assert np.allclose(dense[:6, 0], np.linspace(0.0, 0.1, 6)) and np.all(dense[:, 1] == 0.0)
+    assert not np.any((dense[:, 0] > 0.1) & (dense[:, 0] < 1.0))  # the 0.9 m gap stays open
+    assert len(dense) == 10 and np.array_equal(dense[-1], pts[-1])
 
 
 def test_register_scans_rejects_bad_points():
