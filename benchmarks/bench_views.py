@@ -46,6 +46,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 
 from bioslam.boundary import BoundaryCellConfig, BoundaryCells
+from bioslam.geometry import wrap_angle
 from bioslam.odometry import LidarOdometry
 from bioslam.plots.boundary import plot_boundary_activity
 from bioslam.plots.figures import plot_active_view
@@ -68,7 +69,7 @@ class Run:
 
 
 def _angle_diff(a: np.ndarray | float, b: np.ndarray | float) -> np.ndarray:
-    return np.abs(np.pi - np.mod(np.pi - (np.asarray(a) - np.asarray(b)), 2.0 * np.pi))
+    return np.abs(wrap_angle(np.asarray(a) - np.asarray(b)))
 
 
 def _close(p: np.ndarray, q: np.ndarray) -> np.ndarray:

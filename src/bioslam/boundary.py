@@ -38,6 +38,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from bioslam.geometry import wrap_angle
 from bioslam.scan import LaserScan
 
 FloatArray = NDArray[np.float64]
@@ -140,7 +141,7 @@ class BoundaryCellConfig:
     def cell_angles(self) -> FloatArray:
         """Receptive-field centre angles of one ring, radians in ``(-pi, pi]``."""
         a = 2.0 * np.pi * np.arange(self.cells_per_ring) / self.cells_per_ring
-        return np.pi - np.mod(np.pi - a, 2.0 * np.pi)
+        return wrap_angle(a)
 
     def cell_centres(self) -> tuple[FloatArray, FloatArray]:
         """``(d_i, alpha_i)`` of every cell, in activity-vector order."""

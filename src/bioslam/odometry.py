@@ -363,14 +363,19 @@ def se2_log(delta: ArrayLike) -> FloatArray:
 
 
 @numba.njit(cache=True)
+def _deskewed(px, py, vx, vy, w, t):
+    """Point ``(px, py)`` measured ``t`` after the stamp, in the sensor frame at the stamp."""
+    mx, my, th = _se2_exp_scalar(vx, vy, w, t)
+    c = math.cos(th)
+    s = math.sin(th)
+    return c * px - s * py + mx, s * px + c * py + my
+
+
+@numba.njit(cache=True)
 def _deskew_kernel(pts, times, vx, vy, w):
     out = np.empty((pts.shape[0], 2))
     for k in range(pts.shape[0]):
-        mx, my, th = _se2_exp_scalar(vx, vy, w, times[k])
-        c = math.cos(th)
-        s = math.sin(th)
-        out[k, 0] = c * pts[k, 0] - s * pts[k, 1] + mx
-        out[k, 1] = s * pts[k, 0] + c * pts[k, 1] + my
+        out[k, 0], out[k, 1] = _deskewed(pts[k, 0], pts[k, 1], vx, vy, w, times[k])
     return out
 
 
@@ -397,10 +402,7 @@ def _usable_endpoints(ranges, angles, lo, hi, time_increment, vx, vy, w):
         px = r * math.cos(angles[k])
         py = r * math.sin(angles[k])
         if time_increment > 0.0:
-            mx, my, th = _se2_exp_scalar(vx, vy, w, k * time_increment)
-            c = math.cos(th)
-            s = math.sin(th)
-            px, py = c * px - s * py + mx, s * px + c * py + my
+            px, py = _deskewed(px, py, vx, vy, w, k * time_increment)
         out[n, 0] = px
         out[n, 1] = py
         n += 1
@@ -418,11 +420,13 @@ def _grid_args(grid: OccupancyGrid, subcell_sigma: float | None) -> tuple:
     return (kind, grid.logodds, grid.means, grid.weights, o[0], o[1], grid.resolution, sigma)
 
 
-def _level_points(points: FloatArray, spacing: float, levels: int) -> list[FloatArray]:
-    return [
-        np.ascontiguousarray(points[subsample_by_spacing(points, spacing * 2**k)])
-        for k in range(levels)
-    ]
+def _level_points(
+    points: FloatArray, spacing: float, levels: int, finest: NDArray[np.bool_]
+) -> list[FloatArray]:
+    """The endpoints matched on each level, finest first: ``finest`` (the endpoints kept at
+    ``spacing``) and, per coarser level, ``spacing`` doubled."""
+    keeps = [finest] + [subsample_by_spacing(points, spacing * 2**k) for k in range(1, levels)]
+    return [np.ascontiguousarray(points[keep]) for keep in keeps]
 
 
 def match_scan_to_map(
@@ -610,7 +614,7 @@ class LidarOdometry:
         elif first:
             self.last_report = MatchReport(num_points=int(pts.shape[0]))
         else:
-            level_pts = _level_points(pts, c.point_spacing, c.levels)
+            level_pts = _level_points(pts, c.point_spacing, c.levels, keep)
             start = self._best_start(level_pts[-1], previous, predicted)
             self.pose, self.last_report = match_scan_to_map(
                 self.pyramid, level_pts, start, c.max_iterations, c.step_tolerance,
@@ -741,7 +745,7 @@ def densify_scan(points: FloatArray, spacing: float, max_gap: float) -> FloatArr
     counts = np.append(extra + 1, 1)
     start = np.repeat(np.arange(points.shape[0]), counts)
     offset = np.arange(start.size) - np.repeat(np.cumsum(counts) - counts, counts)
-    frac = offset / np.repeat(np.append(extra + 1, 1), counts)
+    frac = offset / np.repeat(counts, counts)
     ahead = np.minimum(start + 1, points.shape[0] - 1)
     return points[start] + frac[:, None] * (points[ahead] - points[start])
 
@@ -780,7 +784,8 @@ def register_scans(
     reach = float(np.max(np.abs(ref))) + 1.0
     pyramid = MapPyramid(c.resolution, 2.0 * reach, c.levels, LogOddsConfig())
     pyramid.insert_scan(np.zeros(3), densify_scan(ref, 0.5 * c.resolution, NORMAL_MAX_GAP))
-    level_pts = _level_points(qry, c.resolution, c.levels)
+    keep = subsample_by_spacing(qry, c.resolution)
+    level_pts = _level_points(qry, c.resolution, c.levels, keep)
     top = pyramid.grids[-1]
     # Lattice steps of one coarse cell, in angle at the range of most points: Gauss-Newton
     # on the coarse level converges from anywhere within a cell, so a finer lattice (half a
@@ -790,7 +795,6 @@ def register_scans(
         _grid_args(top, None), level_pts[-1], guess, c.search_distance, c.search_angle,
         top.resolution, top.resolution / radius,
     )  # fmt: skip
-    keep = subsample_by_spacing(qry, c.resolution)
     normals = thinned_normals(qry, keep)[keep]
     rel, report = match_scan_to_map(
         pyramid, level_pts, seed, c.max_iterations, c.step_tolerance, c.length_scale,

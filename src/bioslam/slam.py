@@ -53,6 +53,11 @@ def thin_points(points: FloatArray, spacing: float) -> NDArray[np.float32]:
     return points[np.sort(first)].astype(np.float32)
 
 
+def _within(correction: FloatArray, distance: float, angle: float) -> bool:
+    """Whether a pose correction moves by at most ``distance`` metres and ``angle`` radians."""
+    return bool(np.hypot(correction[0], correction[1]) <= distance and abs(correction[2]) <= angle)
+
+
 class SelfMotion:
     """The self-motion cue: the LiDAR odometry's step per scan, integrated into a pose.
 
@@ -178,12 +183,10 @@ class BioSLAM:
         rel, quality = register_scans(reference, points, predicted, registration)
         fits = quality.score >= cfg.min_score and not (cfg.reject_degenerate and quality.degenerate)
         correction = between(predicted, rel)
-        if not (fits and self._plausible_correction(correction, since, linked)):
+        # larger than the odometry can have drifted: a look-alike place
+        if not (fits and _within(correction, drift, drift_angle)):
             return None
-        if (
-            np.hypot(correction[0], correction[1]) < cfg.deadband
-            and abs(correction[2]) < cfg.deadband_angle
-        ):
+        if _within(correction, cfg.deadband, cfg.deadband_angle):
             # The map already agrees with the registration to within the registration's own
             # error: keep the map's estimate rather than inject that error into the map.
             return predicted
@@ -211,12 +214,6 @@ class BioSLAM:
             min(floor + cfg.drift_per_metre * travelled, cfg.max_drift),
             min(angle_floor + cfg.drift_angle_per_metre * travelled, cfg.max_drift_angle),
         )
-
-    def _plausible_correction(self, correction: FloatArray, travelled: float, linked: bool) -> bool:
-        """Whether a correction is within what the odometry can have drifted."""
-        drift, drift_angle = self._drift_bound(travelled, linked)
-        shift = float(np.hypot(correction[0], correction[1]))
-        return shift <= drift and abs(float(correction[2])) <= drift_angle
 
     def _record(self, stamp: float) -> None:
         exp_id, offset = self.cognitive_map.anchor()

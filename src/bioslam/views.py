@@ -40,6 +40,8 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
+from bioslam.geometry import wrap_angle
+
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
@@ -299,7 +301,7 @@ class ViewCells:
 
     def _gate(self, ids: IntArray, heading: float) -> IntArray:
         """Drop views learned facing more than ``heading_gate`` away (NaN: no heading, kept)."""
-        diff = np.abs(np.pi - np.mod(np.pi - (self._headings[ids] - heading), 2.0 * np.pi))
+        diff = np.abs(wrap_angle(self._headings[ids] - heading))
         return ids[~(diff > self.config.heading_gate)]
 
     def _learn(self, h: int, b: FloatArray, payload: Any, heading: float | None) -> int:
