@@ -29,7 +29,8 @@ from bioslam.occupancy_grid import (
     LogOddsConfig,
     MapPyramid,
     OccupancyGrid,
-    map_point,
+    interpolate_point,
+    subcell_point,
     subsample_by_spacing,
     thinned_normals,
 )
@@ -157,12 +158,6 @@ class MatchReport:
 
 
 @numba.njit(cache=True)
-def _lookup(g, x, y):
-    """``g`` is the tuple built by :func:`_grid_args`."""
-    return map_point(g[0], g[1], g[2], g[3], g[4], g[5], g[6], g[7], x, y)
-
-
-@numba.njit(cache=True)
 def _add_outer(M, a, b, c):
     """Add the upper triangle of the outer product of (a, b, c) to the 3x3 ``M``."""
     M[0, 0] += a * a
@@ -189,10 +184,11 @@ def _normal_equations(g, pts, pose):
     cost Σ (1 - M*)² counts points outside the map as unknown (M* = 0.5), so that pushing
     points out of the map never looks like an improvement.
     """
-    c = math.cos(pose[2])
-    s = math.sin(pose[2])
+    kind, logodds, means, weights, ox, oy, res, sigma = g
     H = np.zeros((3, 3))
     b = np.zeros(3)
+    c = math.cos(pose[2])
+    s = math.sin(pose[2])
     total = 0.0
     cost = 0.0
     inside = 0
@@ -201,21 +197,33 @@ def _normal_equations(g, pts, pose):
         py = pts[k, 1]
         wx = c * px - s * py + pose[0]
         wy = s * px + c * py + pose[1]
-        m, gx, gy, ok = _lookup(g, wx, wy)
+        # (the arrays go to the map function directly: a helper taking the tuple ``g``
+        # costs a third of the loop in reference counting)
+        if kind == 0:
+            m, gx, gy, ok = interpolate_point(logodds, ox, oy, res, wx, wy)
+        else:
+            m, gx, gy, ok = subcell_point(means, weights, ox, oy, res, sigma, wx, wy)
         cost += (1.0 - m) * (1.0 - m)
-        if not ok:
-            continue
-        inside += 1
-        total += m
-        j2 = gx * (-s * px - c * py) + gy * (c * px - s * py)
-        r = 1.0 - m
-        b[0] += gx * r
-        b[1] += gy * r
-        b[2] += j2 * r
-        _add_outer(H, gx, gy, j2)
+        if ok:
+            inside += 1
+            total += m
+            _add_point(H, b, px, py, c, s, m, gx, gy)
     _mirror_upper(H)
     mean = total / inside if inside > 0 else 0.0
     return H, b, mean, cost, inside
+
+
+@numba.njit(cache=True)
+def _add_point(H, b, px, py, c, s, m, gx, gy):
+    """Add the terms of one point (sensor frame ``px, py``; map value ``m`` and gradient
+    ``gx, gy`` where the pose (cos ``c``, sin ``s``) puts it) to the upper triangle of ``H``
+    and to ``b``."""
+    j2 = gx * (-s * px - c * py) + gy * (c * px - s * py)
+    r = 1.0 - m
+    b[0] += gx * r
+    b[1] += gy * r
+    b[2] += j2 * r
+    _add_outer(H, gx, gy, j2)
 
 
 @numba.njit(cache=True)
@@ -257,7 +265,11 @@ def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, hold):
     """Gauss-Newton on one level with Levenberg-Marquardt damping (Nielsen's schedule): a
     step that raises the cost is refused and retried shorter, and the damping of an
     accepted step shrinks by how well the quadratic model predicted the gain, so that the
-    map function's kinks at cell boundaries cannot make the pose oscillate. Returns
+    map function's kinks at cell boundaries cannot make the pose oscillate. A first refusal
+    halves the step at once: near the optimum Gauss-Newton underestimates the curvature of
+    a peaked M* (its Hessian drops the (1 - M*) M*'' term) and overshoots, mostly in
+    heading, and a token damping of 0.001 only wasted iterations (maze: 1.0 vs 1.3 ms per
+    scan, RPE 0.38 cm / 0.085° vs 0.40 cm / 0.106°). Returns
     ``(pose, H, mean M*, iterations, converged)``."""
     pose = pose.copy()
     H, b, mean, cost, inside = _normal_equations(g, pts, pose)
@@ -285,7 +297,7 @@ def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, hold):
                 damping = 0.0
             growth = 2.0
         else:
-            damping = max(growth * damping, 1e-3)
+            damping = max(growth * damping, 1.0)
             growth *= 2.0
         if small:
             converged = True
@@ -308,18 +320,28 @@ def _correlative_search(g, pts, pose, half_xy, half_th, step_xy, step_th):
             for iy in range(-nx, nx + 1):
                 tx = pose[0] + ix * step_xy
                 ty = pose[1] + iy * step_xy
-                score = 0.0
-                for k in range(pts.shape[0]):
-                    wx = c * pts[k, 0] - s * pts[k, 1] + tx
-                    wy = s * pts[k, 0] + c * pts[k, 1] + ty
-                    m, _, _, _ = _lookup(g, wx, wy)
-                    score += m
+                score = _summed_map(g, pts, c, s, tx, ty)
                 if score > best_score:
                     best_score = score
                     best[0] = tx
                     best[1] = ty
                     best[2] = th
     return best
+
+
+@numba.njit(cache=True)
+def _summed_map(g, pts, c, s, tx, ty):
+    """Σ M* over the points placed by rotation (c, s) and translation (tx, ty)."""
+    kind, logodds, means, weights, ox, oy, res, sigma = g
+    score = 0.0
+    for k in range(pts.shape[0]):
+        wx = c * pts[k, 0] - s * pts[k, 1] + tx
+        wy = s * pts[k, 0] + c * pts[k, 1] + ty
+        if kind == 0:
+            score += interpolate_point(logodds, ox, oy, res, wx, wy)[0]
+        else:
+            score += subcell_point(means, weights, ox, oy, res, sigma, wx, wy)[0]
+    return score
 
 
 # --------------------------------------------------------------------------------------------
