@@ -351,13 +351,20 @@ def _summed_map(g, pts, c, s, tx, ty):
 @numba.njit(cache=True)
 def _se2_exp_scalar(vx: float, vy: float, w: float, t: float) -> tuple[float, float, float]:
     th = w * t
+    mx, my = _twist_translation(vx, vy, w, t, math.cos(th), math.sin(th))
+    return mx, my, th
+
+
+@numba.njit(cache=True)
+def _twist_translation(vx, vy, w, t, c, s):
+    """The translation of :func:`se2_exp` after ``t``, given ``c, s = cos, sin(w t)``."""
     if abs(w) < 1e-9:
         a = t
         bb = 0.5 * w * t * t
     else:
-        a = math.sin(th) / w
-        bb = (1.0 - math.cos(th)) / w
-    return vx * a - vy * bb, vx * bb + vy * a, th
+        a = s / w
+        bb = (1.0 - c) / w
+    return vx * a - vy * bb, vx * bb + vy * a
 
 
 def se2_exp(twist: ArrayLike, t: ArrayLike = 1.0) -> FloatArray:
@@ -387,9 +394,13 @@ def se2_log(delta: ArrayLike) -> FloatArray:
 @numba.njit(cache=True)
 def _deskewed(px, py, vx, vy, w, t):
     """Point ``(px, py)`` measured ``t`` after the stamp, in the sensor frame at the stamp."""
-    mx, my, th = _se2_exp_scalar(vx, vy, w, t)
-    c = math.cos(th)
-    s = math.sin(th)
+    return _moved(px, py, vx, vy, w, t, math.cos(w * t), math.sin(w * t))
+
+
+@numba.njit(cache=True)
+def _moved(px, py, vx, vy, w, t, c, s):
+    """:func:`_deskewed` given ``c, s = cos, sin(w t)``."""
+    mx, my = _twist_translation(vx, vy, w, t, c, s)
     return c * px - s * py + mx, s * px + c * py + my
 
 
@@ -411,20 +422,28 @@ def deskew_points(points: ArrayLike, beam_times: ArrayLike, twist: ArrayLike) ->
 
 
 @numba.njit(cache=True)
-def _usable_endpoints(ranges, angles, lo, hi, time_increment, vx, vy, w):
-    """Sensor-frame endpoints of the finite returns within ``[lo, hi]`` metres, each beam
-    ``k`` de-skewed from ``k * time_increment`` back to the scan stamp with the body twist
-    (vx, vy, w) when ``time_increment > 0``."""
+def _usable_endpoints(ranges, cos_a, sin_a, lo, hi, time_increment, vx, vy, w):
+    """Sensor-frame endpoints of the finite returns within ``[lo, hi]`` metres (beam
+    directions ``cos_a, sin_a``), each beam ``k`` de-skewed from ``k * time_increment`` back
+    to the scan stamp with the body twist (vx, vy, w) when ``time_increment > 0``."""
     out = np.empty((ranges.shape[0], 2))
     n = 0
+    # the sweep's rotation advances by a fixed angle per beam: rotate (c, s) by it instead of
+    # two trigonometric calls per beam
+    step_c = math.cos(w * time_increment)
+    step_s = math.sin(w * time_increment)
+    c = 1.0
+    s = 0.0
     for k in range(ranges.shape[0]):
+        if k > 0:
+            c, s = c * step_c - s * step_s, s * step_c + c * step_s
         r = float(ranges[k])
         if not (r >= lo and r <= hi and math.isfinite(r)):  # NaN fails every comparison
             continue
-        px = r * math.cos(angles[k])
-        py = r * math.sin(angles[k])
+        px = r * cos_a[k]
+        py = r * sin_a[k]
         if time_increment > 0.0:
-            px, py = _deskewed(px, py, vx, vy, w, k * time_increment)
+            px, py = _moved(px, py, vx, vy, w, k * time_increment, c, s)
         out[n, 0] = px
         out[n, 1] = py
         n += 1
@@ -448,7 +467,20 @@ def _level_points(
     """The endpoints matched on each level, finest first: ``finest`` (the endpoints kept at
     ``spacing``) and, per coarser level, ``spacing`` doubled."""
     keeps = [finest] + [subsample_by_spacing(points, spacing * 2**k) for k in range(1, levels)]
-    return [np.ascontiguousarray(points[keep]) for keep in keeps]
+    return [_kept_rows(points, keep) for keep in keeps]
+
+
+@numba.njit(cache=True)
+def _kept_rows(points, keep):
+    """``points[keep]``, contiguous (NumPy's boolean indexing of rows is ten times slower)."""
+    out = np.empty((np.count_nonzero(keep), 2))
+    n = 0
+    for k in range(points.shape[0]):
+        if keep[k]:
+            out[n, 0] = points[k, 0]
+            out[n, 1] = points[k, 1]
+            n += 1
+    return out
 
 
 def match_scan_to_map(
@@ -567,6 +599,7 @@ class LidarOdometry:
         self._last_stamp: float | None = None
         self._history: deque[tuple[float, FloatArray]] = deque()
         self._last_inserted: FloatArray | None = None
+        self._directions: tuple[FloatArray, FloatArray, FloatArray] | None = None
 
     # -- steps of one update ------------------------------------------------------------------
 
@@ -582,7 +615,19 @@ class LidarOdometry:
         hi = min(c.max_range, scan.range_max)
         increment = scan.time_increment if c.deskew else 0.0
         vx, vy, w = self._twist
-        return _usable_endpoints(scan.ranges, scan.angles, lo, hi, increment, vx, vy, w)
+        cos_a, sin_a = self._beam_directions(scan.angles)
+        return _usable_endpoints(scan.ranges, cos_a, sin_a, lo, hi, increment, vx, vy, w)
+
+    def _beam_directions(self, angles: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Cosines and sines of the beam angles, kept while the scans' angles stay the same."""
+        known = self._directions
+        same = known is not None and (
+            known[0] is angles
+            or (known[0].shape == angles.shape and np.array_equal(known[0], angles))
+        )
+        if not same:
+            self._directions = known = (angles, np.cos(angles), np.sin(angles))
+        return known[1], known[2]
 
     def _should_insert(self) -> bool:
         if self._last_inserted is None:
@@ -641,7 +686,7 @@ class LidarOdometry:
             self.pose, self.last_report = match_scan_to_map(
                 self.pyramid, level_pts, start, c.max_iterations, c.step_tolerance,
                 c.length_scale, c.degeneracy_ratio, c.subcell_sigma,
-                np.ascontiguousarray(normals[keep]),
+                _kept_rows(normals, keep),
             )  # fmt: skip
         if not self.last_report.predicted_only and self._should_insert():
             self._insert(pts, normals)
