@@ -47,14 +47,20 @@ def _wrap_scalar(angle: float) -> float:
 def _compose_single(a: FloatArray, b: FloatArray) -> FloatArray:
     # The per-scan path composes single poses thousands of times a second; plain floats
     # avoid the array machinery of the vectorised form.
-    ax, ay, at = float(a[0]), float(a[1]), float(a[2])
-    bx, by, bt = float(b[0]), float(b[1]), float(b[2])
+    ax, ay, at = a.tolist()
+    bx, by, bt = b.tolist()
     c, s = math.cos(at), math.sin(at)
     return np.array([ax + c * bx - s * by, ay + s * bx + c * by, _wrap_scalar(at + bt)])
 
 
+def _is_single(p: object) -> bool:
+    return type(p) is np.ndarray and p.shape == (3,)
+
+
 def compose(a: ArrayLike, b: ArrayLike) -> FloatArray:
     """``a ⊕ b``: apply the relative pose ``b`` in the frame of ``a``."""
+    if _is_single(a) and _is_single(b):
+        return _compose_single(a, b)  # type: ignore[arg-type]
     a, b = _as_poses(a), _as_poses(b)
     if a.ndim == 1 and b.ndim == 1:
         return _compose_single(a, b)
@@ -66,9 +72,9 @@ def compose(a: ArrayLike, b: ArrayLike) -> FloatArray:
 
 def inverse(p: ArrayLike) -> FloatArray:
     """``⊖p``, so that ``compose(p, inverse(p))`` is the identity."""
-    p = _as_poses(p)
+    p = p if _is_single(p) else _as_poses(p)  # type: ignore[assignment]
     if p.ndim == 1:
-        x, y, t = float(p[0]), float(p[1]), float(p[2])
+        x, y, t = p.tolist()
         c, s = math.cos(t), math.sin(t)
         return np.array([-c * x - s * y, s * x - c * y, _wrap_scalar(-t)])
     c, s = np.cos(p[..., 2]), np.sin(p[..., 2])

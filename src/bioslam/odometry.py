@@ -450,6 +450,24 @@ def _usable_endpoints(ranges, cos_a, sin_a, lo, hi, time_increment, vx, vy, w):
     return out[:n].copy()
 
 
+@numba.njit(cache=True)
+def _seen_occupied(logodds, world, ox, oy, res, free_logodds):
+    """Whether the cell of each world point or one of its 8 neighbours (clamped to the
+    grid) is above ``free_logodds``."""
+    rows, cols = logodds.shape
+    out = np.zeros(world.shape[0], dtype=np.bool_)
+    for k in range(world.shape[0]):
+        r0 = math.floor((world[k, 1] - oy) / res)
+        c0 = math.floor((world[k, 0] - ox) / res)
+        for dr in range(-1, 2):
+            r = min(max(r0 + dr, 0), rows - 1)
+            for dc in range(-1, 2):
+                c = min(max(c0 + dc, 0), cols - 1)
+                if logodds[r, c] > free_logodds:
+                    out[k] = True
+    return out
+
+
 # --------------------------------------------------------------------------------------------
 # Matching
 
@@ -580,7 +598,8 @@ class LidarOdometry:
 
     ``update(scan)`` returns Δp, the motion since the previous scan in the previous robot
     frame (``geometry.between(prev_pose, pose)``); ``pose`` is the pose in the odometry frame
-    (the first scan's pose is ``initial_pose``); ``last_report`` says how the match went.
+    (the first scan's pose is ``initial_pose``); ``last_report`` says how the match went and
+    ``last_points`` holds the scan's usable endpoints (sensor frame, de-skewed to its stamp).
     """
 
     def __init__(self, config: OdometryConfig | None = None, initial_pose: ArrayLike = (0, 0, 0)):
@@ -592,6 +611,7 @@ class LidarOdometry:
         )
         self.pyramid.recenter(self.pose[0], self.pose[1])
         self.last_report = MatchReport()
+        self.last_points: FloatArray = np.zeros((0, 2))
         self.num_scans = 0
         self.num_predicted_only = 0
         self._twist = np.zeros(3)
@@ -651,15 +671,11 @@ class LidarOdometry:
         that the next scans' points on the same person are pulled towards. (The neighbours
         keep the noisy endpoints in front of a wall, whose own cell the rays have freed.)"""
         grid = self.pyramid.finest
-        cells = grid.world_to_cell(transform_points(self.pose, pts))
-        rows, cols = grid.shape
-        best = np.full(len(pts), -np.inf)
-        for dr in (-1, 0, 1):
-            for dc in (-1, 0, 1):
-                r = np.clip(cells[:, 0] + dr, 0, rows - 1)
-                c = np.clip(cells[:, 1] + dc, 0, cols - 1)
-                best = np.maximum(best, grid.logodds[r, c])
-        return best > self.config.free_logodds
+        world = np.ascontiguousarray(transform_points(self.pose, pts))
+        ox, oy = grid.origin
+        return _seen_occupied(
+            grid.logodds, world, ox, oy, grid.resolution, self.config.free_logodds
+        )
 
     # -- public -------------------------------------------------------------------------------
 
@@ -669,7 +685,7 @@ class LidarOdometry:
         dt = self._time_step(scan.stamp)
         previous = self.pose.copy()
         predicted = compose(previous, se2_exp(self._twist, dt)) if self.num_scans else previous
-        pts = self._sensor_points(scan)
+        pts = self.last_points = self._sensor_points(scan)
         keep = subsample_by_spacing(pts, c.point_spacing)
         normals = thinned_normals(pts, keep)
         first = self.num_scans == 0

@@ -22,6 +22,7 @@ from bioslam.boundary import BoundaryCells
 from bioslam.cognitive_map import CognitiveMap, Experience
 from bioslam.config import SLAMConfig
 from bioslam.geometry import Pose2D, between, compose
+from bioslam.occupancy_grid import subsample_by_spacing
 from bioslam.odometry import LidarOdometry, register_scans
 from bioslam.pose_cells import PoseCellNetwork
 from bioslam.scan import LaserScan
@@ -51,6 +52,12 @@ def thin_points(points: FloatArray, spacing: float) -> NDArray[np.float32]:
     keys = (cells[:, 0] << 32) + (cells[:, 1] & 0xFFFFFFFF)
     _, first = np.unique(keys, return_index=True)
     return points[np.sort(first)].astype(np.float32)
+
+
+def _scan_payload(points: FloatArray, spacing: float) -> NDArray[np.float32]:
+    """The scan kept with a place for registration: its endpoints at least ``spacing`` apart
+    along the scan (computed at every look, so cheaper than :func:`thin_points`)."""
+    return points[subsample_by_spacing(points, spacing)].astype(np.float32)
 
 
 def _within(correction: FloatArray, distance: float, angle: float) -> bool:
@@ -126,7 +133,8 @@ class BioSLAM:
 
     def _perceive(self, scan: LaserScan, dp: FloatArray) -> None:
         """The view cells, pose cells and cognitive map for one scan, after motion ``dp``."""
-        points = scan.endpoints()
+        # the odometry's endpoints: de-skewed, and already computed
+        points = self.self_motion.odometry.last_points
         # Egocentric views of corridors running in different directions look alike; the map
         # heading lets the view cells compare only views learned facing the same way.
         heading = self.cognitive_map.pose()[2] + dp[2] if len(self.cognitive_map) else dp[2]
@@ -140,7 +148,7 @@ class BioSLAM:
             match.is_new,
             self.pose_cells.centre(),
             scan.stamp,
-            payload=thin_points(points, self.config.loop_closure.payload_spacing),
+            payload=_scan_payload(points, self.config.loop_closure.payload_spacing),
             refine=self._refiner(points) if self.config.loop_closure.refine else None,
         )
         if event.kind == "loop":
