@@ -256,3 +256,15 @@ def test_solve_window_moves_only_recent_experiences_to_their_fixed_point():
     # Eq. 14's correction vanishes on every freed experience; it did not before.
     np.testing.assert_allclose(correction[n - 30 :], 0.0, atol=1e-9)
     assert np.abs(relaxation_correction(before, ends[:, 0], ends[:, 1], dps)[n - 30 :]).max() > 0.01
+
+
+def test_link_distance_follows_the_shortest_chain_within_the_limit():
+    cm, _, event = loop_map(heading_bias=0.0)
+    assert event.kind == "loop"
+    last = len(cm) - 1
+    # 0.2 m per link along the square; the loop link joins the last experience to the first.
+    assert cm.link_distance(0, 3, within=1.0) == pytest.approx(0.6)
+    assert cm.link_distance(3, 0, within=1.0) == pytest.approx(0.6)  # links work both ways
+    assert cm.link_distance(last, 1, within=1.0) == pytest.approx(0.2 + 0.2, abs=1e-6)
+    assert cm.link_distance(0, 10, within=1.0) is None  # 2 m along the chain
+    assert cm.link_distance(5, 5, within=0.0) == 0.0

@@ -37,6 +37,7 @@ Relaxation (Eq. 14) — the choices the paper leaves open, written down:
 
 from __future__ import annotations
 
+import heapq
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -268,6 +269,8 @@ class CognitiveMap:
         self._link_stamp: list[float] = []
         self._link_kind: list[LinkKind] = []
         self._linked: set[tuple[int, int]] = set()
+        # undirected, with each link's length: for the odometry distance between two places
+        self._neighbours: dict[int, list[tuple[int, float]]] = {}
         self._current = -1
         self._offset = np.zeros(3)
         self._entered = 0.0
@@ -307,6 +310,26 @@ class CognitiveMap:
     def are_linked(self, a: int, b: int) -> bool:
         """Whether a link joins experiences ``a`` and ``b`` (either direction)."""
         return (a, b) in self._linked or (b, a) in self._linked
+
+    def link_distance(self, a: int, b: int, within: float) -> float | None:
+        """The length (m) of the shortest chain of links joining experiences ``a`` and ``b``,
+        if one is at most ``within`` metres long, else None: how much odometry relates the
+        two places in the map (Dijkstra over the links, either direction, stopped at
+        ``within``)."""
+        best = {a: 0.0}
+        queue = [(0.0, a)]
+        while queue:
+            dist, node = heapq.heappop(queue)
+            if node == b:
+                return dist
+            if dist > best.get(node, math.inf):
+                continue
+            for other, length in self._neighbours.get(node, ()):
+                reached = dist + length
+                if reached <= within and reached < best.get(other, math.inf):
+                    best[other] = reached
+                    heapq.heappush(queue, (reached, other))
+        return None
 
     def experience(self, eid: int) -> Experience:
         """A snapshot of experience ``eid``."""
@@ -421,6 +444,9 @@ class CognitiveMap:
         self._link_stamp.append(stamp)
         self._link_kind.append(kind)
         self._linked.add((source, target))
+        length = math.hypot(float(dp[0]), float(dp[1]))
+        self._neighbours.setdefault(source, []).append((target, length))
+        self._neighbours.setdefault(target, []).append((source, length))
         self._csr = None
 
     def _enter(self, eid: int, offset: FloatArray, stamp: float) -> None:

@@ -57,9 +57,13 @@ class LoopClosureConfig:
             which in repetitive corridors is a look-alike, not the same place.
         drift_angle_floor, drift_angle_per_metre: the same for the heading, radians.
         link_floor, link_angle_floor: the floors instead when the map already links the
-            current experience to the recognised one, so that only the odometry since
-            entering the current experience and the registration's error can be off; a
+            current experience to the recognised one (directly or by a chain of links up to
+            ``chain_distance`` long), so that only the odometry since entering the current
+            experience, along the chain, and the registration's error can be off; a
             registration sliding along a corridor is caught here.
+        chain_distance: a recognised experience joined to the current one by a chain of
+            links at most this long (m) counts as linked, with the chain's length added to
+            the odometry the drift bound grows with.
         recognition_radius: how far (m) from a place its boundary view is still recognised;
             a candidate that the map puts farther than this plus the drift bound is rejected
             before any registration (the pose cells wrap, so their packet alone cannot tell
@@ -87,6 +91,7 @@ class LoopClosureConfig:
     max_drift_angle: float = 0.5
     link_floor: float = 0.05
     link_angle_floor: float = 0.03
+    chain_distance: float = 2.0
     recognition_radius: float = 1.0
     deadband: float = 0.03
     deadband_angle: float = 0.006

@@ -201,12 +201,19 @@ class BioSLAM:
         return rel
 
     def _odometry_relation(self, experience_id: int) -> tuple[bool, float]:
-        """Whether the map links the current experience to ``experience_id``, and the
-        distance over which the odometry alone relates the robot to it: since entering the
-        current experience when they are linked, else since the experience was made."""
+        """Whether a short chain of links joins the current experience to
+        ``experience_id``, and the distance over which the odometry alone relates the robot
+        to it: since entering the current experience plus the chain's length when they are
+        joined, else since the experience was made. (A place two experiences back, passed
+        again, is related by a few centimetres of odometry however long ago it was made: a
+        registration sliding 25 cm along a corridor there must not pass as a loop.)"""
         cmap = self.cognitive_map
-        if cmap.are_linked(cmap.current, experience_id):
-            return True, self._travelled - self._travelled_at_entry
+        since_entry = self._travelled - self._travelled_at_entry
+        chain = cmap.link_distance(
+            cmap.current, experience_id, self.config.loop_closure.chain_distance
+        )
+        if chain is not None:
+            return True, since_entry + chain
         return False, self._travelled - self._travelled_at_experience[experience_id]
 
     def _drift_bound(self, travelled: float, linked: bool) -> tuple[float, float]:
