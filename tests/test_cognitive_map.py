@@ -268,3 +268,19 @@ def test_link_distance_follows_the_shortest_chain_within_the_limit():
     assert cm.link_distance(last, 1, within=1.0) == pytest.approx(0.2 + 0.2, abs=1e-6)
     assert cm.link_distance(0, 10, within=1.0) is None  # 2 m along the chain
     assert cm.link_distance(5, 5, within=0.0) == 0.0
+
+
+def test_a_closure_that_confirms_the_map_needs_no_relaxation():
+    cm, truth, _ = loop_map(heading_bias=0.0)
+    cm.relax()
+    assert cm.converged
+    # Walk on to the second experience and recognise it exactly where the map puts it.
+    cm.integrate_odometry(between(cm.pose(), cm.experience(1).pose))
+    event = cm.update(1, False, PC, stamp=100.0, refine=lambda e: np.zeros(3))
+    assert event.kind in ("loop", "link")
+    assert cm.converged  # nothing to move: the solve is skipped
+    # A place recognised 10 cm from where the map puts it does need it.
+    cm.integrate_odometry(between(cm.pose(), cm.experience(5).pose))
+    event = cm.update(5, False, PC, stamp=101.0, refine=lambda e: np.array([-0.1, 0.0, 0.0]))
+    assert event.kind == "loop"
+    assert not cm.converged

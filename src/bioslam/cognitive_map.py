@@ -482,11 +482,19 @@ class CognitiveMap:
             dp = compose(self._offset, inverse(arrival))
             self._add_link(current, target, dp, stamp, "loop")
             self.loop_closures += 1
-            self._dirty = True
-            self._needs_solve = True
+            if not self._agrees(current, target, dp):
+                self._dirty = True
+                self._needs_solve = True
             kind = "loop"
         self._enter(target, arrival, stamp)
         return MapEvent(kind, target, matched=target)
+
+    def _agrees(self, source: int, target: int, dp: FloatArray) -> bool:
+        """Whether the map already satisfies a new link exactly (a closure that confirms the
+        map's own prediction): relaxing would then move nothing."""
+        poses = self._poses.data
+        residual = compose(inverse(poses[target]), compose(poses[source], dp))
+        return bool(np.hypot(residual[0], residual[1]) < 1e-9 and abs(residual[2]) < 1e-9)
 
     # --- relaxation (Eq. 14) ---------------------------------------------------------------
 
