@@ -61,7 +61,7 @@ class OdometryConfig:
         point_spacing: matching uses endpoints at least this far apart along the scan, per
             level multiplied by the level's coarseness (2^k); keeps the cost bounded for dense
             scans at no measurable accuracy cost (benchmark). Metres.
-        max_iterations: Gauss-Newton iterations per level, coarsest first (Hector runs a few
+        max_iterations: Gauss-Newton iterations per level, finest first (Hector runs a few
             per level; more are cheap because a converged level stops early).
         step_tolerance: stop a level when the step is below this fraction of the level's
             cell (and that divided by ``length_scale``, radians): a coarse level only has to
