@@ -572,7 +572,7 @@ class MapPyramid:
     def __init__(
         self,
         resolution: float,
-        size: float,
+        size: float | tuple[float, float],
         levels: int,
         update: LogOddsConfig | None = None,
         origin: ArrayLike | None = None,
@@ -581,11 +581,14 @@ class MapPyramid:
             raise ValueError(f"a map pyramid needs at least one level, got {levels}")
         coarsest = resolution * 2 ** (levels - 1)
         # Every level spans the same whole number of coarsest cells, so they stay aligned.
-        size = coarsest * math.ceil(size / coarsest)
+        width, height = (size, size) if np.isscalar(size) else size  # type: ignore[misc]
+        width = coarsest * math.ceil(float(width) / coarsest)
+        height = coarsest * math.ceil(float(height) / coarsest)
         if origin is None:
-            origin = (-0.5 * size, -0.5 * size)
+            origin = (-0.5 * width, -0.5 * height)
         self.grids = [
-            OccupancyGrid(resolution * 2**k, size, origin, update) for k in range(levels)
+            OccupancyGrid(resolution * 2**k, (width, height), origin, update)
+            for k in range(levels)
         ]
 
     @property
