@@ -28,6 +28,8 @@ class Pose2D(NamedTuple):
 
 def wrap_angle(angle: ArrayLike) -> FloatArray | float:
     """Wrap angles to ``(-pi, pi]``."""
+    if isinstance(angle, float):  # the per-scan path: no array round trip
+        return _wrap_scalar(angle)
     a = np.asarray(angle, dtype=np.float64)
     wrapped = np.pi - np.mod(np.pi - a, 2.0 * np.pi)
     return float(wrapped) if wrapped.ndim == 0 else wrapped
