@@ -271,7 +271,7 @@ def test_link_distance_follows_the_shortest_chain_within_the_limit():
 
 
 def test_a_closure_that_confirms_the_map_needs_no_relaxation():
-    cm, truth, _ = loop_map(heading_bias=0.0)
+    cm, _, _ = loop_map(heading_bias=0.0)
     cm.relax()
     assert cm.converged
     # Walk on to the second experience and recognise it exactly where the map puts it.

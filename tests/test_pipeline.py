@@ -16,8 +16,8 @@ from bioslam.sim import LIDAR_PRESETS, simulate_scans
 from bioslam.trajectory import Trajectory
 
 RUN_KEYS = {
-    "scans", "wall_s", "realtime_factor", "ms_per_scan_median", "ms_per_scan_p99", "views",
-    "experiences", "loop_closures",
+    "scans", "wall_s", "startup_s", "realtime_factor", "ms_per_scan_median", "ms_per_scan_p99",
+    "views", "experiences", "loop_closures",
 }
 EVAL_KEYS = {"ate_rmse_m", "ate_mean_m", "ate_max_m", "rpe_1m_trans_m", "rpe_1m_rot_deg"}
 
@@ -60,6 +60,18 @@ def test_results_are_written_and_consistent(short_drive, tmp_path):
                  "views_and_error.png", "mapping_progress.png"):
         assert (tmp_path / "figures" / name).stat().st_size > 1000
     assert json.loads((tmp_path / "summary.json").read_text())["scans"] == len(scans)
+
+
+def test_the_warm_up_runs_before_the_timed_scans(short_drive):
+    scans, _ = short_drive
+    warmed = run_slam(scans[:30], options=RunOptions(progress=False))
+    cold = run_slam(scans[:30], options=RunOptions(progress=False, warm_up=False))
+    assert warmed.startup_s > 0.0 and cold.startup_s == 0.0
+    assert warmed.error is None
+    # the same scans give the same trajectory with or without it
+    np.testing.assert_allclose(
+        warmed.system.trajectory().poses, cold.system.trajectory().poses, atol=1e-12
+    )
 
 
 def test_a_failure_half_way_keeps_what_was_computed(short_drive, tmp_path):
