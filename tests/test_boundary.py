@@ -45,17 +45,20 @@ def test_eq5_hand_computed():
     )
 
 
-def test_activity_equals_untruncated_sum_of_eq5():
+@pytest.mark.parametrize(("cutoff", "tolerance"), [(3.0, 1e-3), (2.0, 0.05)])
+def test_activity_equals_untruncated_sum_of_eq5(cutoff, tolerance):
     cfg = BoundaryCellConfig(
-        ring_distances=(0.5, 1.0, 2.0, 4.0), cells_per_ring=12, distance_gain=False
+        ring_distances=(0.5, 1.0, 2.0, 4.0), cells_per_ring=12, distance_gain=False,
+        cutoff_sigmas=cutoff,
     )
     scan = cast(ROOM, (1.5, 2.0, 0.4), fov_deg=270.0, beams=91)
     weight = (math.radians(270.0) / 90) / cfg.reference_beam_spacing
     expected = _dense_eq5(cfg, scan, weight)
     got = BoundaryCells(cfg).activity(scan)
     assert got.shape == (cfg.num_cells,)
-    # The 3-sigma truncation drops tails below exp(-9) of the peak.
-    assert np.allclose(got, expected, rtol=0.0, atol=1e-3 * expected.max())
+    # Truncating at 3 (2) widths drops tails below exp(-9) (exp(-4)) of each peak.
+    assert np.allclose(got, expected, rtol=0.0, atol=tolerance * expected.max())
+    assert np.all(got <= expected + 1e-12)  # truncation only ever leaves terms out
 
 
 def test_single_point_peaks_at_its_cell_with_inverse_distance():
