@@ -320,7 +320,7 @@ def _correlative_search(g, pts, pose, half_xy, half_th, step_xy, step_th):
             for iy in range(-nx, nx + 1):
                 tx = pose[0] + ix * step_xy
                 ty = pose[1] + iy * step_xy
-                score = _summed_map(g, pts, c, s, tx, ty)
+                score = _summed_map(g, pts, c, s, tx, ty, False)
                 if score > best_score:
                     best_score = score
                     best[0] = tx
@@ -330,18 +330,31 @@ def _correlative_search(g, pts, pose, half_xy, half_th, step_xy, step_th):
 
 
 @numba.njit(cache=True)
-def _summed_map(g, pts, c, s, tx, ty):
-    """Σ M* over the points placed by rotation (c, s) and translation (tx, ty)."""
+def _summed_map(g, pts, c, s, tx, ty, residual):
+    """Σ M* over the points placed by rotation (c, s) and translation (tx, ty), or with
+    ``residual`` the Gauss-Newton cost Σ (1 - M*)²."""
     kind, logodds, means, weights, ox, oy, res, sigma = g
     score = 0.0
     for k in range(pts.shape[0]):
         wx = c * pts[k, 0] - s * pts[k, 1] + tx
         wy = s * pts[k, 0] + c * pts[k, 1] + ty
         if kind == 0:
-            score += interpolate_point(logodds, ox, oy, res, wx, wy)[0]
+            m = interpolate_point(logodds, ox, oy, res, wx, wy)[0]
         else:
-            score += subcell_point(means, weights, ox, oy, res, sigma, wx, wy)[0]
+            m = subcell_point(means, weights, ox, oy, res, sigma, wx, wy)[0]
+        score += (1.0 - m) * (1.0 - m) if residual else m
     return score
+
+
+@numba.njit(cache=True)
+def _costs(g, pts, poses):
+    """The Gauss-Newton cost Σ (1 - M*)² of the points at each of ``poses`` (K, 3)."""
+    out = np.empty(poses.shape[0])
+    for j in range(poses.shape[0]):
+        c = math.cos(poses[j, 2])
+        s = math.sin(poses[j, 2])
+        out[j] = _summed_map(g, pts, c, s, poses[j, 0], poses[j, 1], True)
+    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -475,8 +488,8 @@ def _seen_occupied(logodds, world, ox, oy, res, free_logodds):
 def _grid_args(grid: OccupancyGrid, subcell_sigma: float | None) -> tuple:
     kind = 0 if subcell_sigma is None else 1
     sigma = grid.resolution * (subcell_sigma or 1.0)
-    o = grid.origin
-    return (kind, grid.logodds, grid.means, grid.weights, o[0], o[1], grid.resolution, sigma)
+    ox, oy = grid.origin.tolist()
+    return (kind, grid.logodds, grid.means, grid.weights, ox, oy, grid.resolution, sigma)
 
 
 def _level_points(
@@ -720,9 +733,9 @@ class LidarOdometry:
         tens of degrees from the time-based model alone. An alternative must beat the
         prediction clearly (``start_margin``), so that where the scan cannot tell the
         candidates apart (a featureless corridor) the prediction is kept."""
-        candidates = (predicted, compose(previous, self._last_delta), previous)
+        candidates = np.array([predicted, compose(previous, self._last_delta), previous])
         grid = _grid_args(self.pyramid.grids[-1], self.config.subcell_sigma)
-        costs = np.array([_normal_equations(grid, coarse_pts, p)[3] for p in candidates])
+        costs = _costs(grid, coarse_pts, candidates)
         best = int(np.argmin(costs))
         if costs[best] < (1.0 - self.config.start_margin) * costs[0]:
             return candidates[best]
