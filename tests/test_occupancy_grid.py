@@ -140,3 +140,12 @@ def test_cached_weights_follow_the_log_odds_of_hit_cells():
     assert np.all(grid.weights[~hit] == 0.0)
     old_wall = grid.world_to_cell([[2.01, 0.0]])[0]
     assert grid.weights[tuple(old_wall)] < 0.5  # erased by the later rays
+
+
+def test_above_near_looks_at_the_cell_and_its_eight_neighbours():
+    grid = OccupancyGrid(0.1, 2.0)
+    grid.logodds[10, 10] = 2.0  # the cell around (0.05, 0.05)
+    pts = np.array([[0.05, 0.05], [0.15, -0.05], [0.25, 0.05], [-5.0, -5.0]])
+    # the cell itself, a diagonal neighbour, two cells away, far outside (clamped corner)
+    assert grid.above_near(pts, 1.0).tolist() == [True, True, False, False]
+    assert not grid.above_near(pts, 2.0).any()

@@ -307,10 +307,6 @@ class CognitiveMap:
         """(N, 3) relaxed experience poses (a copy)."""
         return self._poses.view.copy()
 
-    def are_linked(self, a: int, b: int) -> bool:
-        """Whether a link joins experiences ``a`` and ``b`` (either direction)."""
-        return (a, b) in self._linked or (b, a) in self._linked
-
     def link_distance(self, a: int, b: int, within: float) -> float | None:
         """The length (m) of the shortest chain of links joining experiences ``a`` and ``b``,
         if one is at most ``within`` metres long, else None: how much odometry relates the

@@ -54,6 +54,21 @@ def _cell_of(x: float, y: float, ox: float, oy: float, res: float) -> tuple[int,
 
 
 @numba.njit(cache=True)
+def _above_near(logodds, world, ox, oy, res, level):
+    rows, cols = logodds.shape
+    out = np.zeros(world.shape[0], dtype=np.bool_)
+    for k in range(world.shape[0]):
+        r0, c0 = _cell_of(world[k, 0], world[k, 1], ox, oy, res)
+        for dr in range(-1, 2):
+            r = min(max(r0 + dr, 0), rows - 1)
+            for dc in range(-1, 2):
+                c = min(max(c0 + dc, 0), cols - 1)
+                if logodds[r, c] > level:
+                    out[k] = True
+    return out
+
+
+@numba.njit(cache=True)
 def _add_clamped(grid, r, c, delta, lo, hi) -> None:
     v = grid[r, c] + delta
     if v < lo:
@@ -456,6 +471,12 @@ class OccupancyGrid:
     def known_mask(self) -> NDArray[np.bool_]:
         """Cells observed at least once."""
         return self._stamps != 0
+
+    def above_near(self, points: ArrayLike, level: float) -> NDArray[np.bool_]:
+        """For world points ``(N, 2)``: whether the cell of each, or one of its 8 neighbours
+        (clamped to the grid), has a log-odds above ``level``."""
+        ox, oy = self.origin.tolist()
+        return _above_near(self.logodds, _as_points(points), ox, oy, self.resolution, level)
 
     def world_to_cell(self, points: ArrayLike) -> NDArray[np.int64]:
         """``(N, 2)`` world points to integer ``(row, col)`` indices (possibly out of range)."""

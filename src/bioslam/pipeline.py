@@ -143,8 +143,8 @@ def cognitive_map_snapshot(system: BioSLAM, elapsed: float) -> Snapshot:
 
 
 def warm_up(config: SLAMConfig, odometry_only: bool = False) -> float:
-    """Run every compiled kernel once on a second of the simulated maze (and one scan
-    registration); returns the seconds it took."""
+    """Run every compiled kernel once: the system on a second of the simulated maze, then
+    what a loop closure adds; returns the seconds it took."""
     from bioslam.sim import LIDAR_PRESETS, make_route, maze_world, simulate_scans
 
     started = time.perf_counter()
