@@ -90,6 +90,13 @@ class OdometryConfig:
             not fused into the map (moving objects; ours).
         deskew: correct per-beam motion when ``scan.time_increment > 0``.
         min_points: fewer valid endpoints than this give a prediction-only update.
+        recovery_free_fraction: a match that leaves more than this fraction of the matched
+            endpoints in cells the map knows to be free has failed (a good match leaves
+            almost none there: 1 % median, 4 % at the 90th percentile on freiburg-079, 0 on
+            the maze); the scan is then searched for exhaustively around its start
+            (``recovery_distance`` metres, ``recovery_angle`` radians) and matched again
+            from the best lattice pose, and a scan that still fails is not fused into the
+            map, so that one bad match cannot corrupt the map the next scans are matched to.
         log_odds: hit/miss increments of the map cells.
     """
 
@@ -113,6 +120,9 @@ class OdometryConfig:
     free_logodds: float = -1.5
     deskew: bool = True
     min_points: int = 20
+    recovery_free_fraction: float = 0.2
+    recovery_distance: float = 0.3
+    recovery_angle: float = 0.35
     log_odds: LogOddsConfig = field(default_factory=LogOddsConfig)
 
     def __post_init__(self) -> None:
@@ -140,6 +150,9 @@ class MatchReport:
         inserted: the scan was fused into the map.
         predicted_only: no usable scan; the pose is the constant-velocity prediction.
         converged: the finest level stopped on a small step within its iteration budget.
+        free_fraction: matched endpoints that fell in cells the map knows to be free.
+        recovered: the first match failed (``OdometryConfig.recovery_free_fraction``) and an
+            exhaustive search found a better one.
     """
 
     iterations: int = 0
@@ -151,6 +164,8 @@ class MatchReport:
     inserted: bool = False
     predicted_only: bool = False
     converged: bool = False
+    free_fraction: float = 0.0
+    recovered: bool = False
 
 
 # --------------------------------------------------------------------------------------------
@@ -691,18 +706,51 @@ class LidarOdometry:
         else:
             level_pts = _level_points(pts, c.point_spacing, c.levels, keep)
             start = self._best_start(level_pts[-1], previous, predicted)
-            self.pose, self.last_report = match_scan_to_map(
-                self.pyramid, level_pts, start, c.max_iterations, c.step_tolerance,
-                c.length_scale, c.degeneracy_ratio, c.subcell_sigma,
-                _kept_rows(normals, keep),
-            )  # fmt: skip
-        if not self.last_report.predicted_only and self._should_insert():
+            self.pose, self.last_report = self._match(level_pts, start, _kept_rows(normals, keep))
+        report = self.last_report
+        failed = report.free_fraction > c.recovery_free_fraction
+        if not (report.predicted_only or failed) and self._should_insert():
             self._insert(pts, normals)
             self.last_report.inserted = True
         self._update_twist(scan.stamp)
         self._last_stamp = scan.stamp
         self._last_delta = between(previous, self.pose)
         return self._last_delta.copy()
+
+    def _match(
+        self, level_pts: list[FloatArray], start: FloatArray, normals: FloatArray
+    ) -> tuple[FloatArray, MatchReport]:
+        """Eq. 3 from ``start``; on failure, again from an exhaustive search around it."""
+        pose, report = self._match_from(level_pts, start, normals)
+        c = self.config
+        if report.free_fraction <= c.recovery_free_fraction:
+            return pose, report
+        top = self.pyramid.grids[-1]
+        radius = max(float(np.median(np.hypot(level_pts[-1][:, 0], level_pts[-1][:, 1]))),
+                     top.resolution)  # fmt: skip
+        seed = _correlative_search(
+            _grid_args(top, c.subcell_sigma), level_pts[-1], start, c.recovery_distance,
+            c.recovery_angle, 0.5 * top.resolution, 0.5 * top.resolution / radius,
+        )  # fmt: skip
+        second, second_report = self._match_from(level_pts, seed, normals)
+        if second_report.free_fraction < report.free_fraction:
+            second_report.iterations += report.iterations
+            second_report.recovered = True
+            return second, second_report
+        return pose, report
+
+    def _match_from(
+        self, level_pts: list[FloatArray], start: FloatArray, normals: FloatArray
+    ) -> tuple[FloatArray, MatchReport]:
+        c = self.config
+        pose, report = match_scan_to_map(
+            self.pyramid, level_pts, start, c.max_iterations, c.step_tolerance,
+            c.length_scale, c.degeneracy_ratio, c.subcell_sigma, normals,
+        )  # fmt: skip
+        world = transform_points(pose, level_pts[0])
+        free = ~self.pyramid.finest.above_near(world, c.free_logodds)
+        report.free_fraction = float(np.count_nonzero(free)) / max(free.shape[0], 1)
+        return pose, report
 
     def _best_start(self, coarse_pts: FloatArray, previous: FloatArray, predicted: FloatArray):
         """The initial pose with the lowest cost on the coarsest level among: the
