@@ -149,3 +149,15 @@ def test_above_near_looks_at_the_cell_and_its_eight_neighbours():
     # the cell itself, a diagonal neighbour, two cells away, far outside (clamped corner)
     assert grid.above_near(pts, 1.0).tolist() == [True, True, False, False]
     assert not grid.above_near(pts, 2.0).any()
+
+
+def test_fraction_not_above_near_places_sensor_points_by_the_pose():
+    grid = OccupancyGrid(0.1, 2.0)
+    grid.logodds[10, 10] = 2.0  # the cell around world (0.05, 0.05)
+    sensor = np.array([[0.05, -0.05], [0.15, 0.05], [0.35, -0.05], [0.5, 0.5]])
+    pose = (0.0, 0.0, np.pi / 2)  # sensor (a, b) -> world (-b, a)
+    world = np.column_stack([-sensor[:, 1], sensor[:, 0]])
+    expected = 1.0 - grid.above_near(world, 1.0).mean()
+    assert expected == 0.5
+    assert grid.fraction_not_above_near(pose, sensor, 1.0) == pytest.approx(expected)
+    assert grid.fraction_not_above_near(pose, np.zeros((0, 2)), 1.0) == 0.0

@@ -193,6 +193,30 @@ def test_odometry_tracks_fast_turns_at_1_rad_per_s():
         assert dr_err < np.radians(0.5) and dt_err < 0.05, k
 
 
+@pytest.mark.parametrize("recovery", [True, False])
+def test_a_failed_match_is_recovered_by_an_exhaustive_search(recovery):
+    """A sudden 35 cm / 19 degree jump (a bump, a dropped scan in a turn) that Gauss-Newton
+    from the prediction cannot reach: the match leaves endpoints in known free space, and the
+    search around the start finds the pose."""
+    rng = np.random.default_rng(11)
+    cfg = OdometryConfig(recovery_free_fraction=0.2 if recovery else 1.1)
+    odo = LidarOdometry(cfg, initial_pose=(-2.0, 0.0, 0.0))
+    for k in range(12):  # 0.25 m per scan: a scan fused at each, the floor seen free
+        odo.update(make_scan(ROOM, (-2.0 + 0.25 * k, 0.0, 0.0), stamp=0.25 * k, sigma=0.01,
+                             rng=rng))  # fmt: skip
+    before = pose_error((-2.0 + 0.25 * 11, 0.0, 0.0), odo.pose)
+    true = compose((1.0, 0.0, 0.0), (0.25, -0.25, -0.34))
+    odo.update(make_scan(ROOM, true, stamp=3.0, sigma=0.01, rng=rng))
+    dt_err, dr_err = pose_error(true, odo.pose)
+    if recovery:
+        assert odo.last_report.recovered and odo.last_report.free_fraction < 0.05
+        # no worse than the few centimetres the first scans' small map left
+        assert dt_err < before[0] + 0.01 and dr_err < np.radians(0.3)
+    else:
+        assert not odo.last_report.recovered and odo.last_report.free_fraction > 0.2
+        assert dt_err > 0.2
+
+
 def test_deskew_undoes_the_sweep_distortion():
     twist = np.array([0.5, 0.0, 1.0])  # 0.5 m/s while turning at 1 rad/s
     inc = 0.1 / 1080  # a 10 Hz scanner with 1081 beams

@@ -54,18 +54,37 @@ def _cell_of(x: float, y: float, ox: float, oy: float, res: float) -> tuple[int,
 
 
 @numba.njit(cache=True)
-def _above_near(logodds, world, ox, oy, res, level):
+def _above_near_point(logodds, x, y, ox, oy, res, level):
     rows, cols = logodds.shape
+    r0, c0 = _cell_of(x, y, ox, oy, res)
+    for dr in range(-1, 2):
+        r = min(max(r0 + dr, 0), rows - 1)
+        for dc in range(-1, 2):
+            c = min(max(c0 + dc, 0), cols - 1)
+            if logodds[r, c] > level:
+                return True
+    return False
+
+
+@numba.njit(cache=True)
+def _above_near(logodds, world, ox, oy, res, level):
     out = np.zeros(world.shape[0], dtype=np.bool_)
     for k in range(world.shape[0]):
-        r0, c0 = _cell_of(world[k, 0], world[k, 1], ox, oy, res)
-        for dr in range(-1, 2):
-            r = min(max(r0 + dr, 0), rows - 1)
-            for dc in range(-1, 2):
-                c = min(max(c0 + dc, 0), cols - 1)
-                if logodds[r, c] > level:
-                    out[k] = True
+        out[k] = _above_near_point(logodds, world[k, 0], world[k, 1], ox, oy, res, level)
     return out
+
+
+@numba.njit(cache=True)
+def _count_not_above_near(logodds, pts, x, y, theta, ox, oy, res, level):
+    c = math.cos(theta)
+    s = math.sin(theta)
+    n = 0
+    for k in range(pts.shape[0]):
+        wx = c * pts[k, 0] - s * pts[k, 1] + x
+        wy = s * pts[k, 0] + c * pts[k, 1] + y
+        if not _above_near_point(logodds, wx, wy, ox, oy, res, level):
+            n += 1
+    return n
 
 
 @numba.njit(cache=True)
@@ -477,6 +496,17 @@ class OccupancyGrid:
         (clamped to the grid), has a log-odds above ``level``."""
         ox, oy = self.origin.tolist()
         return _above_near(self.logodds, _as_points(points), ox, oy, self.resolution, level)
+
+    def fraction_not_above_near(self, pose: ArrayLike, points: ArrayLike, level: float) -> float:
+        """:meth:`above_near`'s complement as a fraction, for sensor-frame ``points`` placed
+        by ``pose`` (x, y, theta); 0 for no points."""
+        pts = _as_points(points)
+        if pts.shape[0] == 0:
+            return 0.0
+        x, y, theta = (float(v) for v in np.asarray(pose, dtype=np.float64).reshape(3))
+        ox, oy = self.origin.tolist()
+        n = _count_not_above_near(self.logodds, pts, x, y, theta, ox, oy, self.resolution, level)
+        return n / pts.shape[0]
 
     def world_to_cell(self, points: ArrayLike) -> NDArray[np.int64]:
         """``(N, 2)`` world points to integer ``(row, col)`` indices (possibly out of range)."""

@@ -91,12 +91,13 @@ class OdometryConfig:
         deskew: correct per-beam motion when ``scan.time_increment > 0``.
         min_points: fewer valid endpoints than this give a prediction-only update.
         recovery_free_fraction: a match that leaves more than this fraction of the matched
-            endpoints in cells the map knows to be free has failed (a good match leaves
-            almost none there: 1 % median, 4 % at the 90th percentile on freiburg-079, 0 on
-            the maze); the scan is then searched for exhaustively around its start
-            (``recovery_distance`` metres, ``recovery_angle`` radians) and matched again
-            from the best lattice pose, and a scan that still fails is not fused into the
-            map, so that one bad match cannot corrupt the map the next scans are matched to.
+            endpoints in cells the map knows to be free has probably failed (a good match
+            leaves almost none there: 1 % median, 4 % at the 90th percentile on freiburg-079,
+            0 on the maze); the scan is then searched for exhaustively around its start
+            (``recovery_distance`` metres, ``recovery_angle`` radians) and matched again from
+            the best lattice pose, which is kept if it leaves fewer endpoints in free space.
+            (A person close to the sensor also puts endpoints in free space; the second
+            match then costs time but finds nothing better.)
         log_odds: hit/miss increments of the map cells.
     """
 
@@ -707,9 +708,7 @@ class LidarOdometry:
             level_pts = _level_points(pts, c.point_spacing, c.levels, keep)
             start = self._best_start(level_pts[-1], previous, predicted)
             self.pose, self.last_report = self._match(level_pts, start, _kept_rows(normals, keep))
-        report = self.last_report
-        failed = report.free_fraction > c.recovery_free_fraction
-        if not (report.predicted_only or failed) and self._should_insert():
+        if not self.last_report.predicted_only and self._should_insert():
             self._insert(pts, normals)
             self.last_report.inserted = True
         self._update_twist(scan.stamp)
@@ -747,9 +746,9 @@ class LidarOdometry:
             self.pyramid, level_pts, start, c.max_iterations, c.step_tolerance,
             c.length_scale, c.degeneracy_ratio, c.subcell_sigma, normals,
         )  # fmt: skip
-        world = transform_points(pose, level_pts[0])
-        free = ~self.pyramid.finest.above_near(world, c.free_logodds)
-        report.free_fraction = float(np.count_nonzero(free)) / max(free.shape[0], 1)
+        report.free_fraction = self.pyramid.finest.fraction_not_above_near(
+            pose, level_pts[0], c.free_logodds
+        )
         return pose, report
 
     def _best_start(self, coarse_pts: FloatArray, previous: FloatArray, predicted: FloatArray):
