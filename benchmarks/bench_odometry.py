@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from bioslam.evaluation import rpe_distance
+from bioslam.geometry import transform_points
 from bioslam.io.logs import open_log
 from bioslam.occupancy_grid import OccupancyGrid
 from bioslam.odometry import LidarOdometry, OdometryConfig
@@ -46,7 +47,7 @@ def run_odometry(scans, config: OdometryConfig | None = None, keep_scans: bool =
     """Feed scans to a fresh LidarOdometry; returns (estimate, truth or None, cpu ms, extra)."""
     odo = None
     stamps, est, truth, times, kept = [], [], [], [], []
-    degenerate = 0
+    degenerate = recovered = 0
     for item in scans:
         scan, true = item if isinstance(item, tuple) else (item, None)
         if odo is None:
@@ -55,6 +56,7 @@ def run_odometry(scans, config: OdometryConfig | None = None, keep_scans: bool =
         odo.update(scan)
         times.append(time.thread_time() - t0)
         degenerate += odo.last_report.degenerate
+        recovered += odo.last_report.recovered
         stamps.append(scan.stamp)
         est.append(odo.pose.copy())
         if true is not None:
@@ -63,7 +65,8 @@ def run_odometry(scans, config: OdometryConfig | None = None, keep_scans: bool =
             kept.append(scan.endpoints())
     est_t = Trajectory(np.array(stamps), np.array(est))
     gt_t = Trajectory(np.array(stamps), np.array(truth)) if truth else None
-    extra = {"degenerate": degenerate, "predicted_only": odo.num_predicted_only, "scans": kept}
+    extra = {"degenerate": degenerate, "recovered": recovered,
+             "predicted_only": odo.num_predicted_only, "scans": kept}  # fmt: skip
     return est_t, gt_t, np.array(times[1:]) * 1e3, extra
 
 
@@ -83,6 +86,7 @@ def summary(name: str, est: Trajectory, gt: Trajectory, ms: np.ndarray, extra: d
         "ms_p99": round(float(np.percentile(ms, 99)), 3),
         "degenerate_scans": int(extra["degenerate"]),
         "predicted_only": int(extra["predicted_only"]),
+        "recovered": int(extra["recovered"]),
     }
     print("  ".join(f"{k}={v}" for k, v in row.items()), flush=True)
     return row
@@ -139,11 +143,51 @@ def log_case(name: str, filename: str, make_png: bool, config=None) -> dict | No
     if ref is not None and len(ref):
         rpe = rpe_distance(est, ref, 1.0)
         row.update(rpe1m_cm=round(100 * rpe["trans_rmse_m"], 2),
-                   rpe1m_deg=round(rpe["rot_rmse_deg"], 3), pairs=rpe["pairs"])  # fmt: skip
+                   rpe1m_deg=round(rpe["rot_rmse_deg"], 3), pairs=rpe["pairs"],
+                   recovered=int(extra["recovered"]))  # fmt: skip
+        if make_png:
+            row.update(reference_check(est, ref, extra["scans"]))
     print("  ".join(f"{k}={v}" for k, v in row.items()), flush=True)
     if make_png:
         occupancy_png(name, est, extra["scans"])
     return row
+
+
+def _second_difference_cm(poses: np.ndarray) -> float:
+    """Robust spread (1.4826 MAD, both axes) of x[k+1] - 2 x[k] + x[k-1]: near zero for a
+    smooth path sampled at a steady rate, sqrt(6) sigma for white pose noise sigma."""
+    d2 = poses[2:, :2] - 2.0 * poses[1:-1, :2] + poses[:-2, :2]
+    mad = 1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
+    return round(100.0 * float(np.hypot(*mad)), 2)
+
+
+def _neighbour_residual_mm(poses: np.ndarray, scans: list[np.ndarray], span: int = 10) -> float:
+    """Median over scans of the median distance from a scan's endpoints (within 8 m) to the
+    endpoints of the ``span`` scans either side, all placed by ``poses``: how sharp the
+    trajectory makes the local map."""
+    from scipy.spatial import cKDTree
+
+    world = [transform_points(p, s) for p, s in zip(poses, scans, strict=True)]
+    out = []
+    for i in range(span, len(scans) - span, 7):
+        near = np.hypot(scans[i][:, 0], scans[i][:, 1]) < 8.0
+        others = [world[j] for j in range(i - span, i + span + 1) if j != i and len(world[j])]
+        if near.sum() >= 20 and others:
+            out.append(np.median(cKDTree(np.vstack(others)).query(world[i][near])[0]))
+    return round(1e3 * float(np.median(out)), 2)
+
+
+def reference_check(est: Trajectory, ref: Trajectory, scans: list[np.ndarray]) -> dict:
+    """How noisy the reference itself is, beside the estimate: a log's "corrected" poses come
+    from another SLAM system, and an RPE against them cannot fall below their own noise."""
+    idx = np.clip(np.searchsorted(ref.stamps, est.stamps), 0, len(ref) - 1)
+    ref_poses = ref.poses[idx]
+    return {
+        "jitter_cm": _second_difference_cm(est.poses),
+        "ref_jitter_cm": _second_difference_cm(ref_poses),
+        "local_residual_mm": _neighbour_residual_mm(est.poses, scans),
+        "ref_local_residual_mm": _neighbour_residual_mm(ref_poses, scans),
+    }
 
 
 def short_range_models() -> list[tuple[str, object]]:
