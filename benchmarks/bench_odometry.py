@@ -35,7 +35,14 @@ from bioslam.geometry import transform_points
 from bioslam.io.logs import open_log
 from bioslam.occupancy_grid import OccupancyGrid
 from bioslam.odometry import LidarOdometry, OdometryConfig
-from bioslam.sim import LIDAR_PRESETS, MovingObstacle, make_route, maze_world, simulate_scans
+from bioslam.sim import (
+    LIDAR_PRESETS,
+    MovingObstacle,
+    make_route,
+    maze_world,
+    people_on_roadmap,
+    simulate_scans,
+)
 from bioslam.trajectory import Trajectory
 
 REPO = Path(__file__).resolve().parents[1]
@@ -109,6 +116,24 @@ def people_on_route(route) -> list[MovingObstacle]:
         MovingObstacle(tuple(route.pose_at(a * d)[:2]), tuple(route.pose_at(b * d)[:2]), 1.2)
         for a, b in spans
     ]
+
+
+def people_crossing(route, count: int = 6, half_width: float = 1.0) -> list[MovingObstacle]:
+    """People walking across the robot's path, back and forth over +-``half_width`` m at
+    1.2 m/s, at ``count`` places along the route, each crossing when the robot is about
+    2 m before it."""
+    d = route.duration
+    people = []
+    for k in range(1, count + 1):
+        t = k * d / (count + 1)
+        x, y, th = route.pose_at(t)
+        n = np.array([-np.sin(th), np.cos(th)]) * half_width
+        centre = np.array([x, y])
+        start, end = centre - n, centre + n
+        # at the middle of its path (half a crossing after ``start``) ~2 s before the robot
+        phase = (t - 2.0) - half_width / 1.2
+        people.append(MovingObstacle(tuple(start), tuple(end), 1.2, 0.25, phase))
+    return people
 
 
 def occupancy_png(name: str, est: Trajectory, scans: list[np.ndarray], resolution=0.05):
@@ -217,7 +242,12 @@ def main() -> None:
             dataclasses.replace(LIDAR_PRESETS["rplidar"], dropout_prob=0.2), duration,
         ),
         "fastturns": lambda: sim_case("fast turns 1 rad/s, 10 Hz", utm10, 120.0, fast_turns=True),
-        "person": lambda: sim_case("3 people walking", utm, 120.0, obstacles=people_on_route),
+        "person": lambda: [
+            sim_case("6 people crossing the path", utm, 120.0, obstacles=people_crossing),
+            sim_case("8 people pacing the corridors", utm, 120.0,
+                     obstacles=lambda route: people_on_roadmap(maze_world(), 8, seed=1)),
+            sim_case("3 people walking along the path", utm, 120.0, obstacles=people_on_route),
+        ],
         "deskew": lambda: [
             sim_case(f"fast turns 10 Hz deskew={flag}", utm10, 120.0,
                      OdometryConfig(deskew=flag), fast_turns=True)
