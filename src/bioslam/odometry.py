@@ -278,6 +278,64 @@ def _guarded_step(H, b, length, ratio, damping, hold):
 
 
 @numba.njit(cache=True)
+def _newton_step(H, b, length, ratio, damping, hold):
+    """The step of :func:`_guarded_step` without its eigen-decomposition where none is
+    needed: with no held direction and every curvature above ``ratio`` of the largest, the
+    guarded step is the damped Newton step ``H⁻¹ b / (1 + damping)``, solved in closed form.
+    (A 3x3 LAPACK ``eigh`` and its temporaries cost 4.6 µs per iteration, a fifth of a
+    Gauss-Newton iteration on 200 points.) Only the eigenvalues, by the trigonometric
+    formula, are needed to tell."""
+    if hold @ hold > 0.5:
+        return _guarded_step(H, b, length, ratio, damping, hold)[0]
+    k = 1.0 / length
+    a00 = H[0, 0]
+    a01 = H[0, 1]
+    a02 = H[0, 2] * k
+    a11 = H[1, 1]
+    a12 = H[1, 2] * k
+    a22 = H[2, 2] * k * k
+    lowest, highest = _symmetric_eigen_range(a00, a01, a02, a11, a12, a22)
+    if highest <= 1e-12 or lowest < ratio * highest:
+        return _guarded_step(H, b, length, ratio, damping, hold)[0]
+    b0 = b[0]
+    b1 = b[1]
+    b2 = b[2] * k
+    # adjugate of the symmetric matrix
+    c00 = a11 * a22 - a12 * a12
+    c01 = a02 * a12 - a01 * a22
+    c02 = a01 * a12 - a02 * a11
+    c11 = a00 * a22 - a02 * a02
+    c12 = a01 * a02 - a00 * a12
+    c22 = a00 * a11 - a01 * a01
+    scale = 1.0 / ((a00 * c00 + a01 * c01 + a02 * c02) * (1.0 + damping))
+    step = np.empty(3)
+    step[0] = (c00 * b0 + c01 * b1 + c02 * b2) * scale
+    step[1] = (c01 * b0 + c11 * b1 + c12 * b2) * scale
+    step[2] = (c02 * b0 + c12 * b1 + c22 * b2) * scale * k
+    return step
+
+
+@numba.njit(cache=True)
+def _symmetric_eigen_range(a00, a01, a02, a11, a12, a22):
+    """Smallest and largest eigenvalue of a symmetric 3x3 matrix (trigonometric method)."""
+    off = a01 * a01 + a02 * a02 + a12 * a12
+    q = (a00 + a11 + a22) / 3.0
+    d0 = a00 - q
+    d1 = a11 - q
+    d2 = a22 - q
+    p2 = d0 * d0 + d1 * d1 + d2 * d2 + 2.0 * off
+    if p2 <= 1e-300:
+        return q, q
+    p = math.sqrt(p2 / 6.0)
+    det = d0 * (d1 * d2 - a12 * a12) - a01 * (a01 * d2 - a12 * a02) + a02 * (a01 * a12 - d1 * a02)
+    r = min(max(det / (2.0 * p * p * p), -1.0), 1.0)
+    phi = math.acos(r) / 3.0
+    highest = q + 2.0 * p * math.cos(phi)
+    lowest = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)
+    return lowest, highest
+
+
+@numba.njit(cache=True)
 def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, hold):
     """Gauss-Newton on one level with Levenberg-Marquardt damping (Nielsen's schedule): a
     step that raises the cost is refused and retried shorter, and the damping of an
@@ -298,7 +356,7 @@ def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, hold):
         return pose, H, mean, iterations, converged
     for _ in range(max_iter):
         iterations += 1
-        step, _, _, _ = _guarded_step(H, b, length, ratio, damping, hold)
+        step = _newton_step(H, b, length, ratio, damping, hold)
         # judged on the undamped step: a damped one is short without being converged
         full = step * (1.0 + damping)
         small = math.hypot(full[0], full[1]) < tol and abs(full[2]) * length < tol
