@@ -192,17 +192,18 @@ def _mirror_upper(M):
 
 
 @numba.njit(cache=True)
-def _normal_equations(g, pts, pose):
-    """Gauss-Newton normal equations of Eq. 3 linearised at ``pose``.
+def _normal_equations(g, pts, pose, H, b):
+    """Gauss-Newton normal equations of Eq. 3 linearised at ``pose``, into ``H`` (3x3) and
+    ``b`` (3,).
 
     Residual ``1 - M*(S_i(p))`` with ``S_i(p) = R_p e_i + T_p`` (Eq. 4); its Jacobian is
-    ``∇M* · ∂S_i/∂p``. Returns ``(H, b, mean M* inside, cost, points inside the map)``; the
+    ``∇M* · ∂S_i/∂p``. Returns ``(mean M* inside, cost, points inside the map)``; the
     cost Σ (1 - M*)² counts points outside the map as unknown (M* = 0.5), so that pushing
     points out of the map never looks like an improvement.
     """
     kind, logodds, means, weights, ox, oy, res, sigma = g
-    H = np.zeros((3, 3))
-    b = np.zeros(3)
+    H[:] = 0.0
+    b[:] = 0.0
     c = math.cos(pose[2])
     s = math.sin(pose[2])
     total = 0.0
@@ -227,7 +228,7 @@ def _normal_equations(g, pts, pose):
             _add_point(H, b, px, py, c, s, m, gx, gy)
     _mirror_upper(H)
     mean = total / inside if inside > 0 else 0.0
-    return H, b, mean, cost, inside
+    return mean, cost, inside
 
 
 @numba.njit(cache=True)
@@ -347,7 +348,12 @@ def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, hold):
     scan, RPE 0.38 cm / 0.085° vs 0.40 cm / 0.106°). Returns
     ``(pose, H, mean M*, iterations, converged)``."""
     pose = pose.copy()
-    H, b, mean, cost, inside = _normal_equations(g, pts, pose)
+    trial = np.empty(3)
+    H = np.zeros((3, 3))
+    b = np.zeros(3)
+    H2 = np.zeros((3, 3))
+    b2 = np.zeros(3)
+    mean, cost, inside = _normal_equations(g, pts, pose, H, b)
     damping = 0.0
     growth = 2.0
     iterations = 0
@@ -358,15 +364,25 @@ def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, hold):
         iterations += 1
         step = _newton_step(H, b, length, ratio, damping, hold)
         # judged on the undamped step: a damped one is short without being converged
-        full = step * (1.0 + damping)
-        small = math.hypot(full[0], full[1]) < tol and abs(full[2]) * length < tol
-        trial = pose + step
-        H2, b2, mean2, cost2, inside2 = _normal_equations(g, pts, trial)
+        undamped = 1.0 + damping
+        small = (
+            math.hypot(step[0], step[1]) * undamped < tol and abs(step[2]) * undamped * length < tol
+        )
+        for i in range(3):
+            trial[i] = pose[i] + step[i]
+        mean2, cost2, inside2 = _normal_equations(g, pts, trial, H2, b2)
         # the gain Gauss-Newton's quadratic model predicts for residuals r = 1 - M*
-        predicted = 2.0 * (step @ b) - step @ (H @ step)
+        predicted = 0.0
+        for i in range(3):
+            predicted += 2.0 * step[i] * b[i]
+            for j in range(3):
+                predicted -= step[i] * H[i, j] * step[j]
         if cost2 <= cost and inside2 >= 3:
             rho = (cost - cost2) / predicted if predicted > 0.0 else 1.0
-            pose, H, b, mean, cost = trial, H2, b2, mean2, cost2
+            pose, trial = trial, pose
+            H, H2 = H2, H
+            b, b2 = b2, b
+            mean, cost = mean2, cost2
             damping *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
             if damping < 1e-6:
                 damping = 0.0
