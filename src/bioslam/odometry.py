@@ -26,10 +26,12 @@ from numpy.typing import ArrayLike, NDArray
 from bioslam.geometry import between, compose, transform_points, wrap_angle
 from bioslam.occupancy_grid import (
     NORMAL_MAX_GAP,
+    NORMAL_RADIUS,
     LogOddsConfig,
     MapPyramid,
     OccupancyGrid,
     interpolate_point,
+    scan_normals,
     subcell_point,
     subsample_by_spacing,
     thinned_normals,
@@ -574,6 +576,12 @@ def _level_points(
     return [_kept_rows(points, keep) for keep in keeps]
 
 
+def _matched_normals(level_points: list[FloatArray]) -> FloatArray:
+    """Surface normals of the finest level's endpoints (the kept ones of
+    :func:`bioslam.occupancy_grid.thinned_normals`)."""
+    return scan_normals(level_points[0], NORMAL_RADIUS, NORMAL_MAX_GAP)
+
+
 @numba.njit(cache=True)
 def _kept_rows(points, keep):
     """``points[keep]``, contiguous (NumPy's boolean indexing of rows is ten times slower)."""
@@ -769,7 +777,6 @@ class LidarOdometry:
         predicted = compose(previous, se2_exp(self._twist, dt)) if self.num_scans else previous
         pts = self.last_points = self._sensor_points(scan)
         keep = subsample_by_spacing(pts, c.point_spacing)
-        normals = thinned_normals(pts, keep)
         first = self.num_scans == 0
         self.num_scans += 1
         if pts.shape[0] < c.min_points:
@@ -781,9 +788,10 @@ class LidarOdometry:
         else:
             level_pts = _level_points(pts, c.point_spacing, c.levels, keep)
             start = self._best_start(level_pts[-1], previous, predicted)
-            self.pose, self.last_report = self._match(level_pts, start, _kept_rows(normals, keep))
+            self.pose, self.last_report = self._match(level_pts, start, _matched_normals(level_pts))
         if not self.last_report.predicted_only and self._should_insert():
-            self._insert(pts, normals)
+            # every endpoint is fused, each with the normal of the kept one before it
+            self._insert(pts, thinned_normals(pts, keep))
             self.last_report.inserted = True
         self._update_twist(scan.stamp)
         self._last_stamp = scan.stamp
@@ -998,7 +1006,7 @@ def register_scans(
     )  # fmt: skip
     rel, report = match_scan_to_map(
         pyramid, level_pts, seed, c.max_iterations, c.step_tolerance, c.length_scale,
-        c.degeneracy_ratio, c.subcell_sigma, _kept_rows(thinned_normals(qry, keep), keep),
+        c.degeneracy_ratio, c.subcell_sigma, _matched_normals(level_pts),
     )  # fmt: skip
     judge = pyramid.grids[c.score_level]
     world = transform_points(rel, qry)
