@@ -7,6 +7,8 @@ from bioslam.odometry import (
     OdometryConfig,
     RegistrationConfig,
     RegistrationQuality,
+    _guarded_step,
+    _newton_step,
     densify_scan,
     deskew_points,
     register_scans,
@@ -241,6 +243,23 @@ def test_deskew_undoes_the_sweep_distortion():
 
     assert np.percentile(wall_distance(world_raw), 90) > 0.02
     assert np.percentile(wall_distance(world), 99) < 1e-3
+
+
+def test_closed_form_step_equals_the_eigen_decomposition_step():
+    rng = np.random.default_rng(12)
+    hold = np.zeros(3)
+    for _ in range(200):
+        a = rng.normal(size=(3, 3))
+        H = (a @ a.T) * np.outer([1, 1, 3], [1, 1, 3]) * rng.uniform(1.0, 1e4)
+        b = rng.normal(size=3) * 100.0
+        damping = rng.choice([0.0, 0.5, 4.0])
+        expected = _guarded_step(H, b, 3.0, 0.01, damping, hold)[0]
+        got = _newton_step(H, b, 3.0, 0.01, damping, hold)
+        assert np.allclose(got, expected, rtol=1e-9, atol=1e-12 * np.abs(expected).max())
+    # a corridor: one direction without curvature is left out, as by the guard
+    H = np.diag([100.0, 1e-6, 900.0])
+    step = _newton_step(H, np.array([1.0, 1.0, 1.0]), 3.0, 0.01, 0.0, hold)
+    assert step[1] == 0.0 and step[0] == pytest.approx(0.01)
 
 
 def test_se2_exp_log_round_trip():
