@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bioslam.evaluation import rpe_distance
+from bioslam.evaluation import associate, rpe_distance
 from bioslam.geometry import transform_points
 from bioslam.io.logs import open_log
 from bioslam.occupancy_grid import OccupancyGrid
@@ -205,12 +205,13 @@ def _neighbour_residual_mm(poses: np.ndarray, scans: list[np.ndarray], span: int
 def reference_check(est: Trajectory, ref: Trajectory, scans: list[np.ndarray]) -> dict:
     """How noisy the reference itself is, beside the estimate: a log's "corrected" poses come
     from another SLAM system, and an RPE against them cannot fall below their own noise."""
-    idx = np.clip(np.searchsorted(ref.stamps, est.stamps), 0, len(ref) - 1)
-    ref_poses = ref.poses[idx]
+    est_idx, ref_idx = associate(est, ref)
+    est_poses, ref_poses = est.poses[est_idx], ref.poses[ref_idx]
+    scans = [scans[i] for i in est_idx]
     return {
-        "jitter_cm": _second_difference_cm(est.poses),
+        "jitter_cm": _second_difference_cm(est_poses),
         "ref_jitter_cm": _second_difference_cm(ref_poses),
-        "local_residual_mm": _neighbour_residual_mm(est.poses, scans),
+        "local_residual_mm": _neighbour_residual_mm(est_poses, scans),
         "ref_local_residual_mm": _neighbour_residual_mm(ref_poses, scans),
     }
 

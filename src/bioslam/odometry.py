@@ -560,6 +560,25 @@ def _usable_endpoints(ranges, cos_a, sin_a, lo, hi, time_increment, vx, vy, w):
 # Matching
 
 
+def _lattice_search(
+    grid: OccupancyGrid,
+    subcell_sigma: float | None,
+    points: FloatArray,
+    guess: FloatArray,
+    distance: float,
+    angle: float,
+    step: float,
+    radius: float,
+) -> FloatArray:
+    """:func:`_correlative_search` on ``grid`` within ``distance`` m and ``angle`` rad of
+    ``guess``, ``step`` m apart in position and, in heading, by the angle that moves a point
+    at ``radius`` m (at least one cell) by ``step``."""
+    radius = max(radius, grid.resolution)
+    return _correlative_search(
+        _grid_args(grid, subcell_sigma), points, guess, distance, angle, step, step / radius
+    )
+
+
 def _grid_args(grid: OccupancyGrid, subcell_sigma: float | None) -> tuple:
     kind = 0 if subcell_sigma is None else 1
     sigma = grid.resolution * (subcell_sigma or 1.0)
@@ -807,11 +826,10 @@ class LidarOdometry:
         if report.free_fraction <= c.recovery_free_fraction:
             return pose, report
         top = self.pyramid.grids[-1]
-        radius = max(float(np.median(np.hypot(level_pts[-1][:, 0], level_pts[-1][:, 1]))),
-                     top.resolution)  # fmt: skip
-        seed = _correlative_search(
-            _grid_args(top, c.subcell_sigma), level_pts[-1], start, c.recovery_distance,
-            c.recovery_angle, 0.5 * top.resolution, 0.5 * top.resolution / radius,
+        coarse = level_pts[-1]
+        seed = _lattice_search(
+            top, c.subcell_sigma, coarse, start, c.recovery_distance, c.recovery_angle,
+            0.5 * top.resolution, float(np.median(np.hypot(coarse[:, 0], coarse[:, 1]))),
         )  # fmt: skip
         second, second_report = self._match_from(level_pts, seed, normals)
         if second_report.free_fraction < report.free_fraction:
@@ -999,11 +1017,10 @@ def register_scans(
     # Lattice steps of one coarse cell, in angle at the range of most points: Gauss-Newton
     # on the coarse level converges from anywhere within a cell, so a finer lattice (half a
     # cell at the farthest point) only multiplied the cost, by 20 on a 30 m scanner.
-    radius = max(float(np.percentile(np.hypot(qry[:, 0], qry[:, 1]), 90)), top.resolution)
-    seed = _correlative_search(
-        _grid_args(top, None), level_pts[-1], guess, c.search_distance, c.search_angle,
-        top.resolution, top.resolution / radius,
-    )  # fmt: skip
+    radius = float(np.percentile(np.hypot(qry[:, 0], qry[:, 1]), 90))
+    seed = _lattice_search(
+        top, None, level_pts[-1], guess, c.search_distance, c.search_angle, top.resolution, radius
+    )
     rel, report = match_scan_to_map(
         pyramid, level_pts, seed, c.max_iterations, c.step_tolerance, c.length_scale,
         c.degeneracy_ratio, c.subcell_sigma, _matched_normals(level_pts),
