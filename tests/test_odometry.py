@@ -201,7 +201,8 @@ def test_a_failed_match_is_recovered_by_an_exhaustive_search(recovery):
     from the prediction cannot reach: the match leaves endpoints in known free space, and the
     search around the start finds the pose."""
     rng = np.random.default_rng(11)
-    cfg = OdometryConfig(recovery_free_fraction=0.2 if recovery else 1.1)
+    # the free-space test alone (the score test is checked below)
+    cfg = OdometryConfig(recovery_free_fraction=0.2 if recovery else 1.1, recovery_score_ratio=0)
     odo = LidarOdometry(cfg, initial_pose=(-2.0, 0.0, 0.0))
     for k in range(12):  # 0.25 m per scan: a scan fused at each, the floor seen free
         odo.update(make_scan(ROOM, (-2.0 + 0.25 * k, 0.0, 0.0), stamp=0.25 * k, sigma=0.01,
@@ -217,6 +218,48 @@ def test_a_failed_match_is_recovered_by_an_exhaustive_search(recovery):
     else:
         assert not odo.last_report.recovered and odo.last_report.free_fraction > 0.2
         assert dt_err > 0.2
+
+
+@pytest.mark.parametrize("wide", [True, False])
+def test_a_scan_after_a_gap_is_found_by_the_wide_search(wide):
+    """Two seconds without scans (a thinned log, a stalled driver), in which the robot
+    went 0.9 m and turned 35 degrees: beyond Gauss-Newton's basin and the close search
+    around the start, within the wide search around the last pose."""
+    rng = np.random.default_rng(12)
+    cfg = OdometryConfig() if wide else OdometryConfig(wide_recovery_distance=0.0)
+    odo = LidarOdometry(cfg, initial_pose=(-2.0, 0.0, 0.0))
+    for k in range(8):
+        odo.update(make_scan(ROOM, (-2.0 + 0.1 * k, 0.0, 0.0), stamp=0.1 * k, sigma=0.01,
+                             rng=rng))  # fmt: skip
+    before = pose_error((-2.0 + 0.1 * 7, 0.0, 0.0), odo.pose)
+    true = compose((-1.3, 0.0, 0.0), (0.8, 0.4, np.radians(35.0)))
+    odo.update(make_scan(ROOM, true, stamp=2.7, sigma=0.01, rng=rng))
+    dt_err, dr_err = pose_error(true, odo.pose)
+    if wide:
+        assert odo.last_report.recovered
+        assert dt_err < before[0] + 0.01 and dr_err < np.radians(0.3)
+    else:
+        assert dt_err > 0.2 or dr_err > np.radians(5.0)
+
+
+@pytest.mark.parametrize("by_score", [True, False])
+def test_a_failed_match_is_detected_by_its_score_before_any_free_space_is_known(by_score):
+    """The second scan of a run, 30 degrees turned (a log's first scans often are): the
+    map is one scan, no cell is yet known free, so only the score tells that Gauss-Newton
+    from the prediction failed."""
+    rng = np.random.default_rng(13)
+    cfg = OdometryConfig(gap_time=np.inf, recovery_score_ratio=0.5 if by_score else 0.0)
+    odo = LidarOdometry(cfg, initial_pose=(0.0, 0.0, 0.0))
+    odo.update(make_scan(ROOM, (0.0, 0.0, 0.0), stamp=0.0, sigma=0.01, rng=rng))
+    true = (0.05, 0.0, np.radians(-30.0))
+    odo.update(make_scan(ROOM, true, stamp=0.1, sigma=0.01, rng=rng))
+    dt_err, dr_err = pose_error(true, odo.pose)
+    assert odo.last_report.free_fraction < 0.05
+    if by_score:
+        assert odo.last_report.recovered
+        assert dt_err < 0.03 and dr_err < np.radians(0.5)
+    else:
+        assert not odo.last_report.recovered and dr_err > np.radians(5.0)
 
 
 def test_deskew_undoes_the_sweep_distortion():

@@ -100,6 +100,23 @@ class OdometryConfig:
             the best lattice pose, which is kept if it leaves fewer endpoints in free space.
             (A person close to the sensor also puts endpoints in free space; the second
             match then costs time but finds nothing better.)
+        recovery_score_ratio, score_window: ... or whose score (mean M*) is below this
+            fraction of the median score of the last ``score_window`` matches (of the first
+            scan on its own map before that): early in a run, or in a log whose scans are
+            far apart, few cells are yet known free, and a failed match is told by its
+            points landing on nothing (intel: 0.02 for a failed match of the second scan,
+            against 0.6 for the first scan on its own map; the lowest accepted scores on
+            our logs and simulations are 0.24-0.5 of the median).
+        wide_recovery_distance, wide_recovery_angle: when the close search fails too, a
+            one-cell lattice this far around the previous pose (metres, radians) is
+            searched; its match must pass both tests above to be kept (a scan that matches
+            nowhere well, the view blocked, stays near the prediction). 0 disables it.
+        gap_time: after this many seconds without a scan both searches run even if the
+            first match looks fine: the constant-velocity prediction is then no better
+            than the previous pose (freiburg-079 drops a scan in a turn; thinned logs
+            such as intel have scans 0.5-1 m and up to 35 degrees apart), and a match in
+            the wrong basin of a corridor can look fine. A match found this way replaces
+            one that did not fail only if it is clearly better (``start_margin``).
         log_odds: hit/miss increments of the map cells.
     """
 
@@ -126,6 +143,11 @@ class OdometryConfig:
     recovery_free_fraction: float = 0.2
     recovery_distance: float = 0.3
     recovery_angle: float = 0.35
+    wide_recovery_distance: float = 1.5
+    wide_recovery_angle: float = math.pi / 4
+    recovery_score_ratio: float = 0.5
+    gap_time: float = 0.5
+    score_window: int = 100
     log_odds: LogOddsConfig = field(default_factory=LogOddsConfig)
 
     def __post_init__(self) -> None:
@@ -706,6 +728,12 @@ def _conditioning_kernel(points, normals, length_scale):
     return max(w[0], 0.0) / w[2], v[:, 0].copy()
 
 
+def _match_quality(report: MatchReport) -> float:
+    """Mean M* over the matched endpoints, less the fraction of them in known free space
+    (negative evidence: the map saw through where the match puts a wall)."""
+    return report.score - report.free_fraction
+
+
 class LidarOdometry:
     """Pose change from consecutive LiDAR scans alone (paper Sec. III-A).
 
@@ -731,6 +759,7 @@ class LidarOdometry:
         self._last_delta = np.zeros(3)
         self._last_stamp: float | None = None
         self._history: deque[tuple[float, FloatArray]] = deque()
+        self._scores: deque[float] = deque(maxlen=self.config.score_window)
         self._last_inserted: FloatArray | None = None
         self._directions: tuple[FloatArray, FloatArray, FloatArray] | None = None
 
@@ -796,7 +825,7 @@ class LidarOdometry:
         predicted = compose(previous, se2_exp(self._twist, dt)) if self.num_scans else previous
         pts = self.last_points = self._sensor_points(scan)
         keep = subsample_by_spacing(pts, c.point_spacing)
-        first = self.num_scans == 0
+        first = self._last_inserted is None  # nothing to match against yet
         self.num_scans += 1
         if pts.shape[0] < c.min_points:
             self.pose = predicted
@@ -807,36 +836,85 @@ class LidarOdometry:
         else:
             level_pts = _level_points(pts, c.point_spacing, c.levels, keep)
             start = self._best_start(level_pts[-1], previous, predicted)
-            self.pose, self.last_report = self._match(level_pts, start, _matched_normals(level_pts))
+            self.pose, self.last_report = self._match(
+                level_pts, start, previous, _matched_normals(level_pts), dt
+            )
         if not self.last_report.predicted_only and self._should_insert():
             # every endpoint is fused, each with the normal of the kept one before it
             self._insert(pts, thinned_normals(pts, keep))
             self.last_report.inserted = True
+        if self.last_report.inserted and not self._scores:
+            self._scores.append(self._score_at(self.pose, _kept_rows(pts, keep)))
         self._update_twist(scan.stamp)
         self._last_stamp = scan.stamp
         self._last_delta = between(previous, self.pose)
         return self._last_delta.copy()
 
     def _match(
-        self, level_pts: list[FloatArray], start: FloatArray, normals: FloatArray
+        self, level_pts: list[FloatArray], start: FloatArray, previous: FloatArray,
+        normals: FloatArray, dt: float,
     ) -> tuple[FloatArray, MatchReport]:
-        """Eq. 3 from ``start``; on failure, again from an exhaustive search around it."""
-        pose, report = self._match_from(level_pts, start, normals)
+        """Eq. 3 from ``start``; if that match failed (:meth:`_failed`), again from
+        exhaustive searches: first close around ``start`` (half-cell lattice), then, if the
+        best match still failed, widely around the previous pose (one-cell lattice: scans
+        far apart in a thinned or gappy log). The match with the most endpoints on walls and
+        the fewest in known free space (:func:`_match_quality`) is kept."""
         c = self.config
-        if report.free_fraction <= c.recovery_free_fraction:
-            return pose, report
-        top = self.pyramid.grids[-1]
-        coarse = level_pts[-1]
-        seed = _lattice_search(
-            top, c.subcell_sigma, coarse, start, c.recovery_distance, c.recovery_angle,
-            0.5 * top.resolution, float(np.median(np.hypot(coarse[:, 0], coarse[:, 1]))),
-        )  # fmt: skip
-        second, second_report = self._match_from(level_pts, seed, normals)
-        if second_report.free_fraction < report.free_fraction:
-            second_report.iterations += report.iterations
-            second_report.recovered = True
-            return second, second_report
+        pose, report = self._match_from(level_pts, start, normals)
+        searches = (
+            (start, c.recovery_distance, c.recovery_angle, 0.5, False),
+            (previous, c.wide_recovery_distance, c.wide_recovery_angle, 1.0, True),
+        )
+        iterations = report.iterations
+        after_gap = dt > c.gap_time
+        for centre, distance, angle, cells, wide in searches:
+            if distance <= 0 or not (self._failed(report) or after_gap):
+                continue
+            seed = self._lattice_seed(level_pts[-1], centre, distance, angle, cells)
+            second, second_report = self._match_from(level_pts, seed, normals)
+            iterations += second_report.iterations
+            if self._better(second_report, report, must_succeed=wide):
+                second_report.recovered = True
+                pose, report = second, second_report
+        report.iterations = iterations
+        self._scores.append(report.score)
         return pose, report
+
+    def _better(self, second: MatchReport, first: MatchReport, must_succeed: bool) -> bool:
+        """Whether a retry's match replaces the first. A match that did not fail is only
+        replaced by a clearly better one (``start_margin``): where the map cannot tell
+        places apart (a corridor) the prediction's match is kept. A jump found by the wide
+        search must itself pass :meth:`_failed`: a scan that matches nowhere well (the view
+        blocked) is better left near the prediction."""
+        margin = 0.0 if self._failed(first) else self.config.start_margin * first.score
+        if must_succeed and self._failed(second):
+            return False
+        return _match_quality(second) > _match_quality(first) + margin
+
+    def _failed(self, report: MatchReport) -> bool:
+        """Endpoints in known free space, or a score far below that of recent matches."""
+        c = self.config
+        if report.free_fraction > c.recovery_free_fraction:
+            return True
+        low = report.score < c.recovery_score_ratio * max(self._scores)
+        # the median only where it can matter (it costs more than the rest of the test)
+        return low and report.score < c.recovery_score_ratio * float(np.median(self._scores))
+
+    def _score_at(self, pose: FloatArray, points: FloatArray) -> float:
+        """Mean M* of ``points`` at ``pose`` on the finest level (the first scan's score on
+        the map made from it is the reference until matches have been made)."""
+        grid = _grid_args(self.pyramid.finest, self.config.subcell_sigma)
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        return _summed_map(grid, points, c, s, pose[0], pose[1], False) / max(len(points), 1)
+
+    def _lattice_seed(
+        self, coarse: FloatArray, centre: FloatArray, distance: float, angle: float, cells: float
+    ) -> FloatArray:
+        top = self.pyramid.grids[-1]
+        return _lattice_search(
+            top, self.config.subcell_sigma, coarse, centre, distance, angle,
+            cells * top.resolution, float(np.median(np.hypot(coarse[:, 0], coarse[:, 1]))),
+        )  # fmt: skip
 
     def _match_from(
         self, level_pts: list[FloatArray], start: FloatArray, normals: FloatArray
