@@ -11,7 +11,11 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
 - ``shortrange``: the URG-04LX preset (240°, 5.6 m) on three 60 s routes, beside the same
   sensor with a 30 m range and with a 360° field of view.
 - ``mapfunc``: Hector's bilinear M* against the sub-cell map function, maze 120 s.
+- ``thinned``: the maze run keeping one scan in 20 or 40 (0.25 / 0.5 m and up to 25 / 50
+  degrees apart), beside the same with the close recovery search only.
 - ``freiburg``: freiburg-079 (LiDAR only), RPE over 1 m against the log's corrected poses.
+- ``intel``: the thinned Intel log (0.67 m and 22 degrees apart at the median), with and
+  without the wide search.
 - ``maps``: occupancy maps built from the odometry poses of exp1.dat, the ROS 1 bag and
   freiburg-079, written to ``benchmarks/results/odometry_map_<name>.png``.
 
@@ -25,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import time
 from pathlib import Path
 
@@ -99,11 +104,14 @@ def summary(name: str, est: Trajectory, gt: Trajectory, ms: np.ndarray, extra: d
     return row
 
 
-def sim_case(name, lidar, duration, config=None, fast_turns=False, obstacles=(), seed=0):
+def sim_case(name, lidar, duration, config=None, fast_turns=False, obstacles=(), seed=0,
+             every=1):  # fmt: skip
+    """One simulated maze run; ``every`` > 1 keeps one scan in ``every`` (a thinned log)."""
     world = maze_world()
     route = make_route(world, duration=duration, seed=seed, fast_turns=fast_turns)
     obstacles = obstacles(route) if callable(obstacles) else obstacles
     scans = simulate_scans(world, lidar, route, seed=seed, obstacles=obstacles)
+    scans = itertools.islice(scans, 0, None, every)
     est, gt, ms, extra = run_odometry(scans, config)
     return summary(name, est, gt, ms, extra)
 
@@ -216,6 +224,12 @@ def reference_check(est: Trajectory, ref: Trajectory, scans: list[np.ndarray]) -
     }
 
 
+# the recovery as it was before the score test, the wide search and the gap trigger
+CLOSE_SEARCH_ONLY = OdometryConfig(
+    recovery_score_ratio=0.0, wide_recovery_distance=0.0, gap_time=float("inf")
+)
+
+
 def short_range_models() -> list[tuple[str, object]]:
     """The 240-degree, 5.6 m URG-04LX, and the same with a longer range or a full circle:
     what a short forward-looking range does to tracking in long corridors."""
@@ -263,7 +277,17 @@ def main() -> None:
             for label, model in short_range_models()
             for seed in range(3)
         ],
+        "thinned": lambda: [
+            sim_case(f"maze utm30lx, 1 scan in {n} ({n / 40:.1f} s apart){label}", utm,
+                     duration, config, every=n)
+            for n in (20, 40)
+            for label, config in (("", None), (", close search only", CLOSE_SEARCH_ONLY))
+        ],
         "freiburg": lambda: log_case("freiburg079", "freiburg-079-corrected.log.gz", True),
+        "intel": lambda: [
+            log_case(f"intel (thinned){label}", "intel-corrected.log.gz", False, config)
+            for label, config in (("", None), (", close search only", CLOSE_SEARCH_ONLY))
+        ],
         "maps": lambda: [
             log_case("exp1", "exp1.dat", True),
             log_case("rosbag1", "laser_scan_matcher_demo.bag", True),
