@@ -760,6 +760,8 @@ class LidarOdometry:
         self._last_stamp: float | None = None
         self._history: deque[tuple[float, FloatArray]] = deque()
         self._scores: deque[float] = deque(maxlen=self.config.score_window)
+        self._typical_score = 0.0
+        self._num_scores = 0
         self._last_inserted: FloatArray | None = None
         self._directions: tuple[FloatArray, FloatArray, FloatArray] | None = None
 
@@ -844,7 +846,7 @@ class LidarOdometry:
             self._insert(pts, thinned_normals(pts, keep))
             self.last_report.inserted = True
         if self.last_report.inserted and not self._scores:
-            self._scores.append(self._score_at(self.pose, _kept_rows(pts, keep)))
+            self._remember_score(self._score_at(self.pose, _kept_rows(pts, keep)))
         self._update_twist(scan.stamp)
         self._last_stamp = scan.stamp
         self._last_delta = between(previous, self.pose)
@@ -867,26 +869,30 @@ class LidarOdometry:
         )
         iterations = report.iterations
         after_gap = dt > c.gap_time
+        failed = self._failed(report)
         for centre, distance, angle, cells, wide in searches:
-            if distance <= 0 or not (self._failed(report) or after_gap):
+            if distance <= 0 or not (failed or after_gap):
                 continue
             seed = self._lattice_seed(level_pts[-1], centre, distance, angle, cells)
             second, second_report = self._match_from(level_pts, seed, normals)
             iterations += second_report.iterations
-            if self._better(second_report, report, must_succeed=wide):
+            if self._better(second_report, report, failed, must_succeed=wide):
                 second_report.recovered = True
                 pose, report = second, second_report
+                failed = self._failed(report)
         report.iterations = iterations
-        self._scores.append(report.score)
+        self._remember_score(report.score)
         return pose, report
 
-    def _better(self, second: MatchReport, first: MatchReport, must_succeed: bool) -> bool:
+    def _better(
+        self, second: MatchReport, first: MatchReport, first_failed: bool, must_succeed: bool
+    ) -> bool:
         """Whether a retry's match replaces the first. A match that did not fail is only
         replaced by a clearly better one (``start_margin``): where the map cannot tell
         places apart (a corridor) the prediction's match is kept. A jump found by the wide
         search must itself pass :meth:`_failed`: a scan that matches nowhere well (the view
         blocked) is better left near the prediction."""
-        margin = 0.0 if self._failed(first) else self.config.start_margin * first.score
+        margin = 0.0 if first_failed else self.config.start_margin * first.score
         if must_succeed and self._failed(second):
             return False
         return _match_quality(second) > _match_quality(first) + margin
@@ -896,9 +902,17 @@ class LidarOdometry:
         c = self.config
         if report.free_fraction > c.recovery_free_fraction:
             return True
-        low = report.score < c.recovery_score_ratio * max(self._scores)
-        # the median only where it can matter (it costs more than the rest of the test)
-        return low and report.score < c.recovery_score_ratio * float(np.median(self._scores))
+        return report.score < c.recovery_score_ratio * self._typical_score
+
+    def _remember_score(self, score: float) -> None:
+        """Keep the last ``score_window`` scores. Their median is refreshed on each of the
+        first tenth of a window, then every tenth (per scan it cost more than the rest of
+        the failure test)."""
+        self._scores.append(score)
+        self._num_scores += 1
+        step = max(self.config.score_window // 10, 1)
+        if self._num_scores <= step or self._num_scores % step == 0:
+            self._typical_score = float(np.median(self._scores))
 
     def _score_at(self, pose: FloatArray, points: FloatArray) -> float:
         """Mean M* of ``points`` at ``pose`` on the finest level (the first scan's score on
