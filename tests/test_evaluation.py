@@ -16,6 +16,7 @@ from bioslam.evaluation import (
     evaluate,
     position_errors,
     rpe_distance,
+    rpe_distance_pairs,
     rpe_time,
 )
 from bioslam.geometry import between, compose, wrap_angle
@@ -161,6 +162,24 @@ def test_rpe_distance_sees_a_heading_bias_per_metre():
     res = rpe_distance(est, gt, delta_m=1.0)
     assert res["pairs"] == 10
     assert res["rot_rmse_deg"] == pytest.approx(2.0, rel=1e-6)
+
+
+def test_rpe_distance_pairs_locate_a_jump_and_give_the_same_rmse():
+    n = 201
+    x = 0.05 * np.arange(n)
+    gt = Trajectory(0.1 * np.arange(n) + 5.0, np.column_stack([x, np.zeros((n, 2))]))
+    poses = gt.poses.copy()
+    poses[:, 1] += np.random.default_rng(3).normal(0.0, 0.002, n)
+    poses[117:, 1] += 0.1  # a 10 cm sideways jump between poses 116 and 117
+    # the estimate has one extra pose first, so its indices differ from the reference's
+    est = Trajectory(np.r_[4.9, gt.stamps], np.vstack([poses[:1], poses]))
+    est_pairs, gt_pairs, trans, rot = rpe_distance_pairs(est, gt, delta_m=1.0)
+    worst = int(np.argmax(trans))
+    assert gt_pairs[worst, 0] < 117 <= gt_pairs[worst, 1]
+    assert np.array_equal(est_pairs, gt_pairs + 1)
+    assert trans[worst] == pytest.approx(0.1, abs=0.01)
+    assert np.sqrt(np.mean(trans**2)) == pytest.approx(rpe_distance(est, gt)["trans_rmse_m"])
+    assert rot.shape == trans.shape
 
 
 def test_rpe_of_a_too_short_path_is_nan_with_no_pairs():

@@ -100,10 +100,11 @@ def associate(
 
 def _associated(est: Trajectory, gt: Trajectory, max_dt: float) -> tuple[Trajectory, Trajectory]:
     est_idx, gt_idx = associate(est, gt, max_dt)
-    return (
-        Trajectory(est.stamps[est_idx], est.poses[est_idx]),
-        Trajectory(gt.stamps[gt_idx], gt.poses[gt_idx]),
-    )
+    return _take(est, est_idx), _take(gt, gt_idx)
+
+
+def _take(trajectory: Trajectory, idx: IntArray) -> Trajectory:
+    return Trajectory(trajectory.stamps[idx], trajectory.poses[idx])
 
 
 def align_se2(est_xy: ArrayLike, gt_xy: ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -195,15 +196,17 @@ def _consecutive_pairs(progress: FloatArray, delta: float) -> IntArray:
     return np.column_stack([ends[:-1], ends[1:]])
 
 
+def _pair_errors(est: Trajectory, gt: Trajectory, pairs: IntArray) -> tuple[FloatArray, FloatArray]:
+    """Translation (m) and rotation (deg) error of each pair's relative motion."""
+    i, j = pairs[:, 0], pairs[:, 1]
+    err = between(between(gt.poses[i], gt.poses[j]), between(est.poses[i], est.poses[j]))
+    return np.hypot(err[:, 0], err[:, 1]), np.degrees(np.abs(err[:, 2]))
+
+
 def _rpe_from_pairs(est: Trajectory, gt: Trajectory, pairs: IntArray) -> dict[str, float]:
     if pairs.shape[0] == 0:
         return {"trans_rmse_m": float("nan"), "rot_rmse_deg": float("nan"), "pairs": 0}
-    i, j = pairs[:, 0], pairs[:, 1]
-    rel_est = between(est.poses[i], est.poses[j])
-    rel_gt = between(gt.poses[i], gt.poses[j])
-    err = between(rel_gt, rel_est)
-    trans = np.hypot(err[:, 0], err[:, 1])
-    rot = np.degrees(np.abs(err[:, 2]))
+    trans, rot = _pair_errors(est, gt, pairs)
     return {
         "trans_rmse_m": float(np.sqrt(np.mean(trans**2))),
         "rot_rmse_deg": float(np.sqrt(np.mean(rot**2))),
@@ -211,6 +214,15 @@ def _rpe_from_pairs(est: Trajectory, gt: Trajectory, pairs: IntArray) -> dict[st
         "rot_mean_deg": float(np.mean(rot)),
         "pairs": int(pairs.shape[0]),
     }
+
+
+def _distance_pairs(
+    est: Trajectory, gt: Trajectory, delta_m: float, from_reference: bool
+) -> IntArray:
+    if delta_m <= 0:
+        raise ValueError(f"delta_m must be positive, got {delta_m}")
+    d = np.diff((gt if from_reference else est).poses[:, :2], axis=0)
+    return _consecutive_pairs(np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]), delta_m)
 
 
 def rpe_distance(
@@ -225,13 +237,27 @@ def rpe_distance(
     Returns ``trans_rmse_m``, ``rot_rmse_deg`` (RMSE over pairs), their means and ``pairs``;
     NaN errors with ``pairs == 0`` when the path is shorter than ``delta_m``.
     """
-    if delta_m <= 0:
-        raise ValueError(f"delta_m must be positive, got {delta_m}")
     est_a, gt_a = _associated(est, gt, max_dt)
-    xy = (gt_a if pairs_from_reference else est_a).poses[:, :2]
-    d = np.diff(xy, axis=0)
-    steps = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1])
-    return _rpe_from_pairs(est_a, gt_a, _consecutive_pairs(steps, delta_m))
+    return _rpe_from_pairs(est_a, gt_a, _distance_pairs(est_a, gt_a, delta_m, pairs_from_reference))
+
+
+def rpe_distance_pairs(
+    est: Trajectory,
+    gt: Trajectory,
+    delta_m: float = EvalConfig.rpe_delta_m,
+    max_dt: float = EvalConfig.max_dt,
+    pairs_from_reference: bool = EvalConfig.pairs_from_reference,
+) -> tuple[IntArray, IntArray, FloatArray, FloatArray]:
+    """The pairs behind :func:`rpe_distance`, with their errors, to find where an RPE comes
+    from: the estimate's and the reference's pose indices of each pair's two ends, ``(M, 2)``
+    each, and the translation (m) and rotation (deg) errors, ``(M,)`` each."""
+    est_idx, gt_idx = associate(est, gt, max_dt)
+    est_a, gt_a = _take(est, est_idx), _take(gt, gt_idx)
+    pairs = _distance_pairs(est_a, gt_a, delta_m, pairs_from_reference)
+    if pairs.shape[0] == 0:
+        return pairs, pairs, np.zeros(0), np.zeros(0)
+    trans, rot = _pair_errors(est_a, gt_a, pairs)
+    return est_idx[pairs], gt_idx[pairs], trans, rot
 
 
 def rpe_time(
