@@ -2,13 +2,17 @@ import numpy as np
 import pytest
 
 from bioslam.geometry import between, compose
+from bioslam.occupancy_grid import LogOddsConfig, MapPyramid
 from bioslam.odometry import (
     LidarOdometry,
     OdometryConfig,
     RegistrationConfig,
     RegistrationQuality,
+    _grid_args,
     _guarded_step,
+    _lattice_search,
     _newton_step,
+    _summed_map,
     densify_scan,
     deskew_points,
     register_scans,
@@ -260,6 +264,30 @@ def test_a_failed_match_is_detected_by_its_score_before_any_free_space_is_known(
         assert dt_err < 0.03 and dr_err < np.radians(0.5)
     else:
         assert not odo.last_report.recovered and dr_err > np.radians(5.0)
+
+
+def test_the_lattice_search_returns_distinct_peaks_best_first():
+    """The exhaustive search keeps the best few local maxima of the lattice (Gauss-Newton
+    then runs from each): the first is the best lattice node, within a step of the true
+    pose, and the others are different poses that score no better."""
+    rng = np.random.default_rng(14)
+    scan = make_scan(ROOM, (0.0, 0.0, 0.0), sigma=0.01, rng=rng)
+    pyramid = MapPyramid(0.05, 16.0, 3, LogOddsConfig())
+    pyramid.insert_scan((0.0, 0.0, 0.0), scan.endpoints())
+    top = pyramid.grids[-1]
+    true = np.array([0.3, -0.2, 0.25])
+    moved = make_scan(ROOM, tuple(true), sigma=0.01, rng=rng).endpoints()
+    seeds = _lattice_search(top, 1.0, moved, np.zeros(3), 0.6, 0.5, top.resolution, 5.0, 3)
+    assert seeds.shape == (3, 3)
+    assert np.all(np.abs(seeds[0, :2] - true[:2]) <= top.resolution)
+    assert abs(seeds[0, 2] - true[2]) <= top.resolution / 5.0
+    grid = _grid_args(top, 1.0)
+    scores = [_summed_map(grid, moved, np.cos(p[2]), np.sin(p[2]), p[0], p[1], False)
+              for p in seeds]  # fmt: skip
+    assert scores[0] >= scores[1] >= scores[2]
+    assert len({tuple(np.round(p, 6)) for p in seeds}) == 3
+    single = _lattice_search(top, 1.0, moved, np.zeros(3), 0.6, 0.5, top.resolution, 5.0)
+    np.testing.assert_array_equal(single[0], seeds[0])
 
 
 def test_deskew_undoes_the_sweep_distortion():

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy import ndimage
 
 from bioslam.geometry import between, compose, transform_points, wrap_angle
 from bioslam.occupancy_grid import (
@@ -111,6 +112,9 @@ class OdometryConfig:
             one-cell lattice this far around the previous pose (metres, radians) is
             searched; its match must pass both tests above to be kept (a scan that matches
             nowhere well, the view blocked, stays near the prediction). 0 disables it.
+        recovery_seeds: Gauss-Newton runs from this many of a search's best local maxima:
+            in a cluttered or narrow view the lattice's best peak is often a neighbour's
+            (freiburg thinned to a scan per 0.5 m: RPE 6.0 cm with 1, 4.2 cm with 3).
         gap_time: after this many seconds without a scan both searches run even if the
             first match looks fine: the constant-velocity prediction is then no better
             than the previous pose (freiburg-079 drops a scan in a turn; thinned logs
@@ -146,6 +150,7 @@ class OdometryConfig:
     wide_recovery_distance: float = 1.5
     wide_recovery_angle: float = math.pi / 4
     recovery_score_ratio: float = 0.5
+    recovery_seeds: int = 3
     gap_time: float = 0.5
     score_window: int = 100
     log_odds: LogOddsConfig = field(default_factory=LogOddsConfig)
@@ -421,12 +426,10 @@ def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, hold):
 
 
 @numba.njit(cache=True)
-def _correlative_search(g, pts, pose, half_xy, half_th, step_xy, step_th):
-    """Exhaustive search of the Eq. 3 objective (summed M*) on a (x, y, theta) lattice."""
-    best = pose.copy()
-    best_score = -1.0
-    nt = int(half_th / step_th)
-    nx = int(half_xy / step_xy)
+def _correlative_scores(g, pts, pose, nt, nx, step_xy, step_th):
+    """The Eq. 3 objective (summed M*) on the (theta, x, y) lattice of ``2 nt + 1`` headings
+    and ``(2 nx + 1)^2`` positions around ``pose``."""
+    out = np.empty((2 * nt + 1, 2 * nx + 1, 2 * nx + 1))
     for it in range(-nt, nt + 1):
         th = pose[2] + it * step_th
         c = math.cos(th)
@@ -435,13 +438,8 @@ def _correlative_search(g, pts, pose, half_xy, half_th, step_xy, step_th):
             for iy in range(-nx, nx + 1):
                 tx = pose[0] + ix * step_xy
                 ty = pose[1] + iy * step_xy
-                score = _summed_map(g, pts, c, s, tx, ty, False)
-                if score > best_score:
-                    best_score = score
-                    best[0] = tx
-                    best[1] = ty
-                    best[2] = th
-    return best
+                out[it + nt, ix + nx, iy + nx] = _summed_map(g, pts, c, s, tx, ty, False)
+    return out
 
 
 @numba.njit(cache=True)
@@ -591,14 +589,26 @@ def _lattice_search(
     angle: float,
     step: float,
     radius: float,
+    peaks: int = 1,
 ) -> FloatArray:
-    """:func:`_correlative_search` on ``grid`` within ``distance`` m and ``angle`` rad of
-    ``guess``, ``step`` m apart in position and, in heading, by the angle that moves a point
-    at ``radius`` m (at least one cell) by ``step``."""
-    radius = max(radius, grid.resolution)
-    return _correlative_search(
-        _grid_args(grid, subcell_sigma), points, guess, distance, angle, step, step / radius
+    """Exhaustive search of the Eq. 3 objective on ``grid`` within ``distance`` m and
+    ``angle`` rad of ``guess``, ``step`` m apart in position and, in heading, by the angle
+    that moves a point at ``radius`` m (at least one cell) by ``step``. Returns the poses
+    ``(K, 3)`` of the ``peaks`` best local maxima of the lattice, best first."""
+    step_th = step / max(radius, grid.resolution)
+    nt, nx = int(angle / step_th), int(distance / step)
+    scores = _correlative_scores(
+        _grid_args(grid, subcell_sigma), points, guess, nt, nx, step, step_th
     )
+    if peaks == 1:
+        best = np.array([np.argmax(scores)])
+    else:
+        local = scores == ndimage.maximum_filter(scores, size=3, mode="nearest")
+        flat = np.flatnonzero(local)
+        best = flat[np.argsort(-scores.ravel()[flat], kind="stable")[:peaks]]
+    it, ix, iy = np.unravel_index(best, scores.shape)
+    offsets = np.column_stack([(ix - nx) * step, (iy - nx) * step, (it - nt) * step_th])
+    return guess + offsets
 
 
 def _grid_args(grid: OccupancyGrid, subcell_sigma: float | None) -> tuple:
@@ -859,7 +869,8 @@ class LidarOdometry:
         """Eq. 3 from ``start``; if that match failed (:meth:`_failed`), again from
         exhaustive searches: first close around ``start`` (half-cell lattice), then, if the
         best match still failed, widely around the previous pose (one-cell lattice: scans
-        far apart in a thinned or gappy log). The match with the most endpoints on walls and
+        far apart in a thinned or gappy log). Gauss-Newton runs from each search's
+        ``recovery_seeds`` best lattice peaks; the match with the most endpoints on walls and
         the fewest in known free space (:func:`_match_quality`) is kept."""
         c = self.config
         pose, report = self._match_from(level_pts, start, normals)
@@ -870,16 +881,20 @@ class LidarOdometry:
         iterations = report.iterations
         after_gap = dt > c.gap_time
         failed = self._failed(report)
+        # the coarsest level's endpoints (0.2 m apart) are too few in a narrow space (30 in a
+        # freiburg office) for the lattice to tell poses apart; the next level's are twice
+        # as many (on freiburg thinned to a scan per metre: RPE 59 -> 4.5 cm)
+        search_pts = level_pts[-2] if len(level_pts) > 1 else level_pts[-1]
         for centre, distance, angle, cells, wide in searches:
             if distance <= 0 or not (failed or after_gap):
                 continue
-            seed = self._lattice_seed(level_pts[-1], centre, distance, angle, cells)
-            second, second_report = self._match_from(level_pts, seed, normals)
-            iterations += second_report.iterations
-            if self._better(second_report, report, failed, must_succeed=wide):
-                second_report.recovered = True
-                pose, report = second, second_report
-                failed = self._failed(report)
+            for seed in self._lattice_seeds(search_pts, centre, distance, angle, cells):
+                second, second_report = self._match_from(level_pts, seed, normals)
+                iterations += second_report.iterations
+                if self._better(second_report, report, failed, must_succeed=wide):
+                    second_report.recovered = True
+                    pose, report = second, second_report
+                    failed = self._failed(report)
         report.iterations = iterations
         self._remember_score(report.score)
         return pose, report
@@ -921,13 +936,18 @@ class LidarOdometry:
         c, s = math.cos(pose[2]), math.sin(pose[2])
         return _summed_map(grid, points, c, s, pose[0], pose[1], False) / max(len(points), 1)
 
-    def _lattice_seed(
-        self, coarse: FloatArray, centre: FloatArray, distance: float, angle: float, cells: float
+    def _lattice_seeds(
+        self, points: FloatArray, centre: FloatArray, distance: float, angle: float, cells: float
     ) -> FloatArray:
+        """:func:`_lattice_search` on the coarsest level, ``cells`` of it apart in position
+        and so in heading that the farthest tenth of the points move by as much (the
+        median moved far points by several cells between lattice headings in a narrow
+        space, and the search missed the pose)."""
         top = self.pyramid.grids[-1]
         return _lattice_search(
-            top, self.config.subcell_sigma, coarse, centre, distance, angle,
-            cells * top.resolution, float(np.median(np.hypot(coarse[:, 0], coarse[:, 1]))),
+            top, self.config.subcell_sigma, points, centre, distance, angle,
+            cells * top.resolution, float(np.percentile(np.hypot(points[:, 0], points[:, 1]), 90)),
+            self.config.recovery_seeds,
         )  # fmt: skip
 
     def _match_from(
@@ -1112,7 +1132,7 @@ def register_scans(
     radius = float(np.percentile(np.hypot(qry[:, 0], qry[:, 1]), 90))
     seed = _lattice_search(
         top, None, level_pts[-1], guess, c.search_distance, c.search_angle, top.resolution, radius
-    )
+    )[0]
     rel, report = match_scan_to_map(
         pyramid, level_pts, seed, c.max_iterations, c.step_tolerance, c.length_scale,
         c.degeneracy_ratio, c.subcell_sigma, _matched_normals(level_pts),
