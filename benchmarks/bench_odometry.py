@@ -14,6 +14,9 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
 - ``thinned``: the maze run keeping one scan in 20 or 40 (0.25 / 0.5 m and up to 25 / 50
   degrees apart), beside the same with the close recovery search only.
 - ``freiburg``: freiburg-079 (LiDAR only), RPE over 1 m against the log's corrected poses.
+- ``freiburgthinned``: freiburg-079 keeping a scan per 0.5 m / 0.4 rad or 1 m / 0.6 rad of
+  the reference's motion (as the SLAM benchmark's logs are thinned), beside the close
+  recovery search alone.
 - ``intel``: the thinned Intel log (0.67 m and 22 degrees apart at the median), with and
   without the wide search.
 - ``maps``: occupancy maps built from the odometry poses of exp1.dat, the ROS 1 bag and
@@ -30,13 +33,14 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import itertools
+import math
 import time
 from pathlib import Path
 
 import numpy as np
 
 from bioslam.evaluation import associate, rpe_distance, rpe_distance_pairs
-from bioslam.geometry import transform_points
+from bioslam.geometry import between, transform_points
 from bioslam.io.logs import open_log
 from bioslam.occupancy_grid import OccupancyGrid
 from bioslam.odometry import LidarOdometry, OdometryConfig
@@ -186,6 +190,36 @@ def log_case(name: str, filename: str, make_png: bool, config=None) -> dict | No
     return row
 
 
+def thinned_log_case(name: str, filename: str, distance: float, angle: float,
+                     config=None) -> dict | None:  # fmt: skip
+    """A log thinned as the SLAM benchmark logs are: a scan is kept when the reference has
+    moved ``distance`` m or turned ``angle`` rad since the last kept one."""
+    path = DATA / filename
+    if not path.exists():
+        print(f"{name}: skipped, {path} not found", flush=True)
+        return None
+    source = open_log(path)
+    scans = list(source)
+    ref = source.reference
+    kept, last = [], None
+    for scan, i in zip(scans, associate(Trajectory(np.array([s.stamp for s in scans]),
+                                                   np.zeros((len(scans), 3))), ref)[1],
+                       strict=True):  # fmt: skip
+        step = None if last is None else between(last, ref.poses[i])
+        if step is None or math.hypot(step[0], step[1]) >= distance or abs(step[2]) >= angle:
+            kept.append(scan)
+            last = ref.poses[i]
+    est, _, ms, extra = run_odometry(iter(kept), config)
+    rpe = rpe_distance(est, ref, 1.0)
+    row = {"case": name, "scans": len(kept), "rpe1m_cm": round(100 * rpe["trans_rmse_m"], 2),
+           "rpe1m_deg": round(rpe["rot_rmse_deg"], 3), "pairs": rpe["pairs"],
+           "ms_median": round(float(np.median(ms)), 3),
+           "ms_p99": round(float(np.percentile(ms, 99)), 3),
+           "recovered": int(extra["recovered"])}  # fmt: skip
+    print("  ".join(f"{k}={v}" for k, v in row.items()), flush=True)
+    return row
+
+
 def _second_difference_cm(poses: np.ndarray) -> float:
     """Robust spread (1.4826 MAD, both axes) of x[k+1] - 2 x[k] + x[k-1]: near zero for a
     smooth path sampled at a steady rate, sqrt(6) sigma for white pose noise sigma."""
@@ -304,6 +338,12 @@ def main() -> None:
             for label, config in (("", None), (", close search only", CLOSE_SEARCH_ONLY))
         ],
         "freiburg": lambda: log_case("freiburg079", "freiburg-079-corrected.log.gz", True),
+        "freiburgthinned": lambda: [
+            thinned_log_case(f"freiburg079 thinned to {d} m / {a} rad{label}",
+                             "freiburg-079-corrected.log.gz", d, a, config)
+            for d, a in ((0.5, 0.4), (1.0, 0.6))
+            for label, config in (("", None), (", close search only", CLOSE_SEARCH_ONLY))
+        ],
         "intel": lambda: [
             log_case(f"intel (thinned){label}", "intel-corrected.log.gz", False, config)
             for label, config in (("", None), (", close search only", CLOSE_SEARCH_ONLY))
