@@ -388,3 +388,5 @@ def test_map_memory_stays_bounded_over_a_long_run():
 def test_config_is_validated():
     with pytest.raises(ValueError, match="max_iterations"):
         OdometryConfig(levels=2)
+    with pytest.raises(ValueError, match="recovery_seeds"):
+        OdometryConfig(recovery_seeds=0)

@@ -96,18 +96,19 @@ class OdometryConfig:
         recovery_free_fraction: a match that leaves more than this fraction of the matched
             endpoints in cells the map knows to be free has probably failed (a good match
             leaves almost none there: 1 % median, 4 % at the 90th percentile on freiburg-079,
-            0 on the maze); the scan is then searched for exhaustively around its start
-            (``recovery_distance`` metres, ``recovery_angle`` radians) and matched again from
-            the best lattice pose, which is kept if it leaves fewer endpoints in free space.
-            (A person close to the sensor also puts endpoints in free space; the second
-            match then costs time but finds nothing better.)
-        recovery_score_ratio, score_window: ... or whose score (mean M*) is below this
-            fraction of the median score of the last ``score_window`` matches (of the first
-            scan on its own map before that): early in a run, or in a log whose scans are
-            far apart, few cells are yet known free, and a failed match is told by its
-            points landing on nothing (intel: 0.02 for a failed match of the second scan,
-            against 0.6 for the first scan on its own map; the lowest accepted scores on
-            our logs and simulations are 0.24-0.5 of the median).
+            0 on the maze). The scan is then searched for exhaustively around its start
+            (``recovery_distance`` metres, ``recovery_angle`` radians, a half-cell lattice
+            of the coarsest level) and matched again from the best lattice poses; a match
+            is kept if its score less its fraction in free space is higher. (A person close
+            to the sensor also puts endpoints in free space; the retry then costs time but
+            finds nothing better.)
+        recovery_score_ratio, score_window: a match has also failed if its score (mean
+            M*) is below this fraction of the median score of the last ``score_window``
+            matches (of the first scan on its own map before that): early in a run, or in a
+            log whose scans are far apart, few cells are yet known free, and a failed match
+            is told by its points landing on nothing (intel: 0.02 for a failed match of the
+            second scan, against 0.6 for the first scan on its own map; the lowest accepted
+            scores on our logs and simulations are 0.24-0.5 of the median).
         wide_recovery_distance, wide_recovery_angle: when the close search fails too, a
             one-cell lattice this far around the previous pose (metres, radians) is
             searched; its match must pass both tests above to be kept (a scan that matches
@@ -163,6 +164,11 @@ class OdometryConfig:
             )
         if not (self.resolution > 0 and self.map_size > 4 * self.recenter_distance > 0):
             raise ValueError("need resolution > 0 and map_size > 4 * recenter_distance > 0")
+        if self.score_window < 1 or self.recovery_seeds < 1:
+            raise ValueError(
+                f"score_window and recovery_seeds must be at least 1, got "
+                f"{self.score_window} and {self.recovery_seeds}"
+            )
 
 
 @dataclass
