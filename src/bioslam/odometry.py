@@ -771,6 +771,8 @@ class LidarOdometry:
         self.last_points: FloatArray = np.zeros((0, 2))
         self.num_scans = 0
         self.num_predicted_only = 0
+        self.num_recovered = 0
+        self.num_degenerate = 0
         self._twist = np.zeros(3)
         self._last_delta = np.zeros(3)
         self._last_stamp: float | None = None
@@ -857,6 +859,8 @@ class LidarOdometry:
             self.pose, self.last_report = self._match(
                 level_pts, start, previous, _matched_normals(level_pts), dt
             )
+            self.num_recovered += self.last_report.recovered
+            self.num_degenerate += self.last_report.degenerate
         if not self.last_report.predicted_only and self._should_insert():
             # every endpoint is fused, each with the normal of the kept one before it
             self._insert(pts, thinned_normals(pts, keep))
@@ -867,6 +871,16 @@ class LidarOdometry:
         self._last_stamp = scan.stamp
         self._last_delta = between(previous, self.pose)
         return self._last_delta.copy()
+
+    def summary(self) -> dict[str, int]:
+        """Counts over the run: scans, matches recovered by a search, scans with an
+        unconstrained direction, scans with too few points (prediction only)."""
+        return {
+            "odometry_scans": self.num_scans,
+            "odometry_recovered": self.num_recovered,
+            "odometry_degenerate": self.num_degenerate,
+            "odometry_predicted_only": self.num_predicted_only,
+        }
 
     def _match(
         self, level_pts: list[FloatArray], start: FloatArray, previous: FloatArray,

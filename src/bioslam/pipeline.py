@@ -103,7 +103,7 @@ class OdometryOnly:
         """Nothing to settle: the odometry is final as it goes."""
 
     def summary(self) -> dict[str, int]:
-        return {"views": 0, "experiences": 0, "loop_closures": 0}
+        return {"views": 0, "experiences": 0, "loop_closures": 0, **self.odometry.summary()}
 
 
 @dataclass

@@ -277,4 +277,5 @@ class BioSLAM:
             "experiences": len(cmap),
             "loop_closures": cmap.loop_closures,
             "loop_closures_rejected": cmap.rejected_closures,
+            **self.odometry.summary(),
         }
