@@ -205,14 +205,19 @@ def _pair_errors(est: Trajectory, gt: Trajectory, pairs: IntArray) -> tuple[Floa
 
 def _rpe_from_pairs(est: Trajectory, gt: Trajectory, pairs: IntArray) -> dict[str, float]:
     if pairs.shape[0] == 0:
+        return _rpe_summary(np.zeros(0), np.zeros(0))
+    return _rpe_summary(*_pair_errors(est, gt, pairs))
+
+
+def _rpe_summary(trans: FloatArray, rot: FloatArray) -> dict[str, float]:
+    if trans.size == 0:
         return {"trans_rmse_m": float("nan"), "rot_rmse_deg": float("nan"), "pairs": 0}
-    trans, rot = _pair_errors(est, gt, pairs)
     return {
         "trans_rmse_m": float(np.sqrt(np.mean(trans**2))),
         "rot_rmse_deg": float(np.sqrt(np.mean(rot**2))),
         "trans_mean_m": float(np.mean(trans)),
         "rot_mean_deg": float(np.mean(rot)),
-        "pairs": int(pairs.shape[0]),
+        "pairs": int(trans.size),
     }
 
 
@@ -237,8 +242,8 @@ def rpe_distance(
     Returns ``trans_rmse_m``, ``rot_rmse_deg`` (RMSE over pairs), their means and ``pairs``;
     NaN errors with ``pairs == 0`` when the path is shorter than ``delta_m``.
     """
-    est_a, gt_a = _associated(est, gt, max_dt)
-    return _rpe_from_pairs(est_a, gt_a, _distance_pairs(est_a, gt_a, delta_m, pairs_from_reference))
+    _, _, trans, rot = rpe_distance_pairs(est, gt, delta_m, max_dt, pairs_from_reference)
+    return _rpe_summary(trans, rot)
 
 
 def rpe_distance_pairs(
