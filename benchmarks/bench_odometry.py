@@ -63,7 +63,6 @@ def run_odometry(scans, config: OdometryConfig | None = None, keep_scans: bool =
     """Feed scans to a fresh LidarOdometry; returns (estimate, truth or None, cpu ms, extra)."""
     odo = None
     stamps, est, truth, times, kept = [], [], [], [], []
-    degenerate = recovered = 0
     for item in scans:
         scan, true = item if isinstance(item, tuple) else (item, None)
         if odo is None:
@@ -71,8 +70,6 @@ def run_odometry(scans, config: OdometryConfig | None = None, keep_scans: bool =
         t0 = time.thread_time()
         odo.update(scan)
         times.append(time.thread_time() - t0)
-        degenerate += odo.last_report.degenerate
-        recovered += odo.last_report.recovered
         stamps.append(scan.stamp)
         est.append(odo.pose.copy())
         if true is not None:
@@ -81,8 +78,10 @@ def run_odometry(scans, config: OdometryConfig | None = None, keep_scans: bool =
             kept.append(scan.endpoints())
     est_t = Trajectory(np.array(stamps), np.array(est))
     gt_t = Trajectory(np.array(stamps), np.array(truth)) if truth else None
-    extra = {"degenerate": degenerate, "recovered": recovered,
-             "predicted_only": odo.num_predicted_only, "scans": kept}  # fmt: skip
+    counts = odo.summary()
+    extra = {"degenerate": counts["odometry_degenerate"],
+             "recovered": counts["odometry_recovered"],
+             "predicted_only": counts["odometry_predicted_only"], "scans": kept}  # fmt: skip
     return est_t, gt_t, np.array(times[1:]) * 1e3, extra
 
 
@@ -165,14 +164,17 @@ def occupancy_png(name: str, est: Trajectory, scans: list[np.ndarray], resolutio
     return path
 
 
-def log_case(name: str, filename: str, make_png: bool, config=None) -> dict | None:
+def log_case(name: str, filename: str, make_png: bool, config=None, select=None) -> dict | None:
+    """The odometry on a log, against its corrected poses if it has them. ``select(scans,
+    reference)`` picks the scans fed to it (all by default)."""
     path = DATA / filename
     if not path.exists():
         print(f"{name}: skipped, {path} not found", flush=True)
         return None
     source = open_log(path)
-    est, _, ms, extra = run_odometry(iter(source), config, keep_scans=make_png)
     ref = getattr(source, "reference", None)
+    scans = iter(source) if select is None else iter(select(list(source), ref))
+    est, _, ms, extra = run_odometry(scans, config, keep_scans=make_png)
     row = {"case": name, "scans": len(est), "path_m": round(est.path_length(), 1),
            "ms_median": round(float(np.median(ms)), 3),
            "ms_p99": round(float(np.percentile(ms, 99)), 3),
@@ -190,34 +192,23 @@ def log_case(name: str, filename: str, make_png: bool, config=None) -> dict | No
     return row
 
 
-def thinned_log_case(name: str, filename: str, distance: float, angle: float,
-                     config=None) -> dict | None:  # fmt: skip
-    """A log thinned as the SLAM benchmark logs are: a scan is kept when the reference has
-    moved ``distance`` m or turned ``angle`` rad since the last kept one."""
-    path = DATA / filename
-    if not path.exists():
-        print(f"{name}: skipped, {path} not found", flush=True)
-        return None
-    source = open_log(path)
-    scans = list(source)
-    ref = source.reference
-    kept, last = [], None
-    for scan, i in zip(scans, associate(Trajectory(np.array([s.stamp for s in scans]),
-                                                   np.zeros((len(scans), 3))), ref)[1],
-                       strict=True):  # fmt: skip
-        step = None if last is None else between(last, ref.poses[i])
-        if step is None or math.hypot(step[0], step[1]) >= distance or abs(step[2]) >= angle:
-            kept.append(scan)
-            last = ref.poses[i]
-    est, _, ms, extra = run_odometry(iter(kept), config)
-    rpe = rpe_distance(est, ref, 1.0)
-    row = {"case": name, "scans": len(kept), "rpe1m_cm": round(100 * rpe["trans_rmse_m"], 2),
-           "rpe1m_deg": round(rpe["rot_rmse_deg"], 3), "pairs": rpe["pairs"],
-           "ms_median": round(float(np.median(ms)), 3),
-           "ms_p99": round(float(np.percentile(ms, 99)), 3),
-           "recovered": int(extra["recovered"])}  # fmt: skip
-    print("  ".join(f"{k}={v}" for k, v in row.items()), flush=True)
-    return row
+def thinned(distance: float, angle: float):
+    """A scan selector for :func:`log_case` that thins a log as the SLAM benchmark's logs
+    are: a scan is kept when the reference has moved ``distance`` m or turned ``angle`` rad
+    since the last kept one."""
+
+    def select(scans: list, ref: Trajectory) -> list:
+        stamps = np.array([s.stamp for s in scans])
+        _, ref_idx = associate(Trajectory(stamps, np.zeros((len(scans), 3))), ref)
+        kept, last = [], None
+        for scan, pose in zip(scans, ref.poses[ref_idx], strict=True):
+            step = None if last is None else between(last, pose)
+            if step is None or math.hypot(step[0], step[1]) >= distance or abs(step[2]) >= angle:
+                kept.append(scan)
+                last = pose
+        return kept
+
+    return select
 
 
 def _second_difference_cm(poses: np.ndarray) -> float:
@@ -255,18 +246,19 @@ def reference_check(est: Trajectory, ref: Trajectory, scans: list[np.ndarray]) -
         "ref_jitter_cm": _second_difference_cm(ref_poses),
         "local_residual_mm": _neighbour_residual_mm(est_poses, scans),
         "ref_local_residual_mm": _neighbour_residual_mm(ref_poses, scans),
-        **_worst_pairs(est, ref, est_idx, scans),
+        **_worst_pairs(est, ref, est_idx, ref_poses, scans),
     }
 
 
-def _worst_pairs(est: Trajectory, ref: Trajectory, est_idx: np.ndarray, scans: list,
-                 share: float = 0.1) -> dict:  # fmt: skip
+def _worst_pairs(est: Trajectory, ref: Trajectory, est_idx: np.ndarray, ref_poses: np.ndarray,
+                 scans: list, share: float = 0.1) -> dict:  # fmt: skip
     """The worst ``share`` of the 1 m RPE pairs: in how many is the local map sharper with
     the estimate's poses than with the reference's (the scans from 10 before to 10 after
     the pair, each against its 5 neighbours either side)? And the RMSE of the other pairs.
-    ``est_idx`` and ``scans`` are the associated poses' indices and scans."""
+    ``est_idx``, ``ref_poses`` and ``scans`` are the associated poses' estimate indices,
+    reference poses and scans."""
     est_pairs, _, trans, _ = rpe_distance_pairs(est, ref, 1.0)
-    est_poses, ref_poses = est.poses[est_idx], ref.poses[associate(est, ref)[1]]
+    est_poses = est.poses[est_idx]
     worst = np.argsort(-trans)[: max(int(share * len(trans)), 1)]
     sharper = 0
     for a, b in np.searchsorted(est_idx, est_pairs[worst]):
@@ -339,8 +331,8 @@ def main() -> None:
         ],
         "freiburg": lambda: log_case("freiburg079", "freiburg-079-corrected.log.gz", True),
         "freiburgthinned": lambda: [
-            thinned_log_case(f"freiburg079 thinned to {d} m / {a} rad{label}",
-                             "freiburg-079-corrected.log.gz", d, a, config)
+            log_case(f"freiburg079 thinned to {d} m / {a} rad{label}",
+                     "freiburg-079-corrected.log.gz", False, config, thinned(d, a))
             for d, a in ((0.5, 0.4), (1.0, 0.6))
             for label, config in (("", None), (", close search only", CLOSE_SEARCH_ONLY))
         ],

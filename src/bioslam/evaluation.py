@@ -204,8 +204,6 @@ def _pair_errors(est: Trajectory, gt: Trajectory, pairs: IntArray) -> tuple[Floa
 
 
 def _rpe_from_pairs(est: Trajectory, gt: Trajectory, pairs: IntArray) -> dict[str, float]:
-    if pairs.shape[0] == 0:
-        return _rpe_summary(np.zeros(0), np.zeros(0))
     return _rpe_summary(*_pair_errors(est, gt, pairs))
 
 
@@ -259,8 +257,6 @@ def rpe_distance_pairs(
     est_idx, gt_idx = associate(est, gt, max_dt)
     est_a, gt_a = _take(est, est_idx), _take(gt, gt_idx)
     pairs = _distance_pairs(est_a, gt_a, delta_m, pairs_from_reference)
-    if pairs.shape[0] == 0:
-        return pairs, pairs, np.zeros(0), np.zeros(0)
     trans, rot = _pair_errors(est_a, gt_a, pairs)
     return est_idx[pairs], gt_idx[pairs], trans, rot
 

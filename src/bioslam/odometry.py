@@ -187,8 +187,9 @@ class MatchReport:
         predicted_only: no usable scan; the pose is the constant-velocity prediction.
         converged: the finest level stopped on a small step within its iteration budget.
         free_fraction: matched endpoints that fell in cells the map knows to be free.
-        recovered: the first match failed (``OdometryConfig.recovery_free_fraction``) and an
-            exhaustive search found a better one.
+        recovered: the match comes from an exhaustive search, run because the first match
+            failed or after a gap between scans (``OdometryConfig.recovery_*``,
+            ``gap_time``), which found a better one.
     """
 
     iterations: int = 0
@@ -894,13 +895,16 @@ class LidarOdometry:
         the fewest in known free space (:func:`_match_quality`) is kept."""
         c = self.config
         pose, report = self._match_from(level_pts, start, normals)
+        failed = self._failed(report)
+        after_gap = dt > c.gap_time
+        if not (failed or after_gap):
+            self._remember_score(report.score)
+            return pose, report
         searches = (
             (start, c.recovery_distance, c.recovery_angle, 0.5, False),
             (previous, c.wide_recovery_distance, c.wide_recovery_angle, 1.0, True),
         )
         iterations = report.iterations
-        after_gap = dt > c.gap_time
-        failed = self._failed(report)
         # the coarsest level's endpoints (0.2 m apart) are too few in a narrow space (30 in a
         # freiburg office) for the lattice to tell poses apart; the next level's are twice
         # as many (on freiburg thinned to a scan per metre: RPE 59 -> 4.5 cm)
@@ -911,25 +915,26 @@ class LidarOdometry:
             for seed in self._lattice_seeds(search_pts, centre, distance, angle, cells):
                 second, second_report = self._match_from(level_pts, seed, normals)
                 iterations += second_report.iterations
-                if self._better(second_report, report, failed, must_succeed=wide):
+                second_failed = self._failed(second_report)
+                if self._better(second_report, second_failed, report, failed, wide):
                     second_report.recovered = True
-                    pose, report = second, second_report
-                    failed = self._failed(report)
+                    pose, report, failed = second, second_report, second_failed
         report.iterations = iterations
         self._remember_score(report.score)
         return pose, report
 
     def _better(
-        self, second: MatchReport, first: MatchReport, first_failed: bool, must_succeed: bool
+        self, second: MatchReport, second_failed: bool, first: MatchReport, first_failed: bool,
+        must_succeed: bool,
     ) -> bool:
         """Whether a retry's match replaces the first. A match that did not fail is only
         replaced by a clearly better one (``start_margin``): where the map cannot tell
         places apart (a corridor) the prediction's match is kept. A jump found by the wide
         search must itself pass :meth:`_failed`: a scan that matches nowhere well (the view
         blocked) is better left near the prediction."""
-        margin = 0.0 if first_failed else self.config.start_margin * first.score
-        if must_succeed and self._failed(second):
+        if must_succeed and second_failed:
             return False
+        margin = 0.0 if first_failed else self.config.start_margin * first.score
         return _match_quality(second) > _match_quality(first) + margin
 
     def _failed(self, report: MatchReport) -> bool:
