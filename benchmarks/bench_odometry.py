@@ -13,7 +13,9 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
 - ``mapfunc``: Hector's bilinear M* against the sub-cell map function, maze 120 s.
 - ``thinned``: the maze run keeping one scan in 20 or 40 (0.25 / 0.5 m and up to 25 / 50
   degrees apart), beside the same with the close recovery search only.
-- ``freiburg``: freiburg-079 (LiDAR only), RPE over 1 m against the log's corrected poses.
+- ``freiburg``: freiburg-079 (LiDAR only), RPE over 1 m against the log's corrected poses,
+  and how much of it is the reference's own: its jitter, the local map's sharpness, and a
+  three-cornered hat with the log's raw wheel odometry as the third trajectory.
 - ``freiburgthinned``: freiburg-079 keeping a scan per 0.5 m / 0.4 rad or 1 m / 0.6 rad of
   the reference's motion (as the SLAM benchmark's logs are thinned), beside the close
   recovery search alone.
@@ -39,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bioslam.evaluation import associate, rpe_distance, rpe_distance_pairs
+from bioslam.evaluation import associate, rpe_distance, rpe_distance_pairs, three_cornered_hat
 from bioslam.geometry import between, transform_points
 from bioslam.io.logs import open_log
 from bioslam.occupancy_grid import OccupancyGrid
@@ -185,7 +187,7 @@ def log_case(name: str, filename: str, make_png: bool, config=None, select=None)
                    rpe1m_deg=round(rpe["rot_rmse_deg"], 3), pairs=rpe["pairs"],
                    recovered=int(extra["recovered"]))  # fmt: skip
         if make_png:
-            row.update(reference_check(est, ref, extra["scans"]))
+            row.update(reference_check(est, ref, extra["scans"], source.odometry))
     print("  ".join(f"{k}={v}" for k, v in row.items()), flush=True)
     if make_png:
         occupancy_png(name, est, extra["scans"])
@@ -235,19 +237,28 @@ def _neighbour_residual_mm(poses: np.ndarray, scans: list[np.ndarray], span: int
     return round(1e3 * float(np.median(out)), 2)
 
 
-def reference_check(est: Trajectory, ref: Trajectory, scans: list[np.ndarray]) -> dict:
+def reference_check(est: Trajectory, ref: Trajectory, scans: list[np.ndarray],
+                    wheels: Trajectory | None = None) -> dict:  # fmt: skip
     """How noisy the reference itself is, beside the estimate: a log's "corrected" poses come
-    from another SLAM system, and an RPE against them cannot fall below their own noise."""
+    from another SLAM system, and an RPE against them cannot fall below their own noise.
+    With the log's raw wheel odometry, a three-cornered hat splits the 1 m RPE into the
+    reference's own error and the estimate's."""
     est_idx, ref_idx = associate(est, ref)
     est_poses, ref_poses = est.poses[est_idx], ref.poses[ref_idx]
     scans = [scans[i] for i in est_idx]
-    return {
+    row = {
         "jitter_cm": _second_difference_cm(est_poses),
         "ref_jitter_cm": _second_difference_cm(ref_poses),
         "local_residual_mm": _neighbour_residual_mm(est_poses, scans),
         "ref_local_residual_mm": _neighbour_residual_mm(ref_poses, scans),
         **_worst_pairs(est, ref, est_idx, ref_poses, scans),
     }
+    if wheels is not None and len(wheels):
+        hat = three_cornered_hat(ref, est, wheels.at(ref.stamps))
+        own = [round(100 * v, 2) for v in hat["trans_rmse_m"]]
+        row.update(zip(("own_rpe1m_cm_ref", "own_rpe1m_cm_est", "own_rpe1m_cm_wheels"), own,
+                       strict=True))  # fmt: skip
+    return row
 
 
 def _worst_pairs(est: Trajectory, ref: Trajectory, est_idx: np.ndarray, ref_poses: np.ndarray,

@@ -87,3 +87,34 @@ def test_eval_names_the_bad_file(tmp_path, capsys):
 
     assert main(["eval", str(tmp_path / "missing.tum"), str(gt_path)]) == 2
     assert "missing.tum" in capsys.readouterr().err
+
+
+def test_eval_with_a_third_trajectory_splits_the_error_between_estimate_and_reference(
+    tmp_path, capsys
+):
+    truth = _circle(n=2000, radius=8.0)
+    rng = np.random.default_rng(4)
+
+    def noisy(sigma: float) -> Trajectory:
+        return Trajectory(
+            truth.stamps, truth.poses + rng.normal(0.0, [sigma, sigma, 0.0], (2000, 3))
+        )
+
+    # a noisy reference, a good estimate and a middling third
+    paths = [
+        _write(tmp_path, f"{name}.tum", noisy(s))
+        for name, s in (("gt", 0.03), ("est", 0.005), ("third", 0.015))
+    ]
+    gt_path, est_path, third_path = paths
+    assert main(["eval", str(est_path), str(gt_path), "--third", str(third_path)]) == 0
+    out = capsys.readouterr().out.strip().splitlines()
+    hat = json.loads(out[-1])["three_cornered_hat"]
+    assert hat["order"] == ["reference", "estimate", "third"]
+    reference, estimate, third = hat["trans_rmse_m"]
+    # independent per-pose noise s gives a pair error of s * sqrt(2) per axis, i.e. 2 s in 2-D
+    assert reference == pytest.approx(2 * 0.03, rel=0.15)
+    assert estimate < third < reference
+    assert any(line.strip().startswith("reference") for line in out[:-1])
+
+    assert main(["eval", str(est_path), str(gt_path), "--third", str(tmp_path / "no.tum")]) == 2
+    assert "no.tum" in capsys.readouterr().err

@@ -18,6 +18,7 @@ from bioslam.evaluation import (
     rpe_distance,
     rpe_distance_pairs,
     rpe_time,
+    three_cornered_hat,
 )
 from bioslam.geometry import between, compose, wrap_angle
 from bioslam.io.tum import read_tum, write_tum
@@ -180,6 +181,65 @@ def test_rpe_distance_pairs_locate_a_jump_and_give_the_same_rmse():
     assert trans[worst] == pytest.approx(0.1, abs=0.01)
     assert np.sqrt(np.mean(trans**2)) == pytest.approx(rpe_distance(est, gt)["trans_rmse_m"])
     assert rot.shape == trans.shape
+
+
+def _noisy_copy(gt: Trajectory, sigma_xy: float, sigma_theta: float, seed: int) -> Trajectory:
+    """gt with independent noise on every step's motion: a random-walk error like odometry's."""
+    rng = np.random.default_rng(seed)
+    steps = _steps(gt) + rng.normal(0.0, [sigma_xy, sigma_xy, sigma_theta], (len(gt) - 1, 3))
+    return _integrate(gt, steps)
+
+
+def _steps(trajectory: Trajectory) -> np.ndarray:
+    return between(trajectory.poses[:-1], trajectory.poses[1:])
+
+
+def _integrate(like: Trajectory, steps: np.ndarray) -> Trajectory:
+    """The trajectory made of ``steps`` from ``like``'s first pose, at ``like``'s stamps."""
+    poses = [like.poses[0]]
+    for step in steps:
+        poses.append(compose(poses[-1], step))
+    return Trajectory(like.stamps, np.array(poses))
+
+
+def test_three_cornered_hat_recovers_each_trajectorys_own_error_without_the_truth():
+    truth = _route(n=6000, period=0.1)
+    noise = ((0.002, 0.0005), (0.004, 0.001), (0.008, 0.002))  # per 6 cm step: m, rad
+    copies = [_noisy_copy(truth, sx, st, seed) for seed, (sx, st) in enumerate(noise)]
+    # the third copy's stamps are shifted within max_dt and one pose is missing
+    third = Trajectory(np.delete(copies[2].stamps + 0.004, 77), np.delete(copies[2].poses, 77, 0))
+    hat = three_cornered_hat(copies[0], copies[1], third, delta_m=1.0)
+    assert hat["pairs"] > 300
+    for k, copy_k in enumerate((copies[0], copies[1], third)):
+        # each copy's error against the truth, which the hat never saw
+        truly = rpe_distance(copy_k, truth)["trans_rmse_m"]
+        assert hat["trans_rmse_m"][k] == pytest.approx(truly, rel=0.2), k
+    ab, ac, bc = hat["pairwise_trans_rmse_m"]
+    assert ab == pytest.approx(
+        rpe_distance(copies[1], copies[0], pairs_from_reference=True)["trans_rmse_m"], rel=0.05
+    )
+    assert ab < ac < bc
+
+
+def test_three_cornered_hat_blames_errors_two_trajectories_share_on_the_third():
+    truth = _route(n=3000, period=0.1)
+    shared = _noisy_copy(truth, 0.006, 0.0015, seed=5)
+    nearly_the_same = _noisy_copy(shared, 0.0005, 0.0001, seed=6)
+    hat = three_cornered_hat(truth, shared, nearly_the_same)
+    wrong = rpe_distance(shared, truth, pairs_from_reference=True)["trans_rmse_m"]
+    assert hat["trans_rmse_m"][0] == pytest.approx(wrong, rel=0.1)
+    # the two copies' own errors come out near zero (NaN when sampling makes the square negative)
+    assert np.nan_to_num(hat["trans_rmse_m"][1:], nan=0.0).max() < 0.3 * wrong
+
+
+def test_three_cornered_hat_reports_nan_for_a_negative_square():
+    truth = _route(n=3000, period=0.1)
+    noisy = _noisy_copy(truth, 0.006, 0.0015, seed=5)
+    # errors of opposite sign: the two differ by twice what each differs from the truth
+    mirrored = _integrate(truth, 2 * _steps(truth) - _steps(noisy))
+    hat = three_cornered_hat(noisy, mirrored, truth)
+    assert np.isnan(hat["trans_rmse_m"][2])
+    assert hat["trans_rmse_m"][0] > 0.01
 
 
 def test_rpe_of_a_too_short_path_is_nan_with_no_pairs():

@@ -261,6 +261,56 @@ def rpe_distance_pairs(
     return est_idx[pairs], gt_idx[pairs], trans, rot
 
 
+def _common_poses(trajectories: tuple[Trajectory, ...], max_dt: float) -> list[Trajectory]:
+    """The poses of each trajectory at the stamps of the first that all the others share."""
+    first = trajectories[0]
+    matches = [associate(first, other, max_dt) for other in trajectories[1:]]
+    shared = np.arange(len(first))
+    for first_idx, _ in matches:
+        shared = np.intersect1d(shared, first_idx)
+    out = [_take(first, shared)]
+    for (first_idx, other_idx), other in zip(matches, trajectories[1:], strict=True):
+        out.append(_take(other, other_idx[np.searchsorted(first_idx, shared)]))
+    return out
+
+
+def three_cornered_hat(
+    reference: Trajectory,
+    estimate: Trajectory,
+    third: Trajectory,
+    delta_m: float = EvalConfig.rpe_delta_m,
+    max_dt: float = EvalConfig.max_dt,
+) -> dict[str, list[float] | int]:
+    """Each trajectory's own RPE over ``delta_m`` metres, without knowing the truth.
+
+    An RPE against a reference measures the estimate's errors and the reference's together;
+    when the reference is itself an estimate (a SLAM-corrected log) the two cannot be told
+    apart from one comparison. Three estimates of the same motion can: with independent
+    errors, the mean square difference of a and b over the same pairs is ``s_a² + s_b²``, and
+    the three pairwise differences solve for each ``s`` (the "three-cornered hat" of clock
+    metrology). Errors two trajectories share (the same scans, the same wheel odometry) cancel
+    in their difference and are blamed on the third one; a negative square means the data
+    contradict independence and is reported as NaN.
+
+    Pairs are taken along the reference (evo's consecutive-pair rule) at the stamps all three
+    share. Returns ``pairs``; ``pairwise_trans_rmse_m`` and ``pairwise_rot_rmse_deg`` for
+    (reference, estimate), (reference, third), (estimate, third); ``trans_rmse_m`` and
+    ``rot_rmse_deg`` for (reference, estimate, third).
+    """
+    traj = _common_poses((reference, estimate, third), max_dt)
+    pairs = _distance_pairs(traj[0], traj[0], delta_m, from_reference=True)
+    combos = ((0, 1), (0, 2), (1, 2))
+    errors = [_pair_errors(traj[b], traj[a], pairs) for a, b in combos]
+    out: dict[str, list[float] | int] = {"pairs": int(pairs.shape[0])}
+    for key, k in (("trans_rmse_m", 0), ("rot_rmse_deg", 1)):
+        mean_sq = np.array([np.mean(e[k] ** 2) if pairs.size else np.nan for e in errors])
+        ab, ac, bc = mean_sq
+        own = np.array([ab + ac - bc, ab + bc - ac, ac + bc - ab]) / 2
+        out["pairwise_" + key] = np.sqrt(mean_sq).tolist()
+        out[key] = np.sqrt(np.where(own >= 0, own, np.nan)).tolist()
+    return out
+
+
 def rpe_time(
     est: Trajectory,
     gt: Trajectory,

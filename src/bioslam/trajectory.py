@@ -36,3 +36,15 @@ class Trajectory:
         if len(self) < 2:
             return 0.0
         return float(np.sum(np.hypot(*np.diff(self.poses[:, :2], axis=0).T)))
+
+    def at(self, stamps: NDArray[np.float64]) -> Trajectory:
+        """The poses at ``stamps``, linearly interpolated (the heading the short way round);
+        stamps outside the trajectory's span get its first or last pose. For a trajectory on
+        its own clock, such as wheel odometry, to be compared pose by pose with the scans'."""
+        if len(self) == 0:
+            raise ValueError("cannot interpolate an empty trajectory")
+        stamps = np.asarray(stamps, dtype=np.float64).reshape(-1)
+        heading = np.unwrap(self.poses[:, 2])
+        columns = [np.interp(stamps, self.stamps, c) for c in (*self.poses[:, :2].T, heading)]
+        columns[2] = np.arctan2(np.sin(columns[2]), np.cos(columns[2]))
+        return Trajectory(stamps, np.column_stack(columns))

@@ -1,12 +1,14 @@
-"""``bioslam eval EST.tum GT.tum``: ATE and RPE of an estimated trajectory against a reference."""
+"""``bioslam eval EST.tum GT.tum [--third T.tum]``: ATE and RPE of an estimated trajectory
+against a reference; with a third trajectory, each one's own RPE (three-cornered hat)."""
 
 from __future__ import annotations
 
 import argparse
 import math
 from pathlib import Path
+from typing import Any
 
-from bioslam.evaluation import EvalConfig, evaluate
+from bioslam.evaluation import EvalConfig, evaluate, three_cornered_hat
 from bioslam.io.tum import read_tum
 from bioslam.trajectory import Trajectory
 
@@ -36,6 +38,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=EvalConfig.max_dt,
         help="largest stamp difference for associating poses, s (default: %(default)s)",
     )
+    parser.add_argument(
+        "--third",
+        type=Path,
+        help="a third, independent estimate of the same motion (TUM): also estimate each "
+        "trajectory's own 1 m RPE, the reference's included (three-cornered hat)",
+    )
     parser.set_defaults(func=run)
 
 
@@ -48,9 +56,14 @@ def _load(path: Path, role: str) -> Trajectory:
     return trajectory
 
 
-def _json_safe(summary: dict) -> dict:
-    """NaN (a path too short for any RPE pair) becomes null, which every JSON reader accepts."""
-    return {k: None if isinstance(v, float) and math.isnan(v) else v for k, v in summary.items()}
+def _json_safe(value: Any) -> Any:
+    """NaN (a path too short for any RPE pair, a negative square in the three-cornered hat)
+    becomes null, which every JSON reader accepts."""
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_json_safe(v) for v in value]
+    return None if isinstance(value, float) and math.isnan(value) else value
 
 
 def run(args: argparse.Namespace) -> dict:
@@ -65,4 +78,20 @@ def run(args: argparse.Namespace) -> dict:
     print(f"{summary['pairs']} associated poses ({len(est)} estimated, {len(gt)} reference)")
     for label, key, unit in _ROWS:
         print(f"  {label:<14} {summary[key]:10.4f} {unit}")
+    if args.third is not None:
+        summary["three_cornered_hat"] = _own_errors(args, est, gt)
     return _json_safe(summary)
+
+
+def _own_errors(args: argparse.Namespace, est: Trajectory, gt: Trajectory) -> dict:
+    third = _load(args.third, "third")
+    try:
+        hat = three_cornered_hat(gt, est, third, EvalConfig.rpe_delta_m, args.max_dt)
+    except ValueError as exc:
+        raise ValueError(f"{args.reference} vs {args.third}: {exc}") from None
+    print(f"own RPE 1 m of each, {hat['pairs']} pairs (three-cornered hat; assumes their errors")
+    print("are independent: errors two of them share are blamed on the other one)")
+    for k, role in enumerate(("reference", "estimate", "third")):
+        trans, rot = hat["trans_rmse_m"][k], hat["rot_rmse_deg"][k]
+        print(f"  {role:<14} {trans:10.4f} m {rot:8.3f} deg")
+    return {"order": ["reference", "estimate", "third"], **hat}
