@@ -25,7 +25,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 import numpy as np  # noqa: E402
-from cases import Case, bioslam_cli, full_cases, prepare, quick_cases  # noqa: E402
+from cases import Case, bioslam_cli, full_cases, prepare, quick_cases, read_reference  # noqa: E402
 from peers import mrpt_icp_slam as mrpt  # noqa: E402
 from rows import (  # noqa: E402
     ROW_FULL,
@@ -37,6 +37,8 @@ from rows import (  # noqa: E402
     run_bioslam,
     run_peer,
 )
+
+from bioslam.evaluation import three_cornered_hat  # noqa: E402
 
 # The paper's own published figures (Zhuang et al., Sec. IV). They come from the authors' data,
 # not from these cases: the simulation row is their 600 s iRat maze run (RPE-vs-ground-truth
@@ -148,7 +150,19 @@ def bench_case(case: Case, args: argparse.Namespace, peer_ok: str) -> tuple[list
     for r in rows.values():
         finalize_timing(r, prepared.duration_s, len(prepared.scans))
     add_speed_ratios(rows)
+    info.update(reference_share(prepared, rows[ROW_ODOM], rows[ROW_PEER]))
     return list(rows.values()), info
+
+
+def reference_share(prepared, odometry: RowRun, peer: RowRun) -> dict:
+    """How much of a case's 1 m RPE is the reference's own error: a three-cornered hat of
+    the reference, bioslam's odometry and the peer (independent scan matchers)."""
+    ref = read_reference(prepared)
+    if ref is None or odometry.trajectory is None or peer.trajectory is None:
+        return {}
+    hat = three_cornered_hat(ref, odometry.trajectory, peer.trajectory)
+    return dict(zip(("own_rpe1m_reference_m", "own_rpe1m_odometry_m", "own_rpe1m_peer_m"),
+                    hat["trans_rmse_m"], strict=True))  # fmt: skip
 
 
 def add_speed_ratios(rows: dict[str, RowRun]) -> None:
@@ -232,6 +246,13 @@ def write_results(
         line = f"- **{info['case']}**: {info['description']}"
         if "scans" in info:
             line += f"; {info['scans']} scans over {info['log_duration_s']:.0f} s"
+        if "own_rpe1m_reference_m" in info:
+            line += (
+                "; own 1 m RPE by a three-cornered hat (errors shared by two are blamed on the "
+                f"third): reference {_fmt(100 * info['own_rpe1m_reference_m'], '.2f')} cm, "
+                f"odometry {_fmt(100 * info['own_rpe1m_odometry_m'], '.2f')} cm, "
+                f"icp-slam {_fmt(100 * info['own_rpe1m_peer_m'], '.2f')} cm"
+            )
         md.append(line)
     pictures = [
         f"- {r['case']}, {r['row']}: `{r['map_picture']}`" for r in records if "map_picture" in r
