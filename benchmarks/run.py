@@ -249,9 +249,9 @@ def write_results(
         if "own_rpe1m_reference_m" in info:
             line += (
                 "; own 1 m RPE by a three-cornered hat (errors shared by two are blamed on the "
-                f"third): reference {_fmt(100 * info['own_rpe1m_reference_m'], '.2f')} cm, "
-                f"odometry {_fmt(100 * info['own_rpe1m_odometry_m'], '.2f')} cm, "
-                f"icp-slam {_fmt(100 * info['own_rpe1m_peer_m'], '.2f')} cm"
+                f"third): reference {_fmt(100 * info['own_rpe1m_reference_m'], '{:.2f}')} cm, "
+                f"odometry {_fmt(100 * info['own_rpe1m_odometry_m'], '{:.2f}')} cm, "
+                f"icp-slam {_fmt(100 * info['own_rpe1m_peer_m'], '{:.2f}')} cm"
             )
         md.append(line)
     pictures = [
