@@ -13,6 +13,8 @@ The definitions follow evo (MichaelGrupp/evo) so that ``bioslam eval`` and ``evo
   translation = ``|t(E)|``, rotation = ``|angle(E)|``; RMSE over pairs.
 - RPE over time (evo has no time unit): the same consecutive-pair rule with elapsed time in
   place of travelled distance.
+- Not in evo: the three-cornered hat, each of three trajectories' own RPE from their pairwise
+  ones, for references that are themselves estimates.
 
 Everything is planar: poses are (x, y, theta), so evo's SE(3) quantities reduce to SE(2) ones.
 One known difference: when the best 2-D fit would be a reflection (degenerate, near-collinear
