@@ -80,10 +80,7 @@ def run_odometry(scans, config: OdometryConfig | None = None, keep_scans: bool =
             kept.append(scan.endpoints())
     est_t = Trajectory(np.array(stamps), np.array(est))
     gt_t = Trajectory(np.array(stamps), np.array(truth)) if truth else None
-    counts = odo.summary()
-    extra = {"degenerate": counts["odometry_degenerate"],
-             "recovered": counts["odometry_recovered"],
-             "predicted_only": counts["odometry_predicted_only"], "scans": kept}  # fmt: skip
+    extra = {**odo.summary(), "scans": kept}
     return est_t, gt_t, np.array(times[1:]) * 1e3, extra
 
 
@@ -101,9 +98,9 @@ def summary(name: str, est: Trajectory, gt: Trajectory, ms: np.ndarray, extra: d
         "max_err_m": round(float(np.max(np.hypot(*(est.poses[:, :2] - gt.poses[:, :2]).T))), 3),
         "ms_median": round(float(np.median(ms)), 3),
         "ms_p99": round(float(np.percentile(ms, 99)), 3),
-        "degenerate_scans": int(extra["degenerate"]),
-        "predicted_only": int(extra["predicted_only"]),
-        "recovered": int(extra["recovered"]),
+        "degenerate_scans": extra["odometry_degenerate"],
+        "predicted_only": extra["odometry_predicted_only"],
+        "recovered": extra["odometry_recovered"],
     }
     print("  ".join(f"{k}={v}" for k, v in row.items()), flush=True)
     return row
@@ -180,12 +177,12 @@ def log_case(name: str, filename: str, make_png: bool, config=None, select=None)
     row = {"case": name, "scans": len(est), "path_m": round(est.path_length(), 1),
            "ms_median": round(float(np.median(ms)), 3),
            "ms_p99": round(float(np.percentile(ms, 99)), 3),
-           "degenerate_scans": int(extra["degenerate"])}  # fmt: skip
+           "degenerate_scans": extra["odometry_degenerate"]}  # fmt: skip
     if ref is not None and len(ref):
         rpe = rpe_distance(est, ref, 1.0)
         row.update(rpe1m_cm=round(100 * rpe["trans_rmse_m"], 2),
                    rpe1m_deg=round(rpe["rot_rmse_deg"], 3), pairs=rpe["pairs"],
-                   recovered=int(extra["recovered"]))  # fmt: skip
+                   recovered=extra["odometry_recovered"])  # fmt: skip
         if make_png:
             row.update(reference_check(est, ref, extra["scans"], source.odometry))
     print("  ".join(f"{k}={v}" for k, v in row.items()), flush=True)
@@ -200,10 +197,9 @@ def thinned(distance: float, angle: float):
     since the last kept one."""
 
     def select(scans: list, ref: Trajectory) -> list:
-        stamps = np.array([s.stamp for s in scans])
-        _, ref_idx = associate(Trajectory(stamps, np.zeros((len(scans), 3))), ref)
         kept, last = [], None
-        for scan, pose in zip(scans, ref.poses[ref_idx], strict=True):
+        for scan, pose in zip(scans, ref.at(np.array([s.stamp for s in scans])).poses,
+                              strict=True):  # fmt: skip
             step = None if last is None else between(last, pose)
             if step is None or math.hypot(step[0], step[1]) >= distance or abs(step[2]) >= angle:
                 kept.append(scan)

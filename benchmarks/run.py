@@ -25,7 +25,15 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 import numpy as np  # noqa: E402
-from cases import Case, bioslam_cli, full_cases, prepare, quick_cases, read_reference  # noqa: E402
+from cases import (  # noqa: E402
+    Case,
+    PreparedCase,
+    bioslam_cli,
+    full_cases,
+    prepare,
+    quick_cases,
+    read_reference,
+)
 from peers import mrpt_icp_slam as mrpt  # noqa: E402
 from rows import (  # noqa: E402
     ROW_FULL,
@@ -154,7 +162,7 @@ def bench_case(case: Case, args: argparse.Namespace, peer_ok: str) -> tuple[list
     return list(rows.values()), info
 
 
-def reference_share(prepared, odometry: RowRun, peer: RowRun) -> dict:
+def reference_share(prepared: PreparedCase, odometry: RowRun, peer: RowRun) -> dict:
     """How much of a case's 1 m RPE is the reference's own error: a three-cornered hat of
     the reference, bioslam's odometry and the peer (independent scan matchers)."""
     ref = read_reference(prepared)

@@ -221,12 +221,11 @@ def _rpe_summary(trans: FloatArray, rot: FloatArray) -> dict[str, float]:
     }
 
 
-def _distance_pairs(
-    est: Trajectory, gt: Trajectory, delta_m: float, from_reference: bool
-) -> IntArray:
+def _distance_pairs(trajectory: Trajectory, delta_m: float) -> IntArray:
+    """evo's consecutive pairs ``delta_m`` metres apart along ``trajectory``'s path."""
     if delta_m <= 0:
         raise ValueError(f"delta_m must be positive, got {delta_m}")
-    d = np.diff((gt if from_reference else est).poses[:, :2], axis=0)
+    d = np.diff(trajectory.poses[:, :2], axis=0)
     return _consecutive_pairs(np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]), delta_m)
 
 
@@ -258,7 +257,7 @@ def rpe_distance_pairs(
     each, and the translation (m) and rotation (deg) errors, ``(M,)`` each."""
     est_idx, gt_idx = associate(est, gt, max_dt)
     est_a, gt_a = _take(est, est_idx), _take(gt, gt_idx)
-    pairs = _distance_pairs(est_a, gt_a, delta_m, pairs_from_reference)
+    pairs = _distance_pairs(gt_a if pairs_from_reference else est_a, delta_m)
     trans, rot = _pair_errors(est_a, gt_a, pairs)
     return est_idx[pairs], gt_idx[pairs], trans, rot
 
@@ -300,7 +299,7 @@ def three_cornered_hat(
     ``rot_rmse_deg`` for (reference, estimate, third).
     """
     traj = _common_poses((reference, estimate, third), max_dt)
-    pairs = _distance_pairs(traj[0], traj[0], delta_m, from_reference=True)
+    pairs = _distance_pairs(traj[0], delta_m)
     combos = ((0, 1), (0, 2), (1, 2))
     errors = [_pair_errors(traj[b], traj[a], pairs) for a, b in combos]
     out: dict[str, list[float] | int] = {"pairs": int(pairs.shape[0])}

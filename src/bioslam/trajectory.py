@@ -8,6 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from bioslam.geometry import wrap_angle
+
 
 @dataclass
 class Trajectory:
@@ -46,5 +48,5 @@ class Trajectory:
         stamps = np.asarray(stamps, dtype=np.float64).reshape(-1)
         heading = np.unwrap(self.poses[:, 2])
         columns = [np.interp(stamps, self.stamps, c) for c in (*self.poses[:, :2].T, heading)]
-        columns[2] = np.arctan2(np.sin(columns[2]), np.cos(columns[2]))
+        columns[2] = wrap_angle(columns[2])
         return Trajectory(stamps, np.column_stack(columns))
