@@ -73,6 +73,7 @@ class LogSource(ABC):
         self._complete = False
         self._iterating = False
         self._order: _Reorder | None = None
+        self._yielded = 0
 
     # -- what subclasses provide ------------------------------------------------------------
     @abstractmethod
@@ -125,6 +126,7 @@ class LogSource(ABC):
         self._odometry = []
         self._complete = False
         self._iterating = True
+        self._yielded = 0
         order = _Reorder(self.reorder_window_s)
         self._order = order
         try:
@@ -147,6 +149,7 @@ class LogSource(ABC):
         for scan, ref in ready:
             if ref is not None:
                 self._reference.append((scan.stamp, ref))
+            self._yielded += 1
             yield scan
 
     def _ensure_read(self) -> None:
@@ -160,6 +163,19 @@ class LogSource(ABC):
     def complete(self) -> bool:
         """True once an iteration has reached the end of the log."""
         return self._complete
+
+    @property
+    def scans_read(self) -> int:
+        """Scans yielded so far by the current or last iteration."""
+        return self._yielded
+
+    @property
+    def records_seen(self) -> int:
+        """Scan records met in the file so far: those yielded plus those skipped (side records
+        such as odometry, and a truncation, are not scan records). With :attr:`scans_read` it
+        gives the share of a log that was read."""
+        side = (ODOMETRY_NON_MONOTONIC, TRUNCATED)
+        return self._yielded + sum(n for r, n in self._skipped.items() if r not in side)
 
     @property
     def skipped(self) -> dict[str, int]:
