@@ -2,17 +2,14 @@ import numpy as np
 import pytest
 
 from bioslam.geometry import between, compose
+from bioslam.matching.correlative import lattice_search
+from bioslam.matching.gauss_newton import _guarded_step, _newton_step, grid_args, summed_map
 from bioslam.occupancy_grid import LogOddsConfig, MapPyramid
 from bioslam.odometry import (
     LidarOdometry,
     OdometryConfig,
     RegistrationConfig,
     RegistrationQuality,
-    _grid_args,
-    _guarded_step,
-    _lattice_search,
-    _newton_step,
-    _summed_map,
     densify_scan,
     deskew_points,
     register_scans,
@@ -277,16 +274,16 @@ def test_the_lattice_search_returns_distinct_peaks_best_first():
     top = pyramid.grids[-1]
     true = np.array([0.3, -0.2, 0.25])
     moved = make_scan(ROOM, tuple(true), sigma=0.01, rng=rng).endpoints()
-    seeds = _lattice_search(top, 1.0, moved, np.zeros(3), 0.6, 0.5, top.resolution, 5.0, 3)
+    seeds = lattice_search(top, 1.0, moved, np.zeros(3), 0.6, 0.5, top.resolution, 5.0, 3)
     assert seeds.shape == (3, 3)
     assert np.all(np.abs(seeds[0, :2] - true[:2]) <= top.resolution)
     assert abs(seeds[0, 2] - true[2]) <= top.resolution / 5.0
-    grid = _grid_args(top, 1.0)
-    scores = [_summed_map(grid, moved, np.cos(p[2]), np.sin(p[2]), p[0], p[1], False)
+    grid = grid_args(top, 1.0)
+    scores = [summed_map(grid, moved, np.cos(p[2]), np.sin(p[2]), p[0], p[1], False)
               for p in seeds]  # fmt: skip
     assert scores[0] >= scores[1] >= scores[2]
     assert len({tuple(np.round(p, 6)) for p in seeds}) == 3
-    single = _lattice_search(top, 1.0, moved, np.zeros(3), 0.6, 0.5, top.resolution, 5.0)
+    single = lattice_search(top, 1.0, moved, np.zeros(3), 0.6, 0.5, top.resolution, 5.0)
     np.testing.assert_array_equal(single[0], seeds[0])
 
 
