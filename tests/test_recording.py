@@ -14,7 +14,8 @@ from bioslam.sim import LIDAR_PRESETS, simulate_scans
 def ring_scans():
     """Two laps of the ring corridor: a run that makes experiences and closes loops."""
     route = ring_route(laps=2.0)
-    return [scan for scan, _ in simulate_scans(ring_world(), LIDAR_PRESETS["urg04lx"], route, seed=3)]
+    pairs = simulate_scans(ring_world(), LIDAR_PRESETS["urg04lx"], route, seed=3)
+    return [scan for scan, _ in pairs]
 
 
 def test_observer_sees_every_scan_in_order_with_the_pose_process_returned(ring_scans):
