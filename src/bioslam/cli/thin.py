@@ -15,12 +15,10 @@ from typing import Any
 
 import numpy as np
 
+from bioslam.cli.sim import BAG_NAME, GT_NAME, GT_TOPIC, SCAN_TOPIC
 from bioslam.trajectory import Trajectory
 
-BAG_NAME = "scans"
-GT_NAME = "gt.tum"
-SCAN_TOPIC = "/scan"
-GT_TOPIC = "/ground_truth"
+#: What a CARMEN log's name must contain for its laser poses to be read as a reference.
 CORRECTED = "corrected"
 
 
