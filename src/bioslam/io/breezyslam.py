@@ -104,24 +104,20 @@ class BreezySlamLog(LogSource):
                 continue
             stamp = values[0] * 1e-6
             now = (values[c.left_ticks_field], values[c.right_ticks_field])
-            # An out-of-order line is skipped by the base class; its counts must not move the
-            # rover either (judged on the stamp the scan will get, see ``LogSource.time_plan``).
-            if self._record_stamp(stamp) > self._last_odometry_stamp():
-                if ticks is not None:
-                    d_left, d_right = (
-                        (n - p) * metres_per_tick for n, p in zip(now, ticks, strict=True)
-                    )
-                    pose = integrate_wheel_odometry(pose, d_left, d_right, c.half_axle_m)
-                ticks = now
-                self._add_odometry(stamp, pose, where, of_scan=True)
+            # The counts are cumulative: integrated in file order (the order they were
+            # measured in), whatever the line's stamp; the pose takes the scan's planned stamp.
+            if ticks is not None:
+                d_left, d_right = (
+                    (n - p) * metres_per_tick for n, p in zip(now, ticks, strict=True)
+                )
+                pose = integrate_wheel_odometry(pose, d_left, d_right, c.half_axle_m)
+            ticks = now
+            self._add_odometry(stamp, pose, where, of_scan=True)
             ranges = (values[self._first :] * 1e-3).astype(np.float32)
             scan = LaserScan(
                 stamp, ranges, self._angles, c.range_min_m, c.range_max_m, c.time_increment_s
             )
             yield scan, where, None
-
-    def _last_odometry_stamp(self) -> float:
-        return self._odometry[-1][0] if self._odometry else -math.inf
 
     def _parse(self, line: str, where: str) -> np.ndarray | None:
         fields = line.split()

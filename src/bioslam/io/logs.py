@@ -52,6 +52,10 @@ NO_VALID_RETURNS = "no valid returns (all beams NaN, inf, zero or out of range)"
 ODOMETRY_NON_MONOTONIC = "odometry record with non-monotonic timestamp"
 TRUNCATED = "truncated or corrupt file (stopped reading there)"
 
+#: Range bytes of a log kept from the planning pass for the first iteration (above: parsed twice).
+REPLAY_BUDGET_BYTES = 256 * 2**20
+_SCAN, _SKIP, _ODOMETRY = 0, 1, 2
+
 
 class LogSource(ABC):
     """A LiDAR log opened for reading. Subclasses implement :meth:`_records`.
@@ -86,7 +90,9 @@ class LogSource(ABC):
         self._declared_period: float | None = None
         self._plan: TimePlan | None = None
         self._produced = 0  # scan records produced by ``_records`` in the current pass
-        self._odometry_slots: list[int] | None = None  # while planning: records before each
+        self._odometry_slots: list[int] = []  # while planning: scan records before each
+        self._recording: list[tuple[Any, ...]] | None = None  # what the planning pass reports
+        self._replay: list[tuple[Any, ...]] | None = None
         self._odometry_calls = 0
         self._odometry_stamps: NDArray[np.float64] | None = None  # record-order odometry stamps
 
@@ -104,6 +110,9 @@ class LogSource(ABC):
     # -- helpers for subclasses -------------------------------------------------------------
     def _skip(self, reason: str, where: str, detail: str = "") -> None:
         """Count a skipped record; in strict mode raise instead."""
+        if self._recording is not None:
+            self._recording.append((_SKIP, reason, where, detail))
+            return
         message = f"{where}: {reason}" + (f": {detail}" if detail else "")
         if self.strict:
             raise ValueError(f"{self.path}: {message}")
@@ -129,10 +138,13 @@ class LogSource(ABC):
         pose belongs to the scan record being parsed and takes its planned stamp; otherwise,
         when the scans are read in record order, so is the odometry: it is stamped by its
         place among the scan records."""
+        if self._recording is not None:
+            self._recording.append((_ODOMETRY, stamp, pose, where, of_scan))
+            if not of_scan:
+                self._odometry_slots.append(self._produced)
+            return
         if of_scan:
             stamp = self._record_stamp(stamp)
-        elif self._odometry_slots is not None:
-            self._odometry_slots.append(self._produced)
         elif self._odometry_stamps is not None:
             planned = self._odometry_stamps
             stamp = float(planned[min(self._odometry_calls, planned.size - 1)])
@@ -147,10 +159,9 @@ class LogSource(ABC):
         self._odometry.append((stamp, pose))
 
     def _record_stamp(self, raw: float) -> float:
-        """The stamp the time plan gives the record being parsed (``raw`` while planning):
-        for readers whose side data (odometry) shares the scan's own stamp."""
+        """The stamp the time plan gives the scan record being parsed."""
         plan = self._plan
-        if plan is None or self._odometry_slots is not None or self._produced >= plan.stamps.size:
+        if plan is None or self._produced >= plan.stamps.size:
             return raw
         return float(plan.stamps[self._produced])
 
@@ -164,22 +175,45 @@ class LogSource(ABC):
         self._odometry_calls = 0
 
     def _make_plan(self) -> TimePlan:
-        """Read the scan records once for their stamps alone and decide each one's stamp."""
-        strict, self.strict = self.strict, False  # bad records are reported by the real pass
+        """Read the log once and decide each scan record's stamp from all of them.
+
+        What the reader reports while doing so (records, skips, odometry) is kept, up to
+        :data:`REPLAY_BUDGET_BYTES` of ranges, so that the first iteration replays it instead
+        of parsing the file again; a longer log is parsed again.
+        """
         self._reset()
+        self._recording = []
         self._odometry_slots = []
         stamps: list[float] = []
+        budget = REPLAY_BUDGET_BYTES
         try:
-            for scan, _, _ in self._records():
-                stamps.append(scan.stamp)
+            for record in self._records():
+                stamps.append(record[0].stamp)
                 self._produced += 1
+                budget -= record[0].ranges.nbytes + 200
+                if budget >= 0:
+                    self._recording.append((_SCAN, *record))
             plan = plan_stamps(stamps, self._declared_period, self.reorder_window_s)
             if plan.source == RECORD_ORDER and self._odometry_slots:
                 self._odometry_stamps = _slot_stamps(plan, self._odometry_slots)
+            self._replay = self._recording if budget >= 0 else None
         finally:
-            self.strict = strict
-            self._odometry_slots = None
+            self._recording = None
+            self._odometry_slots = []
         return plan
+
+    def _replayed(
+        self, events: list[tuple[Any, ...]]
+    ) -> Iterator[tuple[LaserScan, str, Pose | None]]:
+        """The records of the planning pass again, with its skips and odometry reported anew
+        (strict mode raises here, at the same record as a fresh parse would)."""
+        for event in events:
+            if event[0] == _SCAN:
+                yield event[1], event[2], event[3]
+            elif event[0] == _SKIP:
+                self._skip(*event[1:])
+            else:
+                self._add_odometry(*event[1:])
 
     @property
     def time_plan(self) -> TimePlan:
@@ -197,6 +231,7 @@ class LogSource(ABC):
     # -- public API -------------------------------------------------------------------------
     def __iter__(self) -> Iterator[LaserScan]:
         plan = self.time_plan
+        replay, self._replay = self._replay, None  # replayed once: later passes stream again
         self._reset()
         self._complete = False
         self._iterating = True
@@ -204,7 +239,7 @@ class LogSource(ABC):
         order = _Reorder(self.reorder_window_s)
         self._order = order
         try:
-            for scan, where, ref in self._records():
+            for scan, where, ref in self._replayed(replay) if replay else self._records():
                 k = self._produced
                 self._produced += 1
                 if k < plan.stamps.size and plan.stamps[k] != scan.stamp:

@@ -34,6 +34,10 @@ MIN_USABLE_SHARE = 0.5
 #: Longest run of consecutive bad stamps that is repaired (share of the records; at least 2):
 #: a longer one (half a log concatenated with itself) leaves no neighbours to interpolate from.
 MAX_BAD_RUN_SHARE = 0.1
+#: A first or last few records (at most this share, or 2) are stray when a jump of this many
+#: median periods separates them from the rest.
+STRAY_JUMP_PERIODS = 100.0
+MAX_STRAY_SHARE = 0.01
 #: Scan periods a 2D LiDAR can have (s): outside, the stamps are in another unit or meaningless.
 PLAUSIBLE_PERIOD_S = (1e-3, 60.0)
 #: Period assumed when neither the log nor its stamps give one (10 Hz, the commonest rate).
@@ -100,11 +104,33 @@ def longest_increasing(values: NDArray[np.float64]) -> NDArray[np.bool_]:
     return keep
 
 
+def _drop_stray_ends(
+    stamps: NDArray[np.float64], anchors: NDArray[np.bool_], period: float, window: float
+) -> NDArray[np.bool_]:
+    """``anchors`` without a few first or last records cut off from the rest by a jump of more
+    than :data:`STRAY_JUMP_PERIODS` periods: a first scan stamped 0 or a last one an hour
+    late is in time order, yet as wrong as a spike in the middle."""
+    idx = np.flatnonzero(anchors)
+    if idx.size < 4 or not np.isfinite(period):
+        return anchors
+    jump = max(window, STRAY_JUMP_PERIODS * period)
+    steps = np.diff(stamps[idx])
+    few = max(2, int(MAX_STRAY_SHARE * idx.size))
+    out = anchors.copy()
+    big = np.flatnonzero(steps > jump)
+    if big.size and big[0] + 1 <= few:  # the first big step leaves few records before it
+        out[idx[: big[0] + 1]] = False
+    if big.size and idx.size - 1 - big[-1] <= few:  # the last one leaves few after it
+        out[idx[big[-1] + 1 :]] = False
+    return out if out.sum() >= 2 else anchors
+
+
 def _tolerated(
-    stamps: NDArray[np.float64], anchors: NDArray[np.bool_], window: float
+    stamps: NDArray[np.float64], anchors: NDArray[np.bool_], window: float, period: float
 ) -> NDArray[np.bool_]:
     """Records outside the increasing subsequence the reader can still put back in order: a
-    finite stamp within ``window`` of its anchored neighbours, repeating no anchored stamp."""
+    finite stamp within ``window`` of its anchored neighbours (one period per record beyond
+    the first or last anchor), repeating no anchored stamp."""
     idx = np.flatnonzero(anchors)
     out = np.zeros(stamps.size, dtype=bool)
     if idx.size == 0:
@@ -112,9 +138,10 @@ def _tolerated(
     anchored = set(stamps[idx].tolist())
     candidates = np.flatnonzero(~anchors & np.isfinite(stamps))
     pos = np.searchsorted(idx, candidates)
+    step = period if np.isfinite(period) else 0.0
     for i, p in zip(candidates.tolist(), pos.tolist(), strict=True):
-        lo = stamps[idx[p - 1]] if p > 0 else -np.inf
-        hi = stamps[idx[p]] if p < idx.size else np.inf
+        lo = stamps[idx[p - 1]] if p > 0 else stamps[idx[0]] - step * (idx[0] - i)
+        hi = stamps[idx[p]] if p < idx.size else stamps[idx[-1]] + step * (i - idx[-1])
         t = stamps[i]
         out[i] = lo - window <= t <= hi + window and t not in anchored
     return out
@@ -169,7 +196,7 @@ def _why_unusable(stamps: NDArray[np.float64], usable: int) -> str:
     if distinct < 0.5 * n:
         return f"quantised: {distinct} distinct stamps for {n} records"
     steps = np.diff(finite)
-    if np.count_nonzero(steps < 0) > 0.5 * steps.size:
+    if np.count_nonzero(steps < 0) > 0.9 * steps.size:
         return "stamps decrease" + (" and are negative" if (finite < 0).any() else "")
     return f"only {usable} of {n} stamps are in time order (jumping or concatenated)"
 
@@ -177,19 +204,26 @@ def _why_unusable(stamps: NDArray[np.float64], usable: int) -> str:
 def _record_order_period(
     stamps: NDArray[np.float64], anchors: NDArray[np.bool_], declared: float | None
 ) -> tuple[float, str]:
-    """The period for record order and where it comes from."""
+    """The period for record order and where it comes from: the declared one; else the median
+    step between consecutive stamps, when most steps are not zero (it survives a log counting
+    down or concatenated); else the span of the ordered stamps over their records (a quantised
+    log: its steps are mostly zero, and the quantum between the others)."""
     if declared is not None and _plausible(declared):
         return declared, "period declared by the log"
+    finite = stamps[np.isfinite(stamps)]
+    steps = np.abs(np.diff(finite))
+    moving = steps[steps > 0]
+    if moving.size >= 0.5 * steps.size and moving.size:
+        median = float(np.median(moving))
+        # jumping stamps have steps of the order of the whole span, not of span / records
+        regular = median <= 3.0 * float(np.ptp(finite)) / max(finite.size - 1, 1)
+        if regular and _plausible(median):
+            return median, "median step between stamps"
     idx = np.flatnonzero(anchors)
     if idx.size >= 2 and idx[-1] - idx[0] >= 0.5 * stamps.size:
         span = float(stamps[idx[-1]] - stamps[idx[0]]) / float(idx[-1] - idx[0])
         if _plausible(span):
             return span, "mean period of the ordered stamps"
-    finite = stamps[np.isfinite(stamps)]
-    steps = np.abs(np.diff(finite))
-    steps = steps[steps > 0]
-    if steps.size and _plausible(float(np.median(steps))):
-        return float(np.median(steps)), "median step between stamps"
     return DEFAULT_PERIOD_S, "no usable period in the log, assumed"
 
 
@@ -207,8 +241,9 @@ def plan_stamps(
     if n == 0:
         return TimePlan(raw, LOG_STAMPS, 0, float("nan"))
     anchors = longest_increasing(raw)
-    usable = anchors | _tolerated(raw, anchors, window)
     period = _anchor_period(raw, np.flatnonzero(anchors))
+    anchors = _drop_stray_ends(raw, anchors, period, window)
+    usable = anchors | _tolerated(raw, anchors, window, period)
     ordered = _mostly_ordered(usable)
     good = n == 1 or (ordered and _plausible(period))
     if good and n > 1:
