@@ -252,3 +252,27 @@ def test_sim_command_simulates_a_named_world_and_route(tmp_path):
     scans = list(open_log(out / "scans"))
     assert len(scans) == 30 and scans[0].num_beams == 181
     assert scans[0].time_increment == pytest.approx(1.0 / 75.0 / 360.0)
+
+
+def test_the_command_line_loads_no_heavy_library_until_a_command_needs_it():
+    """Building the parser (``bioslam --help``, and before every command) must not import
+    Numba, SciPy, rosbags or Matplotlib: they cost 100 MB before the first scan."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, bioslam.cli as c; c.build_parser(); "
+        "print(sorted({m.split('.')[0] for m in sys.modules} "
+        "& {'numba', 'scipy', 'rosbags', 'matplotlib', 'ray'}))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_command_line_names_match_the_registries():
+    from bioslam.cli.sim import ROUTE_NAMES, STORAGE_NAMES
+    from bioslam.io.bag_writer import STORAGES
+    from bioslam.sim import ROUTES
+
+    assert set(ROUTE_NAMES) == set(ROUTES)
+    assert set(STORAGE_NAMES) == set(STORAGES)

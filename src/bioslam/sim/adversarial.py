@@ -28,6 +28,7 @@ from bioslam.sim.route import (
     _turn,
     _Walker,
     check_clearance,
+    make_route,
 )
 from bioslam.sim.world import Roadmap, World
 
@@ -294,3 +295,8 @@ def make_adversarial_route(
     all_t, all_p = all_t[: cut + 1], all_p[: cut + 1]
     check_clearance(world, all_p, adv.route.clearance)
     return Route(all_t, all_p, float(duration), np.asarray(way.tour, dtype=np.int64))
+
+
+#: Route generators by name (``bioslam sim --route``): each takes ``(world, duration, seed,
+#: config)``.
+ROUTES = {"tour": make_route, "adversarial": make_adversarial_route}
