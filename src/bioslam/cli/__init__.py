@@ -13,7 +13,7 @@ from collections.abc import Sequence
 
 from bioslam import __version__, signals
 
-SUBCOMMAND_MODULES = ("info", "sim", "run", "demo", "eval")
+SUBCOMMAND_MODULES = ("info", "sim", "run", "demo", "eval", "batch")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -48,7 +48,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _main(argv)
         except signals.Interrupted as exc:
             # Only reached before a command created any output.
-            print(f"bioslam: interrupted by {exc}; nothing was written", file=sys.stderr)
+            print(f"bioslam: interrupted by {exc}", file=sys.stderr)
             return exc.exit_code
 
 

@@ -51,15 +51,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def reference_trajectory(
-    gt: Trajectory | None, gt_path: Path | None, log_reference: Trajectory | None,
-    out: OutputDir,
+    gt_path: Path | None, log_reference: Trajectory | None, out: Path | OutputDir
 ) -> tuple[Trajectory | None, str | None]:
     """The trajectory to evaluate against: ``--gt`` first, else the log's corrected poses
     (written to ``reference.tum`` so that other tools can use them)."""
-    if gt is not None:
-        return gt, str(gt_path)
+    if gt_path is not None:
+        return read_reference(gt_path), str(gt_path)
     if log_reference is not None and len(log_reference) > 1:
-        out.save("reference.tum", write_tum, log_reference)
+        target = out if isinstance(out, OutputDir) else OutputDir(out, marker=False)
+        target.save("reference.tum", write_tum, log_reference)
         return log_reference, "log"
     return None, None
 
@@ -82,7 +82,10 @@ def run_command(args: argparse.Namespace) -> dict[str, Any]:
         result = run_slam(source, config, options)
         read = source.records_seen > 0 or source.complete
         log_reference = source.reference if read else None
-        reference, reference_name = reference_trajectory(gt, args.gt, log_reference, out)
+        if gt is not None:
+            reference, reference_name = gt, str(args.gt)
+        else:
+            reference, reference_name = reference_trajectory(None, log_reference, out)
         extra: dict[str, Any] = {"input": str(args.input), "format": source.format}
         extra["skipped"] = source_skipped(source)
         extra.update(read_counts(source))
