@@ -13,6 +13,8 @@ import math
 from pathlib import Path
 from typing import Any
 
+from bioslam.recording import session as recording
+
 #: The paper's reported simulation result (Sec. IV-A): mean and maximum position error.
 PAPER_MEAN_ERROR_M = 0.0284
 PAPER_MAX_ERROR_M = 0.127
@@ -31,6 +33,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--seed", type=int, default=0, help="route and noise seed (default 0)")
     parser.add_argument("--config", type=Path, help="TOML or JSON file of setting overrides")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    recording.add_arguments(parser)
     parser.set_defaults(func=demo_command)
 
 
@@ -90,8 +93,12 @@ def demo_command(args: argparse.Namespace) -> dict[str, Any]:
         progress=not args.no_progress, snapshot_times=snapshot_times(route.duration)
     )
     scans = (scan for scan, _ in simulate_scans(world, lidar, route, seed=args.seed))
-    result = run_slam(scans, config, options, total=int(stamps.size))
+    with recording.Session.from_args(args, False, input="simulated maze") as session:
+        result = run_slam(scans, config, options, total=int(stamps.size),
+                          observer=session.observer)
+        session.finish(result.system)
     extra = {"input": "simulated maze", "lidar": lidar.name, "seed": args.seed}
+    extra.update(session.summary())
     summary = write_results(result, out, gt, options, extra)
     print(comparison_table(summary))
     print(f"results in {out}/ (figures in {out}/figures/)")

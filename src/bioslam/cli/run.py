@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from bioslam.io.tum import read_tum, write_tum
+from bioslam.recording import session as recording
 from bioslam.trajectory import Trajectory
 
 
@@ -28,6 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--odometry-only", action="store_true", help="run the LiDAR odometry alone"
     )
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    recording.add_arguments(parser)
     parser.set_defaults(func=run_command)
 
 
@@ -53,12 +55,15 @@ def run_command(args: argparse.Namespace) -> dict[str, Any]:
     config = load_config(args.config)
     source = open_log(args.input, topic=args.topic)
     options = RunOptions(odometry_only=args.odometry_only, progress=not args.no_progress)
-    result = run_slam(source, config, options)
+    with recording.Session.from_args(args, options.odometry_only, input=args.input) as session:
+        result = run_slam(source, config, options, observer=session.observer)
+        session.finish(result.system)
     reference, reference_name = reference_trajectory(args.gt, source.reference, args.out)
     extra: dict[str, Any] = {"input": str(args.input), "format": source.format}
     extra["skipped"] = source.skipped
     if reference_name:
         extra["reference"] = reference_name
+    extra.update(session.summary())
     summary = write_results(result, args.out, reference, options, extra)
     if result.error:
         raise RuntimeError(f"{args.input}: run stopped early ({result.error}); "
