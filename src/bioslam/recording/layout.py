@@ -94,9 +94,11 @@ def build_layout() -> fl.Layout:
     return fl.Layout(
         content=fl.SplitContainer(
             direction="row",
-            items=[fl.SplitItem(proportion=3.0, content=_three_d()),
-                   fl.SplitItem(proportion=2.0, content=side)],
-        )  # fmt: skip
+            items=[
+                fl.SplitItem(proportion=3.0, content=_three_d()),
+                fl.SplitItem(proportion=2.0, content=side),
+            ],
+        )
     )
 
 
