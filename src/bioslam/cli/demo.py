@@ -79,6 +79,7 @@ def demo_command(args: argparse.Namespace) -> dict[str, Any]:
     from bioslam.pipeline import RunOptions, run_slam, write_results
     from bioslam.sim import LIDAR_PRESETS, make_route, maze_world, scan_stamps, simulate_scans
 
+    session = recording.Session.from_args(args, False, input="simulated maze")
     config = load_config(args.config)
     world = maze_world()
     lidar = LIDAR_PRESETS["utm30lx"]
@@ -93,7 +94,7 @@ def demo_command(args: argparse.Namespace) -> dict[str, Any]:
         progress=not args.no_progress, snapshot_times=snapshot_times(route.duration)
     )
     scans = (scan for scan, _ in simulate_scans(world, lidar, route, seed=args.seed))
-    with recording.Session.from_args(args, False, input="simulated maze") as session:
+    with session:
         result = run_slam(scans, config, options, total=int(stamps.size),
                           observer=session.observer)
         session.finish(result.system)

@@ -52,10 +52,11 @@ def run_command(args: argparse.Namespace) -> dict[str, Any]:
     from bioslam.io.logs import open_log
     from bioslam.pipeline import RunOptions, run_slam, write_results
 
+    session = recording.Session.from_args(args, args.odometry_only, input=args.input)
     config = load_config(args.config)
     source = open_log(args.input, topic=args.topic)
     options = RunOptions(odometry_only=args.odometry_only, progress=not args.no_progress)
-    with recording.Session.from_args(args, options.odometry_only, input=args.input) as session:
+    with session:
         result = run_slam(source, config, options, observer=session.observer)
         session.finish(result.system)
     reference, reference_name = reference_trajectory(args.gt, source.reference, args.out)
