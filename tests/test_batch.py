@@ -204,3 +204,15 @@ def test_the_command_refuses_a_folder_it_did_not_write(logs, tmp_path, capsys):
     assert code != 0
     assert "not a batch output folder" in capsys.readouterr().err
     assert (tmp_path / "mine.txt").read_text() == "keep me"
+
+
+def test_shipped_data_gives_the_run_a_shared_path_gives(logs, tmp_path):
+    point = expand_grid({"mode": "odometry-only", "max_scans": 12})[0]
+    task = Task("drive3-scans", str(logs[0]), point, str(tmp_path / "shared"))
+    in_place = run_task(task)
+    shipped = run_task(task, pack(logs[0]))
+    assert in_place.status == shipped.status == "ok"
+    assert in_place.summary["scans"] == shipped.summary["scans"] == 12  # max_scans is a prefix
+    assert shipped.files is not None and "trajectory.tum" in shipped.files
+    assert shipped.files["trajectory.tum"] == (tmp_path / "shared" / "trajectory.tum").read_bytes()
+    assert shipped.peak_rss_mb > 10
