@@ -14,7 +14,7 @@ import pytest
 from bioslam.batch import BatchSpec, expand_grid, run_batch
 from bioslam.batch.engines import ProcessEngine, make_engine
 from bioslam.batch.results import MACHINE_COLUMNS, read_csv
-from bioslam.batch.runner import DONE_MARKER, log_names
+from bioslam.batch.runner import DONE_MARKER, finished_row, log_names, plan
 from bioslam.batch.task import Files, Outcome, Task, pack, run_task, unpack
 from bioslam.cli import main
 from bioslam.io.bag_writer import write_scan_bag
@@ -168,6 +168,11 @@ def test_a_rerun_skips_finished_runs_and_retries_the_rest(pool_batch, logs, tmp_
     assert without_machine_columns(read_csv(out / "results.csv")) == without_machine_columns(
         read_csv(first / "results.csv")
     )
+    # a run is finished for its log, settings and ground truth: another --gt-from reruns it
+    task = plan(spec(logs, out))[0]
+    assert finished_row(task)["ate_rmse_m"] is not None
+    assert finished_row(replace(task, reference=None, reference_name=None)) is None
+    assert finished_row(replace(task, point=expand_grid({"odometry.resolution": 0.04})[0])) is None
 
 
 class InterruptedEngine:

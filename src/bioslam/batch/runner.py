@@ -7,8 +7,9 @@ Layout under the output folder::
     <log>/<config-id>/         the run's usual outputs (as ``bioslam run`` writes them)
     <log>/<config-id>/batch-run.json   written last, only for a finished run: its row
 
-A run whose ``batch-run.json`` exists and names the same log and settings is finished and is
-not run again; any other run folder is an unfinished attempt and is cleared before running.
+A run whose ``batch-run.json`` exists and names the same log, settings and ground-truth file
+is finished and is not run again; any other run folder is an unfinished attempt and is
+cleared before running.
 """
 
 from __future__ import annotations
@@ -139,7 +140,9 @@ def finished_row(task: Task) -> dict | None:
         done = read_json(marker)
     except ValueError:
         return None
-    same = done.get("log_path") == task.log_path and done.get("settings") == task.point.settings
+    same = (done.get("log_path"), done.get("settings"), done.get("reference")) == (
+        task.log_path, task.point.settings, task.reference_name
+    )
     return done.get("row") if same else None
 
 
@@ -198,7 +201,8 @@ def _record(task: Task, outcome: Outcome) -> dict:
     row = make_row(outcome, task.point.settings, task.point.varying)
     if outcome.status == "ok":
         write_json(out / DONE_MARKER, {
-            "log_path": task.log_path, "settings": task.point.settings, "row": row,
+            "log_path": task.log_path, "settings": task.point.settings,
+            "reference": task.reference_name, "row": row,
         })
     return row
 
