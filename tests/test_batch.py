@@ -81,7 +81,7 @@ def test_grid_expands_dotted_keys_tables_and_fixed_values():
 
 
 def test_grid_rejects_what_no_run_could_use():
-    with pytest.raises(ValueError, match="unknown setting 'resolutoin'"):
+    with pytest.raises(ValueError, match=r"unknown setting 'odometry\.resolutoin'"):
         expand_grid({"odometry.resolutoin": [0.03, 0.05]})
     with pytest.raises(ValueError, match="mode must be one of"):
         expand_grid({"mode": ["fast"]})
