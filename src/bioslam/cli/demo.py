@@ -15,7 +15,13 @@ from pathlib import Path
 from typing import Any
 
 from bioslam import signals
-from bioslam.cli.common import add_output_options, conclude, open_output, run_status
+from bioslam.cli.common import (
+    add_output_options,
+    check_system,
+    conclude,
+    open_output,
+    run_status,
+)
 from bioslam.io.outdir import expected_output_bytes
 
 #: The paper's reported simulation result (Sec. IV-A): mean and maximum position error.
@@ -85,6 +91,7 @@ def demo_command(args: argparse.Namespace) -> dict[str, Any]:
     if not (math.isfinite(args.duration) and args.duration > 0):
         raise ValueError(f"--duration must be a positive number of seconds, got {args.duration}")
     config = load_config(args.config)
+    check_system(config, False, args.config)
     world = maze_world()
     lidar = LIDAR_PRESETS["utm30lx"]
     route = make_route(world, duration=args.duration, seed=args.seed)
