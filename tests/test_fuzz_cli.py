@@ -276,7 +276,7 @@ def command_lines(draw) -> tuple[str, list[tuple[str, str | None]]]:
     return command, options
 
 
-@settings(FUZZ, max_examples=30)
+@settings(FUZZ, max_examples=24)
 @given(command_lines())
 def test_random_command_lines_never_trace_back(line):
     command, options = line
