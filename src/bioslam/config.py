@@ -77,6 +77,15 @@ class LoopClosureConfig:
             registrations keep failing (noisy sensors, clutter): consecutive scans that
             close say the same thing anyway.
         payload_spacing: spacing (m) of the scan points kept with each experience.
+        proximity: also propose, as a loop candidate, the experience nearest the robot's map
+            pose within the drift bound (the path-integration cue, :mod:`bioslam.closure`),
+            not only the one its view cell recognises.
+        min_loop_travel: metres of travel since an experience was made before the proximity
+            cue proposes it (a place just left is not a loop).
+        submap_reach: the verification submap fuses the scans of the experiences made within
+            this many metres of travel of the candidate, on its own pass (m).
+        submap_step: the submap takes one scan per this many metres of travel (m).
+        submap_spacing: the submap is thinned to one point per cell of this size (m).
         registration: the pairwise registration's parameters.
     """
 
@@ -97,6 +106,11 @@ class LoopClosureConfig:
     deadband_angle: float = 0.006
     registration_interval: float = 0.25
     payload_spacing: float = 0.02
+    proximity: bool = True
+    min_loop_travel: float = 3.0
+    submap_reach: float = 1.5
+    submap_step: float = 0.5
+    submap_spacing: float = 0.03
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)
 
 
