@@ -1,18 +1,16 @@
 import numpy as np
 import pytest
+from _scan_world import CORRIDOR, ROOM, box, make_scan, pose_error
 
 from bioslam.geometry import between, compose
+from bioslam.matching.correlative import lattice_search
+from bioslam.matching.gauss_newton import _guarded_step, _newton_step, grid_args, summed_map
 from bioslam.occupancy_grid import LogOddsConfig, MapPyramid
 from bioslam.odometry import (
     LidarOdometry,
     OdometryConfig,
     RegistrationConfig,
     RegistrationQuality,
-    _grid_args,
-    _guarded_step,
-    _lattice_search,
-    _newton_step,
-    _summed_map,
     densify_scan,
     deskew_points,
     register_scans,
@@ -20,65 +18,6 @@ from bioslam.odometry import (
     se2_log,
 )
 from bioslam.scan import LaserScan
-
-# --- a tiny analytic world: wall segments and exact ray casting -------------------------------
-
-
-def _box(x0, y0, x1, y1):
-    c = [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
-    return [(c[i], c[(i + 1) % 4]) for i in range(4)]
-
-
-ROOM = np.array(
-    _box(-6, -4, 6, 4)
-    + _box(-3, -2, -2, -1.2)
-    + _box(2, 1, 3.5, 1.6)
-    + _box(0.5, -3, 1.1, -2.2)
-    + [((-6, 2.5), (-4.5, 2.5)), ((4.0, -4), (4.0, -2.5)), ((-1.0, 4.0), (-0.4, 3.1))],
-    dtype=float,
-)
-# 200 m corridor, 2 m wide, no features at all, its ends out of a 30 m range
-CORRIDOR = np.array([((-100, -1), (100, -1)), ((-100, 1), (100, 1))], dtype=float)
-# Every scan below has 1 cm range noise, as real sensors do: noise-free hits on a wall that
-# lies exactly on a cell boundary all fall into one cell, the worst case of any grid map.
-
-
-def cast(segs, origins, directions, max_range=30.0):
-    """Distance along each ray (origins, directions: (B, 2)) to the nearest segment."""
-    a, e = segs[:, 0], segs[:, 1] - segs[:, 0]
-    d = directions[:, None, :]
-    denom = d[..., 0] * e[None, :, 1] - d[..., 1] * e[None, :, 0]
-    ap = a[None] - origins[:, None, :]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (ap[..., 0] * e[None, :, 1] - ap[..., 1] * e[None, :, 0]) / denom
-        u = (ap[..., 0] * d[..., 1] - ap[..., 1] * d[..., 0]) / denom
-    t = np.where((t > 1e-9) & (u >= 0) & (u <= 1), t, np.inf).min(axis=1)
-    t[t > max_range] = np.inf
-    return t
-
-
-FOV = np.radians(270.0)
-
-
-def make_scan(segs, pose, stamp=0.0, beams=541, fov=FOV, sigma=0.0, rng=None,
-              twist=None, time_increment=0.0):  # fmt: skip
-    """A scan from ``pose``; with ``twist`` the robot moves during the sweep (beam k at
-    ``stamp + k * time_increment``), as a rotating-mirror scanner does."""
-    angles = -fov / 2 + fov * np.arange(beams) / (beams - 1)
-    poses = np.broadcast_to(np.asarray(pose, float), (beams, 3))
-    if twist is not None:
-        poses = compose(poses, se2_exp(twist, np.arange(beams) * time_increment))
-    heading = poses[:, 2] + angles
-    r = cast(segs, poses[:, :2], np.column_stack([np.cos(heading), np.sin(heading)]))
-    if sigma:
-        r = r + rng.normal(0.0, sigma, r.shape)
-    return LaserScan(stamp, r, angles, 0.05, 30.0, time_increment)
-
-
-def pose_error(a, b):
-    d = between(a, b)
-    return float(np.hypot(d[0], d[1])), float(abs(d[2]))
-
 
 # --- register_scans ---------------------------------------------------------------------------
 
@@ -277,16 +216,16 @@ def test_the_lattice_search_returns_distinct_peaks_best_first():
     top = pyramid.grids[-1]
     true = np.array([0.3, -0.2, 0.25])
     moved = make_scan(ROOM, tuple(true), sigma=0.01, rng=rng).endpoints()
-    seeds = _lattice_search(top, 1.0, moved, np.zeros(3), 0.6, 0.5, top.resolution, 5.0, 3)
+    seeds = lattice_search(top, 1.0, moved, np.zeros(3), 0.6, 0.5, top.resolution, 5.0, 3)
     assert seeds.shape == (3, 3)
     assert np.all(np.abs(seeds[0, :2] - true[:2]) <= top.resolution)
     assert abs(seeds[0, 2] - true[2]) <= top.resolution / 5.0
-    grid = _grid_args(top, 1.0)
-    scores = [_summed_map(grid, moved, np.cos(p[2]), np.sin(p[2]), p[0], p[1], False)
+    grid = grid_args(top, 1.0)
+    scores = [summed_map(grid, moved, np.cos(p[2]), np.sin(p[2]), p[0], p[1], False)
               for p in seeds]  # fmt: skip
     assert scores[0] >= scores[1] >= scores[2]
     assert len({tuple(np.round(p, 6)) for p in seeds}) == 3
-    single = _lattice_search(top, 1.0, moved, np.zeros(3), 0.6, 0.5, top.resolution, 5.0)
+    single = lattice_search(top, 1.0, moved, np.zeros(3), 0.6, 0.5, top.resolution, 5.0)
     np.testing.assert_array_equal(single[0], seeds[0])
 
 
@@ -373,7 +312,7 @@ def test_map_memory_stays_bounded_over_a_long_run():
     odo = LidarOdometry(cfg)
     # pillars at irregular places along a 2 m wide corridor, driven for 30 m at 0.5 m/s
     xs = np.cumsum(rng.uniform(0.8, 2.5, 80)) - 10.0
-    pillars = [seg for x in xs for seg in _box(x, rng.uniform(0.5, 0.7), x + 0.3, 0.9)]
+    pillars = [seg for x in xs for seg in box(x, rng.uniform(0.5, 0.7), x + 0.3, 0.9)]
     world = np.concatenate([CORRIDOR, np.array(pillars, float)])
     sizes = set()
     for k in range(300):

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import sys
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -34,6 +34,11 @@ from bioslam.slam import BioSLAM, SelfMotion, StepRecord, thin_points
 from bioslam.trajectory import Trajectory
 
 FloatArray = NDArray[np.float64]
+
+#: Called after each processed scan with the scan, the pose ``process`` returned and the
+#: system (its public attributes give the odometry, views, pose cells and map): how a recorder
+#: or live viewer watches a run without the run knowing about it.
+ScanObserver = Callable[[LaserScan, Pose2D, "BioSLAM | OdometryOnly"], None]
 
 
 @dataclass
@@ -190,8 +195,12 @@ def run_slam(
     config: SLAMConfig | None = None,
     options: RunOptions | None = None,
     total: int | None = None,
+    observer: ScanObserver | None = None,
 ) -> RunResult:
     """Feed every scan to the system, timing each, keeping what the outputs need.
+
+    ``observer`` (optional) sees every processed scan; its time is not in the per-scan times
+    but is in ``wall_s``.
 
     Exceptions from the core end the run but not the result: ``RunResult.error`` says what
     happened and everything computed before is kept.
@@ -214,7 +223,7 @@ def run_slam(
     try:
         for scan in scans:
             t0 = time.thread_time()
-            system.process(scan)
+            pose = system.process(scan)
             result.scan_seconds.append(time.thread_time() - t0)
             first_stamp = scan.stamp if first_stamp is None else first_stamp
             last_stamp = scan.stamp
@@ -229,6 +238,8 @@ def run_slam(
                 if isinstance(system, BioSLAM):
                     result.snapshots.append(cognitive_map_snapshot(system, pending_snapshots[0]))
                 pending_snapshots.pop(0)
+            if observer is not None:
+                observer(scan, pose, system)
             bar.update(1)
     except KeyboardInterrupt:
         result.interrupted = True

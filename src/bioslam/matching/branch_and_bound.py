@@ -1,0 +1,513 @@
+"""Wide-basin scan matching: an exhaustive-equivalent search of a wide (x, y, theta) window by
+branch and bound over max-pooled grids, with the best *distinct* rival.
+
+Olson's real-time correlative matching (2009) scores a scan at every pose of a lattice
+against a rasterised map; Hess et al. (2016, Cartographer) find the same optimum without
+visiting every pose: a node stands for a square of ``2^h x 2^h`` lattice translations at
+one heading, and its upper bound is the scan's summed value on the grid whose cells hold the
+maximum of the ``2^h x 2^h`` cells ahead of them (precomputed once per map). A node whose
+bound cannot beat the best pose found is cut with all its children; the answer is exactly
+the lattice optimum of a brute-force search (:func:`brute_force_scores`).
+
+A look-alike place (an aisle among identical aisles, a corridor along its axis) scores as
+well as the true one. So the search also returns the best *rival*: the best lattice pose
+that is a local maximum of the score and lies farther than ``rival_distance`` or
+``rival_angle`` from the winner. ``rival_score / score`` (:attr:`WideMatch.ambiguity`)
+near 1 says the scan cannot tell the places apart; a caller then keeps its prior.
+
+API (both the odometry and loop-closure verification use it)::
+
+    matcher = WideBasinMatcher(WideBasinConfig(distance=1.5, angle=math.pi / 4))
+    matcher.set_map(grid)                        # an OccupancyGrid (e.g. a submap); once per map
+    found = matcher.search(points, centre)       # sensor-frame (N, 2) endpoints, centre (3,)
+    found.pose, found.score                      # best lattice pose, mean map value in [0, 1]
+    found.rival_pose, found.rival_score          # None / 0.0 when no rival scores at least
+    found.ambiguity                              #   min_rival_ratio * score
+    refined, report = refine(pyramid, found.pose, points)   # Gauss-Newton (Eq. 3) from it
+
+``set_map(grid, box=...)`` builds only the part of the grid a search can reach (the odometry
+passes the box around its pose); ``set_map`` with no box covers the whole grid. The map
+value is the grid's occupancy probability of cells ever hit (0 elsewhere), spread to the
+neighbouring cells with a Gaussian of ``blur`` cells (a sparse scan's endpoints on a wall
+fall between another scan's). Memory: the pooled grids (``depth + 1`` float32 copies of the
+reachable part of the grid) and a few point-sized buffers, reused by later searches. No file
+or terminal I/O here.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from numpy.typing import ArrayLike
+
+from bioslam.matching.gauss_newton import (
+    FloatArray,
+    MatchReport,
+    match_scan_to_map,
+    matched_normals,
+    points_per_level,
+)
+from bioslam.occupancy_grid import MapPyramid, OccupancyGrid, subsample_by_spacing
+
+
+@dataclass(frozen=True)
+class WideBasinConfig:
+    """Parameters of :class:`WideBasinMatcher`.
+
+    Attributes:
+        distance: half-width of the window in x and in y, metres (Cartographer's
+            ``linear_search_window``; a thinned log's scans are up to a metre apart).
+        angle: half-width of the window in heading, radians (up to 80° of turn between the
+            scans of thinned CARMEN logs; ±45° covers most, a second search the rest).
+        angular_step: heading step, radians; ``None`` takes the angle that moves an endpoint
+            at the scan's 90th-percentile range by one cell (Cartographer uses the maximum
+            range; the farthest tenth of a scan then moves by a little more than a cell).
+        blur: cells over which a hit cell's value spreads (Gaussian, sigma one cell); 0
+            scores only the cells hit.
+        rival_distance, rival_angle: a rival must be farther than this from the winner in
+            position (metres) or in heading (radians): nearer poses are the winner's own peak.
+        min_rival_ratio: rivals scoring below this fraction of the winner are not searched
+            for (the search then stays fast on a distinctive scan); ``rival_score`` is 0.
+    """
+
+    distance: float = 1.5
+    angle: float = math.pi / 4
+    angular_step: float | None = None
+    blur: int = 1
+    rival_distance: float = 0.5
+    rival_angle: float = math.radians(20.0)
+    min_rival_ratio: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not (self.distance >= 0 and self.angle >= 0 and self.blur >= 0):
+            raise ValueError(
+                f"window distance, angle and blur must be non-negative, got {self.distance}, "
+                f"{self.angle}, {self.blur}"
+            )
+        if self.angular_step is not None and not self.angular_step > 0:
+            raise ValueError(f"angular_step must be positive, got {self.angular_step}")
+        if not 0.0 <= self.min_rival_ratio <= 1.0:
+            raise ValueError(f"min_rival_ratio must be in [0, 1], got {self.min_rival_ratio}")
+
+
+@dataclass
+class WideMatch:
+    """The result of :meth:`WideBasinMatcher.search`.
+
+    Attributes:
+        pose: the best lattice pose (x, y, theta) in the map frame.
+        score: its mean map value over the endpoints (1: every endpoint on a certain wall).
+        rival_pose: the best local maximum farther than the rival distance/angle from
+            ``pose``, or ``None`` when none scores at least ``min_rival_ratio * score``.
+        rival_score: its mean map value (0 without a rival).
+        nodes: search nodes whose bound was computed (the cost; brute force visits every
+            lattice pose).
+        lattice: (headings, positions per axis) of the window's lattice.
+    """
+
+    pose: FloatArray
+    score: float
+    rival_pose: FloatArray | None
+    rival_score: float
+    nodes: int
+    lattice: tuple[int, int]
+
+    @property
+    def ambiguity(self) -> float:
+        """``rival_score / score``: near 1 the scan fits a distinct place as well."""
+        return self.rival_score / self.score if self.score > 0 else 0.0
+
+
+# --------------------------------------------------------------------------------------------
+# Numba kernels
+
+
+@numba.njit(cache=True)
+def _fill_levels(weights, r0, c0, rows, cols, blur, levels):
+    """Level 0: the crop ``rows x cols`` of ``weights`` from cell (r0, c0), each cell the
+    maximum of its neighbours' values (within ``blur`` cells) times a Gaussian of their
+    distance; level h: the maximum of level 0 over the ``2^h x 2^h`` cells from each cell
+    on (cells past the crop count as 0). Separable: a row pass, then a column pass."""
+    grows, gcols = weights.shape
+    kernel = np.empty(2 * blur + 1)
+    for d in range(-blur, blur + 1):
+        kernel[d + blur] = math.exp(-0.5 * d * d)
+    levels[0, :rows, :cols] = 0.0
+    # scattered from the hit cells (few in a map): each raises its neighbours
+    for r in range(max(r0 - blur, 0), min(r0 + rows + blur, grows)):
+        for c in range(max(c0 - blur, 0), min(c0 + cols + blur, gcols)):
+            w = weights[r, c]
+            if w == 0.0:
+                continue
+            for dr in range(-blur, blur + 1):
+                rr = r - r0 + dr
+                if rr < 0 or rr >= rows:
+                    continue
+                for dc in range(-blur, blur + 1):
+                    cc = c - c0 + dc
+                    if cc < 0 or cc >= cols:
+                        continue
+                    v = w * kernel[dr + blur] * kernel[dc + blur]
+                    if v > levels[0, rr, cc]:
+                        levels[0, rr, cc] = v
+    for h in range(1, levels.shape[0]):
+        s = 1 << (h - 1)
+        for r in range(rows):
+            for c in range(cols):
+                a = levels[h - 1, r, c]
+                if c + s < cols and levels[h - 1, r, c + s] > a:
+                    a = levels[h - 1, r, c + s]
+                levels[h, r, c] = a
+        for r in range(rows - s):
+            for c in range(cols):
+                if levels[h, r + s, c] > levels[h, r, c]:
+                    levels[h, r, c] = levels[h, r + s, c]
+
+
+@numba.njit(cache=True)
+def _discretize(pts, theta, x, y, ox, oy, res, out):
+    """Row and column (of the crop whose lower-left corner is ``ox, oy``) of every endpoint
+    placed by (x, y, theta); lattice translations then only add whole cells."""
+    c = math.cos(theta)
+    s = math.sin(theta)
+    for k in range(pts.shape[0]):
+        wx = c * pts[k, 0] - s * pts[k, 1] + x
+        wy = s * pts[k, 0] + c * pts[k, 1] + y
+        out[k, 0] = math.floor((wy - oy) / res)
+        out[k, 1] = math.floor((wx - ox) / res)
+
+
+@numba.njit(cache=True)
+def _bound(levels, h, cells, ix, iy, rows, cols):
+    """Σ over endpoints of level ``h`` at their cell shifted by (ix, iy): the score of the
+    lattice pose at h = 0, an upper bound of the ``2^h x 2^h`` translations from (ix, iy)
+    above. A window reaching in from below or left reads the first cell (whose window
+    covers its part inside); one wholly outside the crop adds 0."""
+    size = 1 << h
+    total = 0.0
+    for k in range(cells.shape[0]):
+        r = cells[k, 0] + iy
+        c = cells[k, 1] + ix
+        if r >= rows or c >= cols or r + size <= 0 or c + size <= 0:
+            continue
+        total += levels[h, max(r, 0), max(c, 0)]
+    return total
+
+
+@numba.njit(cache=True)
+def _in_zone(j, ix, iy, span, zone):
+    """Whether all translations of the node (j, ix, iy) of ``span`` cells lie in the
+    winner's zone. ``zone``: (winner j, ix, iy, radius in cells, half-width in headings)."""
+    if abs(j - zone[0]) > zone[4]:
+        return False
+    dx = max(abs(ix - zone[1]), abs(ix + span - 1 - zone[1]))
+    dy = max(abs(iy - zone[2]), abs(iy + span - 1 - zone[2]))
+    return dx * dx + dy * dy <= zone[3] * zone[3]
+
+
+@numba.njit(cache=True)
+def _local_maximum(levels, cells3, score, ix, iy, rows, cols):
+    """Whether no lattice neighbour of (ix, iy) at the heading of ``cells3[1]`` (26 of
+    them, past the window's edge too) scores higher than ``score``. ``cells3`` holds the
+    endpoints' cells at that heading's lattice neighbours and itself."""
+    for dj in range(3):
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                if dj == 1 and dx == 0 and dy == 0:
+                    continue
+                if _bound(levels, 0, cells3[dj], ix + dx, iy + dy, rows, cols) > score:
+                    return False
+    return True
+
+
+@numba.njit(cache=True)
+def _cells_at(pts, j, args, out):
+    x, y, th, step, ox, oy, res = args
+    _discretize(pts, th + j * step, x, y, ox, oy, res, out)
+
+
+@numba.njit(cache=True)
+def _search(levels, pts, args, nt, nx, rows, cols, floor, zone, use_zone):
+    """Branch and bound over headings -nt..nt and translations -nx..nx (cells). Without
+    ``use_zone``: the best lattice pose. With it: the best local maximum outside ``zone``.
+    Only poses scoring above ``floor`` count. Returns (score, j, ix, iy, nodes); j is
+    ``nt + 1`` when nothing beat ``floor``."""
+    depth = levels.shape[0] - 1
+    span = 1 << depth
+    per_axis = (2 * nx + span) // span
+    n_roots = (2 * nt + 1) * per_axis * per_axis
+    root_score = np.empty(n_roots)
+    root_key = np.empty((n_roots, 3), dtype=np.int64)
+    cells = np.empty((pts.shape[0], 2), dtype=np.int64)
+    cells3 = np.empty((3, pts.shape[0], 2), dtype=np.int64)
+    nodes = 0
+    n = 0
+    for j in range(-nt, nt + 1):
+        _cells_at(pts, j, args, cells)
+        for a in range(per_axis):
+            for b in range(per_axis):
+                ix = -nx + a * span
+                iy = -nx + b * span
+                root_score[n] = _bound(levels, depth, cells, ix, iy, rows, cols)
+                root_key[n, 0] = j
+                root_key[n, 1] = ix
+                root_key[n, 2] = iy
+                n += 1
+    nodes += n
+    order = np.argsort(-root_score, kind="mergesort")
+    best = floor
+    best_j = nt + 1
+    best_x = 0
+    best_y = 0
+    # explicit depth-first stack of (h, ix, iy, bound): at most 4 children per level
+    stack_h = np.empty(4 * depth + 4, dtype=np.int64)
+    stack_x = np.empty(4 * depth + 4, dtype=np.int64)
+    stack_y = np.empty(4 * depth + 4, dtype=np.int64)
+    stack_b = np.empty(4 * depth + 4)
+    child_b = np.empty(4)
+    child_x = np.empty(4, dtype=np.int64)
+    child_y = np.empty(4, dtype=np.int64)
+    for q in range(n_roots):
+        r = order[q]
+        if root_score[r] <= best:
+            break
+        j = root_key[r, 0]
+        if use_zone and _in_zone(j, root_key[r, 1], root_key[r, 2], span, zone):
+            continue
+        _cells_at(pts, j, args, cells)
+        have_neighbours = False
+        top = 0
+        stack_h[0] = depth
+        stack_x[0] = root_key[r, 1]
+        stack_y[0] = root_key[r, 2]
+        stack_b[0] = root_score[r]
+        top = 1
+        while top > 0:
+            top -= 1
+            h = stack_h[top]
+            ix = stack_x[top]
+            iy = stack_y[top]
+            bound = stack_b[top]
+            if bound <= best:
+                continue
+            if h == 0:
+                if use_zone:
+                    if _in_zone(j, ix, iy, 1, zone):
+                        continue
+                    if not have_neighbours:
+                        for d in range(3):
+                            _cells_at(pts, j + d - 1, args, cells3[d])
+                        have_neighbours = True
+                    if not _local_maximum(levels, cells3, bound, ix, iy, rows, cols):
+                        continue
+                best = bound
+                best_j = j
+                best_x = ix
+                best_y = iy
+                continue
+            half = 1 << (h - 1)
+            m = 0
+            for a in range(2):
+                for b in range(2):
+                    cx = ix + a * half
+                    cy = iy + b * half
+                    if cx > nx or cy > nx:
+                        continue
+                    if use_zone and _in_zone(j, cx, cy, half, zone):
+                        continue
+                    cb = _bound(levels, h - 1, cells, cx, cy, rows, cols)
+                    nodes += 1
+                    if cb <= best:
+                        continue
+                    # insert sorted ascending, so that the best child is popped first
+                    p = m
+                    while p > 0 and child_b[p - 1] > cb:
+                        child_b[p] = child_b[p - 1]
+                        child_x[p] = child_x[p - 1]
+                        child_y[p] = child_y[p - 1]
+                        p -= 1
+                    child_b[p] = cb
+                    child_x[p] = cx
+                    child_y[p] = cy
+                    m += 1
+            for p in range(m):
+                stack_h[top] = h - 1
+                stack_x[top] = child_x[p]
+                stack_y[top] = child_y[p]
+                stack_b[top] = child_b[p]
+                top += 1
+    return best, best_j, best_x, best_y, nodes
+
+
+@numba.njit(cache=True)
+def _brute_force(levels, pts, args, nt, nx, rows, cols, pad):
+    """Every lattice score, headings -nt-pad..nt+pad, translations -nx-pad..nx+pad."""
+    out = np.empty((2 * (nt + pad) + 1, 2 * (nx + pad) + 1, 2 * (nx + pad) + 1))
+    cells = np.empty((pts.shape[0], 2), dtype=np.int64)
+    for j in range(-nt - pad, nt + pad + 1):
+        _cells_at(pts, j, args, cells)
+        for ix in range(-nx - pad, nx + pad + 1):
+            for iy in range(-nx - pad, nx + pad + 1):
+                out[j + nt + pad, ix + nx + pad, iy + nx + pad] = _bound(
+                    levels, 0, cells, ix, iy, rows, cols
+                )
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# The matcher
+
+
+class WideBasinMatcher:
+    """Branch-and-bound search of a wide window against one map (see the module docstring).
+
+    The pooled grids are kept between searches: ``set_map`` again when the map changed
+    (the odometry does so before each search, the cost is a few passes over the reachable
+    cells)."""
+
+    def __init__(self, config: WideBasinConfig | None = None) -> None:
+        self.config = config or WideBasinConfig()
+        self._levels = np.zeros((1, 0, 0), dtype=np.float32)
+        self._shape = (0, 0)
+        self._origin = np.zeros(2)
+        self._resolution = 0.0
+        self._depth = 0
+
+    @property
+    def resolution(self) -> float:
+        """Cell size of the map searched, metres (the lattice's translation step)."""
+        return self._resolution
+
+    def depth_for(self, resolution: float) -> int:
+        """Pooling levels above the finest: the top node spans the whole window."""
+        cells = 2 * int(self.config.distance / resolution) + 1
+        return max(math.ceil(math.log2(cells)), 0)
+
+    def set_map(
+        self, grid: OccupancyGrid, box: tuple[float, float, float, float] | None = None
+    ) -> None:
+        """Pool the part of ``grid`` within ``box`` (xmin, ymin, xmax, ymax; the whole grid
+        by default) for searches. Endpoints that a searched pose puts outside it score 0,
+        as outside the map."""
+        res = grid.resolution
+        rows_all, cols_all = grid.shape
+        if box is None:
+            r0, c0, r1, c1 = 0, 0, rows_all, cols_all
+        else:
+            ox, oy = grid.origin
+            c0 = max(math.floor((box[0] - ox) / res), 0)
+            r0 = max(math.floor((box[1] - oy) / res), 0)
+            c1 = min(math.floor((box[2] - ox) / res) + 1, cols_all)
+            r1 = min(math.floor((box[3] - oy) / res) + 1, rows_all)
+        rows, cols = max(r1 - r0, 1), max(c1 - c0, 1)
+        depth = self.depth_for(res)
+        need = (depth + 1, rows, cols)
+        have = self._levels.shape
+        if have[0] < need[0] or have[1] < rows or have[2] < cols:
+            # grown to the largest crop seen, then reused
+            self._levels = np.zeros(
+                (need[0], max(have[1], rows), max(have[2], cols)), dtype=np.float32
+            )
+        levels = self._levels[: depth + 1, :rows, :cols]
+        _fill_levels(grid.weights, r0, c0, rows, cols, self.config.blur, levels)
+        self._shape = (rows, cols)
+        self._origin = grid.origin + res * np.array([c0, r0], dtype=np.float64)
+        self._resolution = res
+        self._depth = depth
+
+    def _lattice(self, pts: FloatArray, centre: FloatArray) -> tuple[int, int, tuple]:
+        c = self.config
+        res = self._resolution
+        if c.angular_step is not None:
+            step = c.angular_step
+        else:
+            reach = float(np.percentile(np.hypot(pts[:, 0], pts[:, 1]), 90)) if len(pts) else 1.0
+            step = res / max(reach, res)
+        nt = int(c.angle / step)
+        nx = int(c.distance / res)
+        args = (float(centre[0]), float(centre[1]), float(centre[2]), float(step),
+                float(self._origin[0]), float(self._origin[1]), float(res))  # fmt: skip
+        return nt, nx, args
+
+    def _prepare(self, points: ArrayLike, centre: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        if self._resolution == 0.0:
+            raise RuntimeError("WideBasinMatcher.search needs set_map first")
+        pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 2))
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        return pts, np.asarray(centre, dtype=np.float64).reshape(3)
+
+    def _pose(self, args: tuple, j: int, ix: int, iy: int) -> FloatArray:
+        x, y, th, step, _, _, res = args
+        return np.array([x + ix * res, y + iy * res, th + j * step])
+
+    def search(self, points: ArrayLike, centre: ArrayLike) -> WideMatch:
+        """The best lattice pose of sensor-frame ``points`` (N, 2) within the window around
+        ``centre`` (x, y, theta; map frame), and its best distinct rival."""
+        pts, centre = self._prepare(points, centre)
+        nt, nx, args = self._lattice(pts, centre)
+        lattice = (2 * nt + 1, 2 * nx + 1)
+        n = max(len(pts), 1)
+        if len(pts) == 0:
+            return WideMatch(centre.copy(), 0.0, None, 0.0, 0, lattice)
+        levels = self._levels[: self._depth + 1, : self._shape[0], : self._shape[1]]
+        rows, cols = self._shape
+        zone = np.zeros(5, dtype=np.int64)
+        best, j, ix, iy, nodes = _search(
+            levels, pts, args, nt, nx, rows, cols, -1.0, zone, False
+        )
+        c = self.config
+        zone[:] = (j, ix, iy, int(c.rival_distance / args[6]), int(c.rival_angle / args[3]))
+        floor = max(c.min_rival_ratio * best, 0.0)
+        floor = np.nextafter(floor, -np.inf) if floor > 0 else -1.0
+        rival, rj, rx, ry, more = _search(
+            levels, pts, args, nt, nx, rows, cols, floor, zone, True
+        )
+        found = rj <= nt
+        return WideMatch(
+            pose=self._pose(args, j, ix, iy),
+            score=best / n,
+            rival_pose=self._pose(args, rj, rx, ry) if found else None,
+            rival_score=rival / n if found else 0.0,
+            nodes=int(nodes + more),
+            lattice=lattice,
+        )
+
+    def brute_force_scores(self, points: ArrayLike, centre: ArrayLike, pad: int = 0):
+        """Every lattice pose's mean map value, as (headings, x, y) with ``pad`` extra
+        poses around the window, and the lattice's (x, y, theta, step, ...) arguments: the
+        reference the branch and bound must equal (tests, benchmark)."""
+        pts, centre = self._prepare(points, centre)
+        nt, nx, args = self._lattice(pts, centre)
+        levels = self._levels[: self._depth + 1, : self._shape[0], : self._shape[1]]
+        rows, cols = self._shape
+        scores = _brute_force(levels, pts, args, nt, nx, rows, cols, pad)
+        return scores / max(len(pts), 1), args
+
+
+def refine(
+    pyramid: MapPyramid,
+    start: ArrayLike,
+    points: ArrayLike,
+    max_iterations: tuple[int, ...] | None = None,
+    spacing: float | None = None,
+    subcell_sigma: float | None = 1.0,
+) -> tuple[FloatArray, MatchReport]:
+    """Gauss-Newton (Eq. 3) from a search's pose down ``pyramid`` for sensor-frame
+    ``points``: the sub-cell pose the lattice only brackets. ``spacing`` (default the finest
+    cell) thins the points per level as the odometry does."""
+    pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 2))
+    levels = len(pyramid.grids)
+    spacing = pyramid.finest.resolution if spacing is None else spacing
+    keep = subsample_by_spacing(pts, spacing)
+    level_pts = points_per_level(pts, spacing, levels, keep)
+    iterations = max_iterations or (10,) * levels
+    return match_scan_to_map(
+        pyramid, level_pts, start, iterations, subcell_sigma=subcell_sigma,
+        normals=matched_normals(level_pts),
+    )  # fmt: skip
+
+
+__all__ = ["WideBasinConfig", "WideBasinMatcher", "WideMatch", "refine"]

@@ -1,0 +1,66 @@
+"""Exhaustive correlative search of the Eq. 3 objective on a regular (x, y, theta) lattice.
+
+Used where the search window is small (pairwise registration seeds); the wide windows of a
+scan with no trustworthy prediction go to :mod:`bioslam.matching.branch_and_bound`, which
+finds the same optimum without visiting every lattice pose.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+from scipy import ndimage
+
+from bioslam.matching.gauss_newton import FloatArray, grid_args, summed_map
+from bioslam.occupancy_grid import OccupancyGrid
+
+
+@numba.njit(cache=True)
+def _correlative_scores(g, pts, pose, nt, nx, step_xy, step_th):
+    """The Eq. 3 objective (summed M*) on the (theta, x, y) lattice of ``2 nt + 1`` headings
+    and ``(2 nx + 1)^2`` positions around ``pose``."""
+    out = np.empty((2 * nt + 1, 2 * nx + 1, 2 * nx + 1))
+    for it in range(-nt, nt + 1):
+        th = pose[2] + it * step_th
+        c = math.cos(th)
+        s = math.sin(th)
+        for ix in range(-nx, nx + 1):
+            for iy in range(-nx, nx + 1):
+                tx = pose[0] + ix * step_xy
+                ty = pose[1] + iy * step_xy
+                out[it + nt, ix + nx, iy + nx] = summed_map(g, pts, c, s, tx, ty, False)
+    return out
+
+
+def lattice_search(
+    grid: OccupancyGrid,
+    subcell_sigma: float | None,
+    points: FloatArray,
+    guess: FloatArray,
+    distance: float,
+    angle: float,
+    step: float,
+    radius: float,
+    peaks: int = 1,
+) -> FloatArray:
+    """Exhaustive search of the Eq. 3 objective on ``grid`` within ``distance`` m and
+    ``angle`` rad of ``guess``, ``step`` m apart in position and, in heading, by the angle
+    that moves a point at ``radius`` m (at least one cell) by ``step``. Returns the poses
+    ``(K, 3)`` of the ``peaks`` best local maxima of the lattice, best first."""
+    step_th = step / max(radius, grid.resolution)
+    nt, nx = int(angle / step_th), int(distance / step)
+    scores = _correlative_scores(
+        grid_args(grid, subcell_sigma), points, guess, nt, nx, step, step_th
+    )
+    if peaks == 1:
+        best = np.array([np.argmax(scores)])
+    else:
+        local = scores == ndimage.maximum_filter(scores, size=3, mode="nearest")
+        flat = np.flatnonzero(local)
+        best = flat[np.argsort(-scores.ravel()[flat], kind="stable")[:peaks]]
+    it, ix, iy = np.unravel_index(best, scores.shape)
+    offsets = np.column_stack([(ix - nx) * step, (iy - nx) * step, (it - nt) * step_th])
+    return guess + offsets
+

@@ -1,0 +1,197 @@
+"""Pairwise scan registration (loop-closure refinement): one scan against a map made of
+another, by a lattice search then Gauss-Newton (Eq. 3-4)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from bioslam.geometry import transform_points
+from bioslam.matching.correlative import lattice_search
+from bioslam.matching.gauss_newton import (
+    FloatArray,
+    match_scan_to_map,
+    matched_normals,
+    points_per_level,
+)
+from bioslam.occupancy_grid import (
+    NORMAL_MAX_GAP,
+    LogOddsConfig,
+    MapPyramid,
+    subsample_by_spacing,
+)
+
+
+@dataclass
+class RegistrationQuality:
+    """How trustworthy a :func:`register_scans` result is; ``float(q)`` is ``q.score``.
+
+    Attributes:
+        score: fraction of query points (inside the reference map) that land within about a
+            cell of ``RegistrationConfig.score_level`` of the reference scan after
+            convergence: the sub-cell map function (kernel one cell wide) is at least
+            ``hit_level`` there. The reference is densified along its surfaces first
+            (:func:`densify_scan`). Points in space the reference never saw count as
+            misses. In the tests a correct registration scores above 0.9 and a
+            registration of two different places below 0.6.
+        mean_value: mean of that map function over those points.
+        overlap: fraction of query points that fall inside the reference map at all.
+        converged: the finest level stopped on a small step before its iteration limit.
+        degenerate: some direction was unconstrained (corridor): ``rel`` is then only
+            reliable across that direction.
+        condition: smallest / largest scaled curvature.
+        iterations: Gauss-Newton iterations summed over the levels.
+    """
+
+    score: float
+    mean_value: float
+    overlap: float
+    converged: bool
+    degenerate: bool
+    condition: float
+    iterations: int
+
+    def __float__(self) -> float:
+        return float(self.score)
+
+
+@dataclass(frozen=True)
+class RegistrationConfig:
+    """Parameters of :func:`register_scans`.
+
+    Attributes:
+        resolution, levels: the reference map pyramid (as :class:`OdometryConfig`).
+        search_distance, search_angle: half-widths of the exhaustive search on the coarsest
+            level around the initial guess (metres, radians); they set the convergence basin
+            (a view cell's place match can be half a metre and tens of degrees off).
+        max_range: reference/query endpoints beyond this are ignored, metres.
+        max_iterations, step_tolerance, length_scale, degeneracy_ratio, subcell_sigma: as in
+            OdometryConfig.
+        hit_level: map function value at or above which a query point counts as landing on
+            the reference scan (0.5: about one cell from a reference endpoint).
+        score_level: the pyramid level whose cells that is judged on. Default 1 (10 cm):
+            a point lands within about 10 cm of the reference scan. On the finest level
+            (5 cm) range noise alone fails a correct registration: two scans with 3 cm noise
+            (a low-cost 360° LiDAR) differ by more than 5 cm for a fifth of their points,
+            and correct registrations scored 0.66-0.76, so the noisy sensor never closed a
+            loop (0 of 336 registrations on a 600 s maze route; 73 on level 1).
+    """
+
+    resolution: float = 0.05
+    levels: int = 3
+    search_distance: float = 0.6
+    search_angle: float = math.radians(25.0)
+    max_range: float = 30.0
+    max_iterations: tuple[int, ...] = (10, 10, 20)
+    step_tolerance: float = 0.01
+    length_scale: float = 3.0
+    degeneracy_ratio: float = 0.01
+    subcell_sigma: float | None = 1.0
+    hit_level: float = 0.5
+    score_level: int = 1
+
+
+def densify_scan(points: FloatArray, spacing: float, max_gap: float) -> FloatArray:
+    """Endpoints in scan order with points added every ``spacing`` metres between neighbours
+    closer than ``max_gap`` (the same surface): a sparse scan (1 deg beams reach 10 cm
+    apart at 6 m) would otherwise leave empty cells between its points on a wall, where
+    the other scan's points of that wall find nothing to land on."""
+    if points.shape[0] < 2:
+        return points
+    step = np.diff(points, axis=0)
+    gap = np.hypot(step[:, 0], step[:, 1])
+    extra = np.where(gap <= max_gap, np.floor(gap / spacing).astype(np.int64), 0)
+    counts = np.append(extra + 1, 1)
+    start = np.repeat(np.arange(points.shape[0]), counts)
+    offset = np.arange(start.size) - np.repeat(np.cumsum(counts) - counts, counts)
+    frac = offset / np.repeat(counts, counts)
+    ahead = np.minimum(start + 1, points.shape[0] - 1)
+    return points[start] + frac[:, None] * (points[ahead] - points[start])
+
+
+def _check_points(points: ArrayLike, name: str) -> FloatArray:
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise ValueError(f"{name} must have shape (N, 2), got {pts.shape}")
+    return pts[np.all(np.isfinite(pts), axis=1)]
+
+
+def register_scans(
+    reference_points: ArrayLike,
+    query_points: ArrayLike,
+    initial_guess: ArrayLike = (0.0, 0.0, 0.0),
+    config: RegistrationConfig | None = None,
+) -> tuple[FloatArray, RegistrationQuality]:
+    """The pose of the query scan's frame in the reference scan's frame.
+
+    Both point sets are ``(N, 2)`` endpoints in their own sensor frames. The reference scan is
+    fused into a small map pyramid; the query is placed by an exhaustive search of the Eq. 3
+    objective on the coarsest level around ``initial_guess`` followed by Gauss-Newton (Eq. 3-4)
+    down the pyramid. See :class:`RegistrationQuality` for how to reject a bad result.
+    """
+    c = config or RegistrationConfig()
+    ref = _check_points(reference_points, "reference_points")
+    qry = _check_points(query_points, "query_points")
+    ref = ref[np.hypot(ref[:, 0], ref[:, 1]) <= c.max_range]
+    qry = np.ascontiguousarray(qry[np.hypot(qry[:, 0], qry[:, 1]) <= c.max_range])
+    guess = np.asarray(initial_guess, dtype=np.float64).reshape(3)
+    if ref.shape[0] < 3 or qry.shape[0] < 3:
+        raise ValueError(
+            f"register_scans needs at least 3 finite points in each scan, got "
+            f"{ref.shape[0]} reference and {qry.shape[0]} query points"
+        )
+    # The map covers the reference's bounding box (a square around the sensor would be
+    # mostly empty, and zeroing it cost a fifth of a registration on a 30 m scanner); query
+    # points beyond it still count as misses in the score: they fall where the reference
+    # saw nothing, and the map function is 0 outside the map.
+    lo = ref.min(axis=0) - 1.0
+    hi = ref.max(axis=0) + 1.0
+    pyramid = MapPyramid(c.resolution, tuple(hi - lo), c.levels, LogOddsConfig(), origin=lo)
+    pyramid.insert_scan(np.zeros(3), densify_scan(ref, 0.5 * c.resolution, NORMAL_MAX_GAP))
+    keep = subsample_by_spacing(qry, c.resolution)
+    level_pts = points_per_level(qry, c.resolution, c.levels, keep)
+    top = pyramid.grids[-1]
+    # Lattice steps of one coarse cell, in angle at the range of most points: Gauss-Newton
+    # on the coarse level converges from anywhere within a cell, so a finer lattice (half a
+    # cell at the farthest point) only multiplied the cost, by 20 on a 30 m scanner.
+    radius = float(np.percentile(np.hypot(qry[:, 0], qry[:, 1]), 90))
+    seed = lattice_search(
+        top, None, level_pts[-1], guess, c.search_distance, c.search_angle, top.resolution, radius
+    )[0]
+    rel, report = match_scan_to_map(
+        pyramid, level_pts, seed, c.max_iterations, c.step_tolerance, c.length_scale,
+        c.degeneracy_ratio, c.subcell_sigma, matched_normals(level_pts),
+    )  # fmt: skip
+    judge = pyramid.grids[c.score_level]
+    world = transform_points(rel, qry)
+    values, _ = judge.value_and_gradient(world, subcell_sigma=1.0)
+    reach = float(np.max(np.abs(ref))) + 1.0
+    inside = _inside((-reach, -reach, reach, reach), judge.resolution, world)
+    n_in = int(inside.sum())
+    quality = RegistrationQuality(
+        score=float(np.mean(values[inside] >= c.hit_level)) if n_in else 0.0,
+        mean_value=float(np.mean(values[inside])) if n_in else 0.0,
+        overlap=n_in / qry.shape[0],
+        converged=report.converged,
+        degenerate=report.degenerate,
+        condition=report.condition,
+        iterations=report.iterations,
+    )
+    return rel, quality
+
+
+def _inside(
+    extent: tuple[float, float, float, float], margin: float, world: FloatArray
+) -> NDArray[np.bool_]:
+    """Points at least ``margin`` inside ``extent`` (xmin, ymin, xmax, ymax)."""
+    xmin, ymin, xmax, ymax = extent
+    half = margin
+    return (
+        (world[:, 0] >= xmin + half)
+        & (world[:, 0] < xmax - half)
+        & (world[:, 1] >= ymin + half)
+        & (world[:, 1] < ymax - half)
+    )

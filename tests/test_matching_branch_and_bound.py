@@ -1,0 +1,134 @@
+import math
+
+import numpy as np
+import pytest
+from _scan_world import CORRIDOR, ROOM, box, make_scan, pose_error
+from scipy import ndimage
+
+from bioslam.geometry import compose
+from bioslam.matching.branch_and_bound import (
+    WideBasinConfig,
+    WideBasinMatcher,
+    refine,
+)
+from bioslam.occupancy_grid import MapPyramid, OccupancyGrid
+
+
+def _brute_force_reference(matcher, points, centre):
+    """The lattice optimum and the best distinct local maximum, from every lattice score."""
+    cfg = matcher.config
+    scores, (_, _, _, step, _, _, res) = matcher.brute_force_scores(points, centre, pad=1)
+    # a rival must be a local maximum among all 26 neighbours, also those past the window
+    local = scores >= ndimage.maximum_filter(scores, size=3, mode="constant", cval=-1.0)
+    inner = scores[1:-1, 1:-1, 1:-1]
+    local = local[1:-1, 1:-1, 1:-1]
+    nt, nx = (inner.shape[0] - 1) // 2, (inner.shape[1] - 1) // 2
+    j, ix, iy = np.meshgrid(
+        np.arange(-nt, nt + 1), np.arange(-nx, nx + 1), np.arange(-nx, nx + 1), indexing="ij"
+    )
+    best = np.unravel_index(np.argmax(inner), inner.shape)
+    bj, bx, by = best[0] - nt, best[1] - nx, best[2] - nx
+    zone_cells = int(cfg.rival_distance / res)
+    zone = (np.abs(j - bj) <= int(cfg.rival_angle / step)) & (
+        (ix - bx) ** 2 + (iy - by) ** 2 <= zone_cells**2
+    )
+    rivals = local & ~zone & (inner >= cfg.min_rival_ratio * inner.max())
+    return inner.max(), (inner[rivals].max() if rivals.any() else 0.0)
+
+
+def test_branch_and_bound_equals_brute_force_on_random_maps_and_windows():
+    # Random cells of random occupancy are the adversarial case for the bounds: no structure
+    # to prune on, many near-ties. Best and rival must be the brute force's to the last bit.
+    rng = np.random.default_rng(7)
+    for _ in range(12):
+        res = rng.choice([0.05, 0.1, 0.2])
+        grid = OccupancyGrid(res, 12.0)
+        mask = rng.random(grid.shape) < rng.uniform(0.01, 0.1)
+        grid.weights[mask] = rng.random(int(mask.sum())).astype(np.float32)
+        points = rng.uniform(-5, 5, (int(rng.integers(5, 80)), 2))
+        centre = np.array([*rng.uniform(-2, 2, 2), rng.uniform(-math.pi, math.pi)])
+        cfg = WideBasinConfig(
+            distance=rng.uniform(0.1, 1.0), angle=rng.uniform(0.02, 0.6),
+            rival_distance=rng.uniform(0.1, 0.6), rival_angle=rng.uniform(0.02, 0.3),
+            min_rival_ratio=rng.uniform(0.0, 0.9), blur=int(rng.integers(0, 3)),
+        )  # fmt: skip
+        matcher = WideBasinMatcher(cfg)
+        matcher.set_map(grid)
+        found = matcher.search(points, centre)
+        best, rival = _brute_force_reference(matcher, points, centre)
+        assert found.score == best
+        assert found.rival_score == rival
+        assert (found.rival_pose is None) == (rival == 0.0)
+
+
+def _mapped(world, poses, beams=361, fov=1.5 * np.pi, size=24.0):
+    """A map pyramid (5 cm finest) made from noisy scans of ``world`` at ``poses``."""
+    rng = np.random.default_rng(0)
+    pyramid = MapPyramid(0.05, size, 3)
+    for pose in poses:
+        scan = make_scan(world, pose, beams=beams, fov=fov, sigma=0.01, rng=rng)
+        pyramid.insert_scan(pose, scan.endpoints())
+    return pyramid
+
+
+def _query(world, pose, beams=181, fov=np.pi):
+    scan = make_scan(world, pose, beams=beams, fov=fov, sigma=0.01, rng=np.random.default_rng(1))
+    return scan.endpoints()
+
+
+def test_finds_an_offset_of_a_metre_and_30_degrees_in_a_distinctive_room():
+    truth = np.array([0.5, 0.3, 0.4])
+    pyramid = _mapped(ROOM, [truth])
+    matcher = WideBasinMatcher()  # ±1.5 m, ±45°
+    matcher.set_map(pyramid.grids[1])
+    points = _query(ROOM, truth)
+    guess = compose(truth, (-0.8, 0.6, math.radians(30)))  # 1 m and 30° off
+    found = matcher.search(points, guess)
+    dist, ang = pose_error(found.pose, truth)
+    assert dist < 0.1 and ang < math.radians(2)
+    assert found.ambiguity < 0.8  # nothing else in the room looks like it
+    pose, _ = refine(pyramid, found.pose, points)
+    dist, ang = pose_error(pose, truth)
+    assert dist < 0.02 and ang < math.radians(0.5)
+
+
+def test_a_featureless_corridor_is_ambiguous_along_its_axis():
+    truth = np.array([0.0, 0.2, 0.05])
+    pyramid = _mapped(CORRIDOR, [(-3, 0, 0), (0, 0, 0), (3, 0, 0)], size=40.0)
+    matcher = WideBasinMatcher(WideBasinConfig(angle=math.radians(20)))
+    matcher.set_map(pyramid.grids[1])
+    points = _query(CORRIDOR, truth, fov=np.radians(270.0))
+    found = matcher.search(points, truth)
+    assert found.rival_pose is not None and found.ambiguity > 0.95
+    # the look-alike is along the axis; across it both sit on the walls
+    apart = found.rival_pose - found.pose
+    assert abs(apart[0]) > 0.5 and abs(apart[1]) < 0.1 and abs(apart[2]) < 0.03
+
+
+def test_two_identical_rooms_are_told_apart_only_as_ambiguous():
+    # two closed 2 m x 2.6 m rooms with the same furniture, 2.4 m apart; a search window
+    # centred between them holds both
+    def room(x0):
+        return box(x0, 0, x0 + 2.0, 2.6) + box(x0 + 0.3, 0.3, x0 + 0.8, 0.6)
+
+    world = np.array(room(0.0) + room(2.4), dtype=float)
+    truth = np.array([1.2, 1.5, 0.3])
+    other = truth + np.array([2.4, 0, 0])
+    pyramid = _mapped(world, [truth, other], beams=721, fov=2 * np.pi, size=12.0)
+    matcher = WideBasinMatcher(WideBasinConfig(distance=1.5, angle=math.radians(15)))
+    matcher.set_map(pyramid.grids[1])
+    points = _query(world, truth, beams=361, fov=2 * np.pi)
+    found = matcher.search(points, truth + np.array([1.2, 0.0, 0.0]))
+    assert found.rival_pose is not None and found.ambiguity > 0.9
+    places = sorted([found.pose[0], found.rival_pose[0]])
+    assert places[0] == pytest.approx(1.2, abs=0.1) and places[1] == pytest.approx(3.6, abs=0.1)
+    # the same scan searched around one room alone is unambiguous
+    alone = matcher.search(points, truth + np.array([0.3, 0.0, 0.0]))
+    assert alone.ambiguity < 0.8 or alone.rival_pose is None
+
+
+def test_search_needs_a_map_and_checks_its_window():
+    with pytest.raises(RuntimeError, match="set_map"):
+        WideBasinMatcher().search(np.zeros((3, 2)), np.zeros(3))
+    with pytest.raises(ValueError, match="non-negative"):
+        WideBasinConfig(distance=-1.0)
