@@ -22,15 +22,17 @@ No I/O here; :class:`bioslam.slam.BioSLAM` calls these once per look.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
+from bioslam.config import LoopClosureConfig
 from bioslam.geometry import between, transform_points
-from bioslam.odometry import RegistrationConfig, register_scans
+from bioslam.matching.branch_and_bound import WideBasinConfig, WideBasinMatcher, refine
+from bioslam.matching.registration import RegistrationConfig, densify_scan
+from bioslam.occupancy_grid import NORMAL_MAX_GAP, LogOddsConfig, MapPyramid, OccupancyGrid
 
 FloatArray = NDArray[np.float64]
 
@@ -118,12 +120,13 @@ class Check:
 @dataclass(frozen=True)
 class Verdict:
     """The outcome of verifying one candidate: ``pose`` is the robot in the candidate
-    experience's frame; ``reason`` says why a candidate was refused ('' when accepted)."""
+    experience's frame; ``score`` the share of its points on the submap; ``ambiguity`` the
+    best distinct rival's search score over the best's; ``reason`` says why a candidate was refused ('' when accepted)."""
 
     accepted: bool
     pose: FloatArray
     score: float
-    rival_score: float
+    ambiguity: float
     reason: str = ""
 
 
@@ -132,30 +135,90 @@ def verify(
     query: FloatArray,
     predicted: FloatArray,
     window: tuple[float, float],
-    min_score: float,
-    reject_degenerate: bool,
-    registration: RegistrationConfig,
+    config: LoopClosureConfig,
 ) -> Verdict:
     """Register ``query`` (the current scan, robot frame) against ``reference`` (a submap in
-    a candidate experience's frame) around ``predicted`` within ``window`` (m, rad), and judge
-    the result: a good score, constrained in every direction, and within the window (a pose
-    farther than the odometry can have drifted is a look-alike place)."""
-    distance, angle = window
-    config = dataclasses.replace(
-        registration,
-        search_distance=min(registration.search_distance, distance),
-        search_angle=min(registration.search_angle, angle),
+    a candidate experience's frame) within ``window`` (m, rad) of ``predicted``, and judge it.
+
+    The window is searched whole by the wide-basin matcher (branch and bound,
+    :mod:`bioslam.matching.branch_and_bound`), which also reports the best distinct rival;
+    Gauss-Newton refines the winner. Accepted only when the result fits (``min_score`` of the
+    points land on the submap), is constrained in every direction (not degenerate), and no
+    distinct pose in the window fits nearly as well (``rival / best < max_ambiguity``): in a
+    corridor or among identical rooms the scan alone cannot say where it is, and a false
+    closure bends the whole map. Likewise the map's own prediction, refined where it stands,
+    is a rival: a best pose away from it must score more than ``prior_margin`` above it."""
+    reg = config.registration
+    distance = min(window[0], config.search_distance)
+    angle = min(window[1], config.search_angle)
+    pyramid = _submap_pyramid(reference, reg)
+    matcher = WideBasinMatcher(
+        WideBasinConfig(
+            distance=distance,
+            angle=angle,
+            rival_distance=config.rival_distance,
+            rival_angle=config.rival_angle,
+            min_rival_ratio=config.max_ambiguity,
+        )
     )
-    pose, quality = register_scans(reference, query, predicted, config)
-    correction = between(predicted, pose)
+    matcher.set_map(pyramid.grids[min(config.search_level, len(pyramid.grids) - 1)])
+    found = matcher.search(query, predicted)
+    judge = pyramid.grids[reg.score_level]
+    # Gauss-Newton from the lattice pose on the searched level and finer only: a coarser
+    # level's blur would let it slide along a corridor, away from what the search found.
+    level = min(config.search_level, len(pyramid.grids) - 1)
+    pose, report = refine(pyramid, found.pose, query, _levels_up_to(reg.max_iterations, level))
+    score = _hit_fraction(judge, pose, query, reg.hit_level)
+    # The map's own prediction, refined where it stands. Along a corridor the window's best
+    # may lie on a plateau the scan barely constrains, far from the truth and with no
+    # distinct lattice rival (Gauss-Newton may also slide along it): a correction away from
+    # the prediction must fit clearly better than the prediction itself.
+    kept, kept_report = refine(pyramid, predicted, query, _levels_up_to(reg.max_iterations, 0))
+    kept_score = _hit_fraction(judge, kept, query, reg.hit_level)
+    agree = within(between(kept, pose), config.rival_distance, config.rival_angle)
+    if agree:
+        pose, report, score = kept, kept_report, max(score, kept_score)
+    slid = not within(between(found.pose, pose), 2.0 * matcher.resolution, config.rival_angle)
     reason = ""
-    if quality.score < min_score:
+    if score < config.min_score:
         reason = "score"
-    elif reject_degenerate and quality.degenerate:
+    elif config.reject_degenerate and report.degenerate:
         reason = "degenerate"
-    elif not within(correction, distance, angle):
+    elif found.ambiguity >= config.max_ambiguity or (
+        not agree and kept_score >= score - config.prior_margin
+    ):
+        reason = "ambiguous"
+    elif slid and not agree:
+        reason = "slid"
+    elif not within(between(predicted, pose), distance, angle):
         reason = "beyond drift"
-    return Verdict(not reason, pose, quality.score, float("nan"), reason)
+    return Verdict(not reason, pose, score, found.ambiguity, reason)
+
+
+def _levels_up_to(iterations: tuple[int, ...], level: int) -> tuple[int, ...]:
+    """Gauss-Newton iterations per level (finest first) with the levels above ``level`` off."""
+    return tuple(n if k <= level else 0 for k, n in enumerate(iterations))
+
+
+def _submap_pyramid(reference: FloatArray, reg: RegistrationConfig) -> MapPyramid:
+    """The submap's points as a map pyramid covering their bounding box (1 m margin)."""
+    ref = np.asarray(reference, dtype=np.float64)
+    lo = ref.min(axis=0) - 1.0
+    hi = ref.max(axis=0) + 1.0
+    pyramid = MapPyramid(reg.resolution, tuple(hi - lo), reg.levels, LogOddsConfig(), origin=lo)
+    pyramid.insert_scan(np.zeros(3), densify_scan(ref, 0.5 * reg.resolution, NORMAL_MAX_GAP))
+    return pyramid
+
+
+def _hit_fraction(grid: OccupancyGrid, pose: FloatArray, query: FloatArray, level: float) -> float:
+    """Share of the query's points inside the submap's grid that land within about a cell of
+    its walls (the map function at least ``level``), as ``register_scans`` scores."""
+    world = transform_points(pose, query)
+    values, _ = grid.value_and_gradient(world, subcell_sigma=1.0)
+    lo = grid.origin + grid.resolution
+    hi = grid.origin + grid.resolution * (np.array(grid.shape[::-1]) - 1)
+    inside = np.all((world >= lo) & (world < hi), axis=1)
+    return float(np.mean(values[inside] >= level)) if inside.any() else 0.0
 
 
 def within(correction: FloatArray, distance: float, angle: float) -> bool:

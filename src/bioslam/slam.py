@@ -208,10 +208,7 @@ class BioSLAM:
         if reference.shape[0] < 3:
             return None
         self._last_registration = self._travelled
-        verdict = verify(
-            reference, points, predicted, (drift, drift_angle), cfg.min_score,
-            cfg.reject_degenerate, cfg.registration,
-        )  # fmt: skip
+        verdict = verify(reference, points, predicted, (drift, drift_angle), cfg)
         cue = "proximity" if experience.id == self._proposed else "view"
         self.checks.append(Check(self._stamp, experience.id, experience.stamp, cue, verdict))
         if not verdict.accepted:
