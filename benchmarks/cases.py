@@ -31,7 +31,8 @@ class Case:
     """One benchmark input.
 
     ``source``: ``"sim"`` (generated with ``bioslam sim``) or a file name in ``../shared/data``.
-    ``lidar`` / ``duration_s`` / ``seed``: the simulator's settings (sim cases).
+    ``lidar`` / ``duration_s`` / ``seed`` / ``world`` / ``route``: the simulator's settings
+    (sim cases; ``bioslam sim --world``, ``--route``).
     ``max_scans``: read only the first scans of a real log (quick runs); ``None`` = all.
     ``repeats``: the most timed repetitions worth spending on this case (long cases run once).
     ``settings``: JSON overrides of the bioslam configuration for both bioslam rows (e.g. an
@@ -47,6 +48,8 @@ class Case:
     max_scans: int | None = None
     repeats: int = 3
     settings: str = ""
+    world: str = "maze"
+    route: str = "tour"
 
 
 @dataclass
@@ -86,6 +89,31 @@ def full_cases() -> list[Case]:
              "ablation: the 20 min RPLIDAR route with a gyro-like heading drift of 0.0115 deg/s "
              "added to the odometry", lidar="rplidar", duration_s=1200.0, seed=2, repeats=1,
              settings=GYRO_BIAS_SETTINGS),
+        *repetitive_cases(),
+    ]  # fmt: skip
+
+
+def repetitive_cases() -> list[Case]:
+    """Simulated cases the dense maze hides: identical aisles and rooms, sparse and short-range
+    scanners, routes that weave off the centre-line and turn back."""
+    return [
+        Case("sim-warehouse-sick", "sim",
+             "warehouse of identical aisles, 600 s, SICK LMS 180°/1° (181 beams), 10 Hz",
+             lidar="sick", duration_s=600.0, repeats=1, world="warehouse"),
+        Case("sim-warehouse-utm30lx", "sim",
+             "warehouse of identical aisles, 600 s, Hokuyo UTM-30LX",
+             lidar="utm30lx", duration_s=600.0, repeats=1, world="warehouse"),
+        Case("sim-maze-urg04lx", "sim",
+             "maze of the demo, 600 s, Hokuyo URG-04LX 240°, 5.6 m, 10 Hz",
+             lidar="urg04lx", duration_s=600.0, repeats=1),
+        Case("sim-rooms-sick-adversarial", "sim",
+             "identical rooms off a corridor, 600 s, SICK 181 beams, adversarial route (0.5 m "
+             "off centre, turn-backs, spins then 1.2 m/s)",
+             lidar="sick", duration_s=600.0, repeats=1, world="rooms", route="adversarial"),
+        Case("sim-warehouse-utm30lx-adversarial", "sim",
+             "warehouse, 600 s, Hokuyo UTM-30LX, adversarial route",
+             lidar="utm30lx", duration_s=600.0, repeats=1, world="warehouse",
+             route="adversarial"),
     ]  # fmt: skip
 
 
@@ -96,13 +124,14 @@ GYRO_BIAS_SETTINGS = '{"heading_bias": 0.0002}'
 def quick_cases() -> list[Case]:
     """Short versions of the same cases (``--quick``, about 5 min), one timed run each."""
     short = {"sim-maze-utm30lx": 20.0, "sim-long-rplidar": 60.0, "sim-long-gyro-bias": 60.0}
+    short.update({c.name: 60.0 for c in repetitive_cases()})
     heads = {"freiburg-079": 300, "intel": 150, "exp1": 300, "ros1-bag": None}
     out = []
     for c in full_cases():
         if c.source == "sim":
             out.append(
                 Case(c.name, c.source, c.description, c.lidar, short[c.name], c.seed, repeats=1,
-                     settings=c.settings)
+                     settings=c.settings, world=c.world, route=c.route)
             )
         else:
             out.append(Case(c.name, c.source, c.description, max_scans=heads[c.name], repeats=1))
@@ -129,7 +158,9 @@ def _simulate(case: Case, folder: Path) -> tuple[Path, Path]:
             *bioslam_cli(),
             "sim",
             "--world",
-            "maze",
+            case.world,
+            "--route",
+            case.route,
             "--lidar",
             case.lidar,
             "--duration",
@@ -187,7 +218,8 @@ def prepare(case: Case, work: Path) -> PreparedCase:
     # The simulator's settings are part of the folder name: a cached bag is reused only when
     # it was generated with the same lidar, duration and seed.
     # Cases driving the same simulated route share its folder.
-    sim_key = f"sim-{case.lidar}-{case.duration_s:g}s-seed{case.seed}"
+    place = "" if (case.world, case.route) == ("maze", "tour") else f"{case.world}-{case.route}-"
+    sim_key = f"sim-{place}{case.lidar}-{case.duration_s:g}s-seed{case.seed}"
     folder = work / "cases" / (sim_key if case.source == "sim" else case.name)
     folder.mkdir(parents=True, exist_ok=True)
     notes: list[str] = []

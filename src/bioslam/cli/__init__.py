@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 from bioslam import __version__
 
-SUBCOMMAND_MODULES = ("info", "sim", "run", "demo", "eval")
+SUBCOMMAND_MODULES = ("info", "sim", "run", "demo", "eval", "batch")
 
 
 def build_parser() -> argparse.ArgumentParser:
