@@ -121,7 +121,8 @@ class Check:
 class Verdict:
     """The outcome of verifying one candidate: ``pose`` is the robot in the candidate
     experience's frame; ``score`` the share of its points on the submap; ``ambiguity`` the
-    best distinct rival's search score over the best's; ``reason`` says why a candidate was refused ('' when accepted)."""
+    best distinct rival's search score over the best's; ``reason`` says why a candidate was
+    refused ('' when accepted)."""
 
     accepted: bool
     pose: FloatArray
@@ -173,11 +174,9 @@ def verify(
     # may lie on a plateau the scan barely constrains, far from the truth and with no
     # distinct lattice rival (Gauss-Newton may also slide along it): a correction away from
     # the prediction must fit clearly better than the prediction itself.
-    kept, kept_report = refine(pyramid, predicted, query, _levels_up_to(reg.max_iterations, 0))
+    kept, _ = refine(pyramid, predicted, query, _levels_up_to(reg.max_iterations, 0))
     kept_score = _hit_fraction(judge, kept, query, reg.hit_level)
     agree = within(between(kept, pose), config.rival_distance, config.rival_angle)
-    if agree:
-        pose, report, score = kept, kept_report, max(score, kept_score)
     slid = not within(between(found.pose, pose), 2.0 * matcher.resolution, config.rival_angle)
     reason = ""
     if score < config.min_score:

@@ -23,7 +23,6 @@ from bioslam.closure import (
     fuse_submap,
     nearest_experience,
     pass_neighbours,
-    thin_points,
     verify,
     within,
 )
