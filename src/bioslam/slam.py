@@ -23,6 +23,7 @@ from bioslam.closure import (
     fuse_submap,
     nearest_experience,
     pass_neighbours,
+    thin_points,
     verify,
     within,
 )
@@ -37,6 +38,8 @@ from bioslam.trajectory import Trajectory
 from bioslam.views import ViewCells
 
 FloatArray = NDArray[np.float64]
+
+__all__ = ["BioSLAM", "SelfMotion", "StepRecord", "thin_points"]
 
 
 @dataclass(frozen=True)

@@ -474,6 +474,14 @@ class ViewCells:
                 offsets[n] = shift[n] + (frac if value < coarse[n] else 0.0)
         return S, offsets
 
+    def _similarities(self, ids: IntArray, b: FloatArray) -> FloatArray:
+        if ids.size == 0:
+            return np.empty(0)
+        block = self.config.bound_block
+        return _similarities(
+            self._store, self._sums, ids, b, block_sums(b, block), block, self.config.s_t
+        )
+
     def _choose(self, sims: FloatArray) -> int:
         """Index of the best candidate below ``s_t``, or -1 to learn a new view."""
         if sims.size == 0:
