@@ -15,8 +15,15 @@ from pathlib import Path
 from typing import Any
 
 from bioslam import signals
-from bioslam.cli.common import add_output_options, conclude, open_output, run_status
+from bioslam.cli.common import (
+    add_output_options,
+    check_system,
+    conclude,
+    open_output,
+    run_status,
+)
 from bioslam.io.outdir import expected_output_bytes
+from bioslam.recording import session as recording
 
 #: The paper's reported simulation result (Sec. IV-A): mean and maximum position error.
 PAPER_MEAN_ERROR_M = 0.0284
@@ -37,6 +44,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--config", type=Path, help="TOML or JSON file of setting overrides")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     add_output_options(parser)
+    recording.add_arguments(parser)
     parser.set_defaults(func=demo_command)
 
 
@@ -84,7 +92,9 @@ def demo_command(args: argparse.Namespace) -> dict[str, Any]:
 
     if not (math.isfinite(args.duration) and args.duration > 0):
         raise ValueError(f"--duration must be a positive number of seconds, got {args.duration}")
+    session = recording.Session.from_args(args, False, input="simulated maze")
     config = load_config(args.config)
+    check_system(config, False, args.config)
     world = maze_world()
     lidar = LIDAR_PRESETS["utm30lx"]
     route = make_route(world, duration=args.duration, seed=args.seed)
@@ -105,9 +115,13 @@ def demo_command(args: argparse.Namespace) -> dict[str, Any]:
             snapshot_times=snapshot_times(route.duration),
         )
         scans = (scan for scan, _ in simulate_scans(world, lidar, route, seed=args.seed))
-        result = run_slam(iter(()) if stopped else scans, config, options, int(stamps.size))
+        with session:
+            result = run_slam(iter(()) if stopped else scans, config, options,
+                              int(stamps.size), observer=session.observer)
+            session.finish(result.system)
         result.interrupted |= stopped
         extra = {"input": "simulated maze", "lidar": lidar.name, "seed": args.seed}
+        extra.update(session.summary())
         summary = write_results(result, out, gt, options, extra)
         print(comparison_table(summary))
         print(f"results in {out.path}/ (figures in {out.path}/figures/)")

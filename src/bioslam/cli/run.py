@@ -12,6 +12,7 @@ from bioslam.cli.common import (
     add_output_options,
     add_read_options,
     check_input,
+    check_system,
     conclude,
     open_output,
     read_counts,
@@ -23,6 +24,7 @@ from bioslam.cli.common import (
 )
 from bioslam.io.outdir import OutputDir, expected_output_bytes, path_bytes
 from bioslam.io.tum import write_tum
+from bioslam.recording import session as recording
 from bioslam.trajectory import Trajectory
 
 
@@ -47,6 +49,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     add_output_options(parser)
     add_read_options(parser)
+    recording.add_arguments(parser)
     parser.set_defaults(func=run_command)
 
 
@@ -71,7 +74,9 @@ def run_command(args: argparse.Namespace) -> dict[str, Any]:
     from bioslam.pipeline import RunOptions, run_slam, write_results
 
     # Everything that can be checked is checked before the first scan.
+    session = recording.Session.from_args(args, args.odometry_only, input=args.input)
     config = load_config(args.config)
+    check_system(config, args.odometry_only, args.config)
     gt = read_reference(args.gt) if args.gt is not None else None
     check_input(args.input)
     source = open_log(args.input, topic=args.topic)
@@ -79,7 +84,9 @@ def run_command(args: argparse.Namespace) -> dict[str, Any]:
     out = open_output(args.out, args.overwrite, needed, getattr(args, "argv", []))
     with signals.protected():
         options = RunOptions(odometry_only=args.odometry_only, progress=not args.no_progress)
-        result = run_slam(source, config, options)
+        with session:
+            result = run_slam(source, config, options, observer=session.observer)
+            session.finish(result.system)
         read = source.records_seen > 0 or source.complete
         log_reference = source.reference if read else None
         if gt is not None:
@@ -89,6 +96,7 @@ def run_command(args: argparse.Namespace) -> dict[str, Any]:
         extra: dict[str, Any] = {"input": str(args.input), "format": source.format}
         extra["skipped"] = source_skipped(source)
         extra.update(read_counts(source))
+        extra.update(session.summary())
         if reference_name:
             extra["reference"] = reference_name
         summary = write_results(result, out, reference, options, extra)
