@@ -11,6 +11,7 @@ import json
 import math
 from collections.abc import Sequence
 from functools import cache
+from typing import Any
 
 import foxglove
 import numpy as np
@@ -375,6 +376,51 @@ def json_schema(name: str, properties: dict[str, str]) -> foxglove.Schema:
         "properties": {key: {"type": kind} for key, kind in properties.items()},
     }
     return foxglove.Schema(name=name, encoding="jsonschema", data=json.dumps(schema).encode())
+
+
+def active_view_json(
+    view_id: int, is_new: bool, activity: float, event: str, experience: int, views: int,
+    experiences: int, loop_closures: int,
+) -> str:
+    """A ``bioslam.ActiveView`` message (:data:`ACTIVE_VIEW_FIELDS`), formatted directly: it
+    goes out at every look of the view cells."""
+    return (
+        f'{{"view_id":{int(view_id)},"is_new":{"true" if is_new else "false"},'
+        f'"activity":{_number(activity)},"event":"{event}","experience":{int(experience)},'
+        f'"views":{int(views)},"experiences":{int(experiences)},'
+        f'"loop_closures":{int(loop_closures)}}}'
+    )  # fmt: skip
+
+
+def _flag(value: bool) -> str:
+    return "true" if value else "false"
+
+
+def odometry_match_json(report: Any) -> str:
+    """A ``bioslam.OdometryMatch`` message (:data:`ODOMETRY_MATCH_FIELDS`) from the odometry's
+    :class:`~bioslam.odometry.MatchReport`."""
+    return (
+        f'{{"score":{_number(report.score)},"iterations":{int(report.iterations)},'
+        f'"points":{int(report.num_points)},"condition":{_number(report.condition)},'
+        f'"degenerate":{_flag(report.degenerate)},"recovered":{_flag(report.recovered)},'
+        f'"predicted_only":{_flag(report.predicted_only)}}}'
+    )
+
+
+def pose_cell_json(centre: Sequence[float], active_cells: int, collapses: int) -> str:
+    """A ``bioslam.PoseCellState`` message (:data:`POSE_CELL_FIELDS`): the packet centre in
+    cells, the active cells, the collapses so far."""
+    x, y, theta = (_number(v) for v in centre[:3])
+    return (
+        f'{{"x":{x},"y":{y},"theta":{theta},"active_cells":{int(active_cells)},'
+        f'"collapses":{int(collapses)}}}'
+    )
+
+
+def _number(value: float) -> str:
+    """A JSON number; NaN and infinities (which JSON lacks) become null."""
+    value = float(value)
+    return repr(value) if math.isfinite(value) else "null"
 
 
 ACTIVE_VIEW_FIELDS = {

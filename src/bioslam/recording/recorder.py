@@ -79,7 +79,7 @@ class RecorderConfig:
     map_resolution: float = 0.05
     map_keyframe_distance: float = 0.3
     map_keyframe_angle: float = math.radians(15.0)
-    map_point_spacing: float = 0.05
+    map_point_spacing: float = 0.1
     trajectory_points: int = 5000
     boundary_pixels: int = 96
 
@@ -178,6 +178,8 @@ class Recorder:
                 tp.POSE_CELLS_STATE, "bioslam.PoseCellState", msg.POSE_CELL_FIELDS, context
             )
         self.occupancy: OccupancyGrid | None = None
+        #: (xmin, ymin, xmax, ymax) that the fused scans can have reached: what the map shows
+        self._seen_extent: tuple[float, float, float, float] | None = None
         self._last_fused: PoseTuple | None = None
         self._last_ns: int | None = None
         self._polar: tuple[NDArray[np.int64], NDArray[np.bool_]] | None = None
@@ -211,8 +213,10 @@ class Recorder:
         if self._throttles["map"].ready(now, self._map_cells()):
             self.publish_map(ns)
         if isinstance(system, BioSLAM):
-            self._publish_look(ns, now, scan, system)
-            self._log_map_events(ns, system)
+            if len(system.records) != self._seen["records"]:  # the view cells looked
+                self._seen["records"] = len(system.records)
+                self._publish_look(ns, now, scan, system)
+                self._log_map_events(ns, system)
             cmap = system.cognitive_map
             if self._throttles["scene"].ready(now, len(cmap) + cmap.num_links):
                 self.publish_scene(ns, system)
@@ -281,15 +285,7 @@ class Recorder:
                     else "odometry: the match is constrained again")
             self._log(ns, "Warning" if report.degenerate else "Info", text, "odometry")
         if self._throttles["match"].ready(now) and self.match.has_sinks():
-            self.match.log({
-                "score": float(report.score),
-                "iterations": int(report.iterations),
-                "points": int(report.num_points),
-                "condition": float(report.condition),
-                "degenerate": bool(report.degenerate),
-                "recovered": bool(report.recovered),
-                "predicted_only": bool(report.predicted_only),
-            }, log_time=ns)
+            self.match.log(msg.odometry_match_json(report), log_time=ns)
             self._count(tp.ODOMETRY_MATCH)
 
     def _fuse(self, slam_pose: PoseTuple, system: Any) -> None:
@@ -310,45 +306,54 @@ class Recorder:
             origin = (slam_pose[0] - 0.5 * size, slam_pose[1] - 0.5 * size)
             self.occupancy = OccupancyGrid(c.map_resolution, size, origin, auto_grow=True)
         thinned = thin_points(points, c.map_point_spacing).astype(np.float64)
-        self.occupancy.insert_scan(slam_pose, thinned, system.odometry.config.max_range)
+        max_range = system.odometry.config.max_range
+        self.occupancy.insert_scan(slam_pose, thinned, max_range)
         self._last_fused = slam_pose
+        reach = min(float(np.max(np.abs(thinned), initial=0.0)) * math.sqrt(2.0), max_range)
+        x, y = slam_pose[0], slam_pose[1]
+        seen = (x - reach, y - reach, x + reach, y + reach)
+        b = self._seen_extent or seen
+        self._seen_extent = (min(b[0], seen[0]), min(b[1], seen[1]),
+                             max(b[2], seen[2]), max(b[3], seen[3]))  # fmt: skip
+
+    def _map_window(self) -> tuple[slice, slice]:
+        """Rows and columns of the grid that the fused scans can have reached (the grid
+        itself grows by whole blocks, mostly empty)."""
+        grid, extent = self.occupancy, self._seen_extent
+        assert grid is not None and extent is not None
+        rows, cols = grid.shape
+        (r0, c0), (r1, c1) = grid.world_to_cell(np.array([extent[:2], extent[2:]]))
+        return (slice(max(r0, 0), min(r1 + 1, rows)), slice(max(c0, 0), min(c1 + 1, cols)))
 
     def _map_cells(self) -> int:
-        return 0 if self.occupancy is None else self.occupancy.logodds.size
+        if self.occupancy is None:
+            return 0
+        rows, cols = self._map_window()
+        return (rows.stop - rows.start) * (cols.stop - cols.start)
 
     def publish_map(self, ns: int) -> None:
         grid = self.occupancy
         if grid is None or not self.grid.has_sinks():
             return
-        self.grid.log(
-            msg.occupancy_grid(
-                ns, grid.logodds, grid.known_mask(), grid.origin, grid.resolution
-            ),
-            log_time=ns,
-        )
+        rows, cols = self._map_window()
+        origin = grid.origin + grid.resolution * np.array([cols.start, rows.start])
+        known = grid.known_mask()[rows, cols]
+        message = msg.occupancy_grid(ns, grid.logodds[rows, cols], known, origin, grid.resolution)
+        self.grid.log(message, log_time=ns)
         self._count(tp.MAP)
 
     def _publish_look(self, ns: int, now: float, scan: LaserScan, system: BioSLAM) -> None:
-        """The active view, and (throttled) the neurons, when the view cells looked."""
-        records = system.records
-        if len(records) == self._seen["records"]:
-            return
-        self._seen["records"] = len(records)
-        record = records[-1]
+        """The active view, and (throttled) the neurons, after a look of the view cells."""
+        record = system.records[-1]
         if self.view.has_sinks():
             ids, activity = system.view_cells.active_views()
             active = activity[ids == record.view_id]
             cmap = system.cognitive_map
-            self.view.log({
-                "view_id": int(record.view_id),
-                "is_new": bool(record.view_is_new),
-                "activity": float(active[0]) if active.size else 0.0,
-                "event": record.event,
-                "experience": int(record.experience_id),
-                "views": int(system.view_cells.num_views),
-                "experiences": len(cmap),
-                "loop_closures": int(cmap.loop_closures),
-            }, log_time=ns)
+            self.view.log(msg.active_view_json(
+                record.view_id, record.view_is_new, float(active[0]) if active.size else 0.0,
+                record.event, record.experience_id, system.view_cells.num_views, len(cmap),
+                cmap.loop_closures,
+            ), log_time=ns)  # fmt: skip
             self._count(tp.VIEW)
         if self._throttles["neurons"].ready(now):
             self._publish_neurons(ns, scan, system)
@@ -371,12 +376,8 @@ class Recorder:
             self._count(tp.POSE_CELLS_XY)
             self._count(tp.POSE_CELLS_THETA)
         if self.pose_cell_state.has_sinks():
-            x, y, theta = (float(v) for v in network.centre())
-            self.pose_cell_state.log({
-                "x": x, "y": y, "theta": theta,
-                "active_cells": int(network.active_count),
-                "collapses": int(network.collapses),
-            }, log_time=ns)
+            state = msg.pose_cell_json(network.centre(), network.active_count, network.collapses)
+            self.pose_cell_state.log(state, log_time=ns)
             self._count(tp.POSE_CELLS_STATE)
 
     def _new_links(self, system: BioSLAM) -> None:
