@@ -406,3 +406,35 @@ def test_bad_ports_and_paths_are_refused_with_the_flag_named(tmp_path):
     with Session(live_port=0, announce=False) as first, pytest.raises(RuntimeError, match="--live"):
         Session(live_port=first.port, announce=False).__enter__()
     assert Path(tmp_path).is_dir()
+
+
+def test_throttle_waits_longer_for_larger_content():
+    from bioslam.recording.recorder import Throttle
+
+    throttle = Throttle(period=2.0, per_second=1000.0)
+    times = np.arange(0.0, 60.0, 0.1)
+    small = [t for t in times if throttle.ready(float(t), size=500)]
+    assert len(small) == 30  # every 2 s
+    throttle = Throttle(period=2.0, per_second=1000.0)
+    large = [t for t in times if throttle.ready(float(t), size=6000)]
+    assert len(large) == 10 and np.allclose(np.diff(large), 6.0)  # every 6 s
+
+
+def test_degenerate_stretches_are_logged_once_at_their_start_and_end():
+    import foxglove
+
+    from bioslam.odometry import MatchReport
+    from bioslam.recording.recorder import Recorder
+
+    recorder = Recorder(foxglove.Context())
+    logged: list[tuple[float, str]] = []
+    recorder._log = lambda ns, level, text, name: logged.append((ns / 1e9, text))
+    flags = [False] * 5 + [True] * 10 + [False] + [True] * 3 + [False] * 20 + [True] * 2
+    for k, degenerate in enumerate(flags):
+        recorder._log_degeneracy(round(k * 0.1 * 1e9), MatchReport(degenerate=degenerate))
+    texts = [text for _, text in logged]
+    assert len(texts) == 3, texts  # the flicker at 1.5 s continues the first stretch
+    assert texts[0].startswith("odometry: degenerate matches start")
+    assert "ended after 1.3 s" in texts[1]
+    assert logged[1][0] == pytest.approx(2.9)  # 1 s after the last degenerate match
+    assert texts[2].startswith("odometry: degenerate matches start")

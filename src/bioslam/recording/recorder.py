@@ -84,6 +84,9 @@ class RecorderConfig:
     boundary_pixels: int = 96
 
 
+#: Seconds without a degenerate match that end a degenerate stretch in the log messages.
+DEGENERACY_HOLD = 1.0
+
 #: A recording keeps every scan and throttles the rest on the log's clock.
 RECORD_CONFIG = RecorderConfig()
 #: A live view sends what a viewer can follow, on the wall clock.
@@ -186,7 +189,8 @@ class Recorder:
         self._links: list[tuple[int, int]] = []
         self._loop: list[bool] = []
         self._seen = {"records": 0, "recovered": 0, "rejected": 0, "collapses": 0}
-        self._degenerate = False
+        self._degenerate_since: float | None = None
+        self._degenerate_last = 0.0
         #: messages handed to the context, per topic (for summaries and tests)
         self.counts: dict[str, int] = {}
         #: seconds spent in the recorder (wall, and CPU of the calling thread)
@@ -278,15 +282,29 @@ class Recorder:
         if report.predicted_only:
             self._log(ns, "Warning", f"odometry: {report.num_points} usable points, too few "
                       "to match; the pose is predicted", "odometry")
-        if report.degenerate != self._degenerate and not report.predicted_only:
-            self._degenerate = report.degenerate
-            text = ("odometry: degenerate match (a direction the scan does not constrain, "
-                    f"condition {report.condition:.3f})" if report.degenerate
-                    else "odometry: the match is constrained again")
-            self._log(ns, "Warning" if report.degenerate else "Info", text, "odometry")
+        self._log_degeneracy(ns, report)
         if self._throttles["match"].ready(now) and self.match.has_sinks():
             self.match.log(msg.odometry_match_json(report), log_time=ns)
             self._count(tp.ODOMETRY_MATCH)
+
+    def _log_degeneracy(self, ns: int, report: Any) -> None:
+        """A degenerate stretch (a corridor the scan does not pin down along its length) is
+        logged when it starts and when it ends; a scan or two that flicker in and out of it
+        within :data:`DEGENERACY_HOLD` seconds continue the stretch rather than start one."""
+        if report.predicted_only:
+            return
+        t = ns / 1e9
+        if report.degenerate:
+            if self._degenerate_since is None:
+                self._log(ns, "Warning", "odometry: degenerate matches start (a direction the "
+                          f"scan does not constrain, condition {report.condition:.3f})",
+                          "odometry")  # fmt: skip
+            self._degenerate_since = self._degenerate_since or t
+            self._degenerate_last = t
+        elif self._degenerate_since is not None and t - self._degenerate_last > DEGENERACY_HOLD:
+            self._log(ns, "Info", "odometry: degenerate matches ended after "
+                      f"{self._degenerate_last - self._degenerate_since:.1f} s", "odometry")
+            self._degenerate_since = None
 
     def _fuse(self, slam_pose: PoseTuple, system: Any) -> None:
         """Fuse the scan into the occupancy map at the SLAM pose of the moment (the map as
