@@ -11,7 +11,6 @@ import json
 import math
 from collections.abc import Sequence
 from functools import cache
-from typing import Any
 
 import foxglove
 import numpy as np
@@ -49,13 +48,6 @@ FloatArray = NDArray[np.float64]
 #: Height of the cognitive map above the occupancy grid, metres.
 SCENE_Z = 0.05
 _IDENTITY = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
-
-
-def log_time(stamp: float) -> int:
-    """A scan stamp (seconds) as an MCAP log time (integer nanoseconds, never negative)."""
-    if not stamp >= 0.0:  # also rejects NaN
-        raise ValueError(f"scan stamp {stamp} s cannot be a log time (needs >= 0)")
-    return round(stamp * 1e9)
 
 
 def timestamp(ns: int) -> Timestamp:
@@ -351,15 +343,18 @@ def _blocks(values: FloatArray, rows: int, cols: int) -> FloatArray:
     return np.repeat(np.repeat(values, rows, axis=0), cols, axis=1)
 
 
-def pose_cell_images(ns: int, activity: FloatArray, scale: int = 3) -> tuple[RawImage, RawImage]:
-    """The pose-cell activity ``PC[x', y', θ']`` (Sec. III-C) as two pictures: the maximum
-    over heading (x' to the right, y' up), and the sum over x' and y' as one column per
-    heading cell. Each cell is ``scale`` pixels wide."""
-    xy = activity.max(axis=2).T[::-1]  # rows: y' from the top down
-    theta = activity.sum(axis=(0, 1))[None, :]
+def pose_cell_images(
+    ns: int, xy: FloatArray, theta: FloatArray, scale: int = 3
+) -> tuple[RawImage, RawImage]:
+    """The pose-cell activity ``PC[x', y', θ']`` (Sec. III-C) as two pictures: ``xy``, its
+    maximum over heading (``(n_x', n_y')``; drawn x' to the right, y' up), and ``theta``, its
+    sum over x' and y' (``(n_θ',)``; one column per heading cell). Each cell is ``scale``
+    pixels wide."""
+    top_down = np.asarray(xy).T[::-1]
+    strip = np.asarray(theta)[None, :]
     return (
-        false_colour(ns, _blocks(xy, scale, scale)),
-        false_colour(ns, _blocks(theta, 4 * scale, scale)),
+        false_colour(ns, _blocks(top_down, scale, scale)),
+        false_colour(ns, _blocks(strip, 4 * scale, scale)),
     )
 
 
@@ -396,15 +391,18 @@ def _flag(value: bool) -> str:
     return "true" if value else "false"
 
 
-def odometry_match_json(report: Any) -> str:
-    """A ``bioslam.OdometryMatch`` message (:data:`ODOMETRY_MATCH_FIELDS`) from the odometry's
-    :class:`~bioslam.odometry.MatchReport`."""
+def odometry_match_json(
+    score: float, iterations: int, points: int, condition: float, degenerate: bool,
+    recovered: bool, predicted_only: bool,
+) -> str:
+    """A ``bioslam.OdometryMatch`` message (:data:`ODOMETRY_MATCH_FIELDS`): the fields of the
+    odometry's :class:`~bioslam.odometry.MatchReport`."""
     return (
-        f'{{"score":{_number(report.score)},"iterations":{int(report.iterations)},'
-        f'"points":{int(report.num_points)},"condition":{_number(report.condition)},'
-        f'"degenerate":{_flag(report.degenerate)},"recovered":{_flag(report.recovered)},'
-        f'"predicted_only":{_flag(report.predicted_only)}}}'
-    )
+        f'{{"score":{_number(score)},"iterations":{int(iterations)},'
+        f'"points":{int(points)},"condition":{_number(condition)},'
+        f'"degenerate":{_flag(degenerate)},"recovered":{_flag(recovered)},'
+        f'"predicted_only":{_flag(predicted_only)}}}'
+    )  # fmt: skip
 
 
 def pose_cell_json(centre: Sequence[float], active_cells: int, collapses: int) -> str:
