@@ -80,7 +80,28 @@ class LoopClosureConfig:
             registrations keep failing (noisy sensors, clutter): consecutive scans that
             close say the same thing anyway.
         payload_spacing: spacing (m) of the scan points kept with each experience.
-        registration: the pairwise registration's parameters.
+        proximity: also propose, as a loop candidate, the experience nearest the robot's map
+            pose within the drift bound (the path-integration cue, :mod:`bioslam.closure`),
+            not only the one its view cell recognises.
+        min_loop_travel: metres of travel since an experience was made before the proximity
+            cue proposes it (a place just left is not a loop).
+        submap_reach: the verification submap fuses the scans of the experiences made within
+            this many metres of travel of the candidate, on its own pass (m).
+        submap_step: the submap takes one scan per this many metres of travel (m).
+        submap_spacing: the submap is thinned to one point per cell of this size (m).
+        search_distance, search_angle: caps (m, rad) on the window the verification
+            searches around the map's prediction; within them the window is the drift bound.
+        search_level: the pyramid level (0 finest) whose grid the wide-basin search runs on;
+            Gauss-Newton then refines on every level.
+        rival_distance, rival_angle: a rival pose must lie farther than this from the best
+            (m, rad) to count as another place (nearer ones are the best's own peak).
+        max_ambiguity: a candidate is refused when its best distinct rival scores at least
+            this fraction of the best: the scan fits a look-alike place as well.
+        prior_margin: the map's prediction, refined where it stands, is a rival too: a best
+            pose farther than the rival distance from it is refused unless its score (share
+            of points on the submap) beats the prediction's by more than this (along a
+            corridor the best may sit on a plateau the scan barely constrains).
+        registration: the registration's map and Gauss-Newton parameters.
     """
 
     refine: bool = True
@@ -100,6 +121,18 @@ class LoopClosureConfig:
     deadband_angle: float = 0.006
     registration_interval: float = 0.25
     payload_spacing: float = 0.02
+    proximity: bool = True
+    min_loop_travel: float = 3.0
+    submap_reach: float = 1.5
+    submap_step: float = 0.5
+    submap_spacing: float = 0.03
+    search_distance: float = 1.5
+    search_angle: float = math.radians(45.0)
+    search_level: int = 1
+    rival_distance: float = 0.5
+    rival_angle: float = math.radians(20.0)
+    max_ambiguity: float = 0.9
+    prior_margin: float = 0.1
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)
 
 

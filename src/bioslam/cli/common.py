@@ -72,6 +72,21 @@ def check_input(path: Path) -> None:
             fh.read(1)
 
 
+def check_system(config: Any, odometry_only: bool, where: Path | None) -> None:
+    """Build the system once before the run: settings that pass their own checks but not one
+    another's (or that the modules refuse) fail now, naming the configuration file, rather
+    than after the log was opened and the output directory made."""
+    from bioslam.pipeline import OdometryOnly
+    from bioslam.slam import BioSLAM
+
+    try:
+        OdometryOnly(config) if odometry_only else BioSLAM(config)
+    except Exception as exc:  # any failure here is the settings', reported as such
+        source = f"--config {where}" if where is not None else "the default settings"
+        raise ValueError(f"{source}: cannot build the system: {type(exc).__name__}: {exc}") \
+            from None
+
+
 def read_reference(path: Path) -> Trajectory:
     """``--gt``: parsed and checked before the run (a bad reference found after an hour of
     processing would cost the user that hour)."""
