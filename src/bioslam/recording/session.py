@@ -5,7 +5,8 @@ Each output (the file, the server) has its own process (:mod:`.worker`) that bui
 the messages; the run only copies out what they need (:class:`~.tap.Tap`) and sends it down a
 pipe, so recording costs the run little, and the file is closed properly whatever happens to
 the run (an interrupted run, a failed one, even a killed one: the worker sees its input end).
-Importing this module costs nothing: the Foxglove SDK is imported only by the workers.
+Importing this module costs nothing (building a command's parser imports it): the system's
+modules are imported when an output is asked for, the Foxglove SDK only by the workers.
 """
 
 from __future__ import annotations
@@ -23,7 +24,6 @@ from typing import Any
 import bioslam
 from bioslam.geometry import Pose2D
 from bioslam.recording.rates import LIVE_CONFIG, RECORD_CONFIG
-from bioslam.recording.tap import Tap
 from bioslam.scan import LaserScan
 
 DEFAULT_PORT = 8765
@@ -58,6 +58,8 @@ class Output:
     TIMEOUT = 300.0
 
     def __init__(self, spec: dict[str, Any], live: bool) -> None:
+        from bioslam.recording.tap import Tap  # the SLAM system's modules: only when used
+
         self.spec = spec
         self.kind = "live" if live else "recording"
         self.tap = Tap(self._send, LIVE_CONFIG if live else RECORD_CONFIG,
