@@ -51,6 +51,7 @@ NON_MONOTONIC = "non-monotonic timestamp (not later than the previous scan)"
 EMPTY_SCAN = "empty scan (no beams)"
 NO_VALID_RETURNS = "no valid returns (all beams NaN, inf, zero or out of range)"
 ODOMETRY_NON_MONOTONIC = "odometry record with non-monotonic timestamp"
+ODOMETRY_MALFORMED = "malformed odometry record"
 TRUNCATED = "truncated or corrupt file (stopped reading there)"
 
 #: Range bytes of a log kept from the planning pass for the first iteration (above: parsed twice).
@@ -290,7 +291,7 @@ class LogSource(ABC):
         """Scan records met in the file so far: those yielded plus those skipped (side records
         such as odometry, and a truncation, are not scan records). With :attr:`scans_read` it
         gives the share of a log that was read."""
-        side = (ODOMETRY_NON_MONOTONIC, TRUNCATED)
+        side = (ODOMETRY_NON_MONOTONIC, ODOMETRY_MALFORMED, TRUNCATED)
         return self._yielded + sum(n for r, n in self._skipped.items() if r not in side)
 
     @property
