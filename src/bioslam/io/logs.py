@@ -52,7 +52,8 @@ EMPTY_SCAN = "empty scan (no beams)"
 NO_VALID_RETURNS = "no valid returns (all beams NaN, inf, zero or out of range)"
 ODOMETRY_NON_MONOTONIC = "odometry record with non-monotonic timestamp"
 ODOMETRY_MALFORMED = "malformed odometry record"
-TRUNCATED = "truncated or corrupt file (stopped reading there)"
+TRUNCATED = "truncated or corrupt part of the file (reading stopped there, or resumed after it)"
+DAMAGED = "scan record lost in a damaged part of the file"
 
 #: Range bytes of a log kept from the planning pass for the first iteration (above: parsed twice).
 REPLAY_BUDGET_BYTES = 256 * 2**20
@@ -112,15 +113,16 @@ class LogSource(ABC):
         return []
 
     # -- helpers for subclasses -------------------------------------------------------------
-    def _skip(self, reason: str, where: str, detail: str = "") -> None:
-        """Count a skipped record; in strict mode raise instead."""
+    def _skip(self, reason: str, where: str, detail: str = "", count: int = 1) -> None:
+        """Count ``count`` skipped records (one place, one reason); in strict mode raise
+        instead."""
         if self._recording is not None:
-            self._recording.append((_SKIP, reason, where, detail))
+            self._recording.append((_SKIP, reason, where, detail, count))
             return
         message = f"{where}: {reason}" + (f": {detail}" if detail else "")
         if self.strict:
             raise ValueError(f"{self.path}: {message}")
-        self._skipped[reason] += 1
+        self._skipped[reason] += count
         self.skip_examples.setdefault(reason, message)
 
     def _lines(self) -> Iterator[tuple[int, str]]:
