@@ -193,7 +193,7 @@ def _scratch() -> Path:
 # -- text logs ------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize(("name", "kind"), [("robot.log", "carmen"), ("rover.dat", "breezyslam")])
-@_settings(70)
+@_settings(40)
 @given(ops=LINE_OPS)
 def test_text_logs_with_mangled_lines(name, kind, ops):
     text = fixture(name).read_text(encoding="latin-1")
@@ -208,7 +208,7 @@ def test_text_logs_with_mangled_lines(name, kind, ops):
 
 @pytest.mark.parametrize(("name", "fmt"), [("robot.log", None), ("rover.dat", None),
                                            ("robot.log", "carmen"), ("rover.dat", "breezyslam")])
-@_settings(50)
+@_settings(25)
 @given(ops=BYTE_OPS)
 def test_text_logs_with_mangled_bytes(name, fmt, ops):
     work = _scratch()
@@ -247,7 +247,7 @@ def _check_bag(path: Path, kind: str, fmt: str | None = None) -> None:
 
 
 @pytest.mark.parametrize("compression", ["none", "bz2", "lz4"])
-@_settings(60)
+@_settings(40)
 @given(ops=BYTE_OPS)
 def test_ros1_bags_with_mangled_bytes(compression, ops):
     name = f"scans-{compression}.bag"
@@ -261,7 +261,7 @@ def test_ros1_bags_with_mangled_bytes(compression, ops):
 
 
 @pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
-@_settings(40)
+@_settings(25)
 @given(ops=BYTE_OPS)
 def test_ros2_bags_with_mangled_bytes(storage, ops):
     bag = fixture(f"ros2-{storage}")

@@ -177,7 +177,7 @@ def test_garbage_bag_is_a_clear_error(tmp_path):
         open_log(bag, fmt="rosbag1")
     db = tmp_path / "junk.db3"
     db.write_bytes(b"SQLite format 3\x00" + b"\x00" * 100)
-    with pytest.raises(ValueError, match=r"junk\.db3: cannot read the topics table"):
+    with pytest.raises(ValueError, match=r"junk\.db3: cannot open the database"):
         open_log(db)
 
 

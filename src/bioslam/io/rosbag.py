@@ -128,8 +128,14 @@ class _BagLog(LogSource):
     def __init__(self, path: str | Path, topic: str | None = None, strict: bool = False) -> None:
         super().__init__(path, topic, strict)
         self._notes: list[str] = []
+        self._damage: list[str] = []  # what a record-by-record topic listing met
         self._topics = self._list_topics()
-        self.topic = choose_scan_topic(self.path, self._topics, topic)
+        try:
+            self.topic = choose_scan_topic(self.path, self._topics, topic)
+        except ValueError as exc:
+            if not self._damage:
+                raise
+            raise ValueError(f"{exc}; the storage is damaged: {self._damage[0]}") from None
 
     def _list_topics(self) -> list[TopicEntry]:
         raise NotImplementedError
@@ -670,43 +676,124 @@ def _mcap_string(body: bytes, pos: int) -> tuple[str, int]:
     return body[pos + 4 : end].decode("utf-8"), end
 
 
+def _sqlite_size_mismatch(path: Path) -> str | None:
+    """Why an SQLite file is shorter than its header says (it was cut), or None."""
+    with path.open("rb") as fh:
+        head = fh.read(100)
+        size = fh.seek(0, 2)
+    if len(head) < 100:
+        return f"the file is {size} bytes, shorter than an SQLite header"
+    page = struct.unpack_from(">H", head, 16)[0]
+    page = 65536 if page == 1 else page
+    pages, changes, valid_for = (struct.unpack_from(">I", head, k)[0] for k in (28, 24, 92))
+    if changes == valid_for and pages and size < pages * page:
+        return f"the file is {size} bytes, its header says {pages} pages of {page}"
+    return None
+
+
 class Sqlite3RecordReader:
     """Reads the ``messages`` table of a ROS 2 ``.db3`` row by row, for damaged files.
 
-    Iterating :meth:`messages` yields ``(topic, msgtype, time_ns, raw)`` in insertion order;
-    rows past a damaged page end the iteration and set ``truncated``.
+    Iterating :meth:`messages` yields ``(topic, msgtype, time_ns, raw)`` in row order. SQLite
+    is asked first; when it fails (a truncated file, a damaged page) the rows not read yet are
+    taken from the file's pages (:mod:`bioslam.io.sqlite_pages`), ``truncated`` says where and
+    why, and ``lost`` counts rows known to be missing (gaps in the row ids, rows of a topic
+    that cannot be named) per topic name ("" when unknown).
     """
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, topics: dict[int, tuple[str, str]] | None = None) -> None:
         self.path = path
         self.truncated: str | None = None
+        self.lost: Counter[str] = Counter()
+        self.notes: list[str] = []
+        self._known_topics = topics or {}
 
     def messages(self) -> Iterator[tuple[str, str, int, bytes]]:
+        self.truncated = None
+        self.lost = Counter()
+        self.notes = []
+        state: dict[str, Any] = {"last": 0, "error": None, "topics": {}}
+        yield from self._by_sqlite(state)
+        if state["error"] is None:
+            state["error"] = _sqlite_size_mismatch(self.path)
+        if state["error"] is not None:
+            yield from self._by_pages(state["last"], state["error"], state["topics"])
+
+    def _by_sqlite(self, state: dict[str, Any]) -> Iterator[tuple[str, str, int, bytes]]:
         import sqlite3
 
-        self.truncated = None
         try:
             db = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
         except sqlite3.Error as exc:
-            raise BagFormatError(f"cannot open the database: {exc}") from None
+            state["error"] = exc
+            return
         try:
-            try:
-                topics = {row[0]: (row[1], row[2]) for row in
-                          db.execute("SELECT id, name, type FROM topics")}
-            except sqlite3.Error as exc:
-                raise BagFormatError(f"cannot read the topics table: {exc}") from None
+            state["topics"] = {row[0]: (row[1], row[2]) for row in
+                               db.execute("SELECT id, name, type FROM topics")}
             rows = db.execute("SELECT id, topic_id, timestamp, data FROM messages ORDER BY id")
-            last_id = 0
-            try:
-                for row_id, topic_id, stamp, raw in rows:
-                    last_id = row_id
-                    if topic_id in topics:
-                        name, msgtype = topics[topic_id]
-                        yield name, msgtype, int(stamp), bytes(raw)
-            except sqlite3.Error as exc:
-                self.truncated = f"after message row {last_id}: {exc}"
+            for row_id, topic_id, stamp, raw in rows:
+                if row_id != state["last"] + 1:
+                    self.lost[""] += max(row_id - state["last"] - 1, 0)
+                state["last"] = row_id
+                name, msgtype = state["topics"].get(topic_id, ("", ""))
+                if not name:
+                    self.lost[""] += 1
+                    continue
+                yield name, msgtype, int(stamp), bytes(raw)
+        except sqlite3.Error as exc:
+            state["error"] = exc
         finally:
             db.close()
+
+    def _by_pages(
+        self, after: int, error: Exception, topics: dict[int, tuple[str, str]]
+    ) -> Iterator[tuple[str, str, int, bytes]]:
+        from bioslam.io.sqlite_pages import iter_rows, leaf_rows
+
+        try:
+            scan = leaf_rows(self.path.read_bytes())
+        except ValueError as exc:
+            raise BagFormatError(f"cannot open the database: {error}; {exc}") from None
+        none = type(None)
+        topics = topics or {rowid: (v[1], v[2]) for rowid, v in
+                            iter_rows(scan, (none, str, str, str))} or self._known_topics
+        rows = [(rowid, v) for rowid, v in iter_rows(scan, (none, int, int, bytes))
+                if rowid > after]
+        if not topics and rows:
+            topics = self._guess_topics(rows)
+        last = after
+        for rowid, (_, topic_id, stamp, raw) in rows:
+            self.lost[""] += rowid - last - 1  # rows in pages that could not be read
+            last = rowid
+            if topic_id not in topics:
+                self.lost[""] += 1
+                continue
+            name, msgtype = topics[topic_id]
+            yield name, msgtype, stamp, raw
+        where = f"; first unreadable cell: {scan.first_bad}" if scan.first_bad else ""
+        self.truncated = (f"SQLite stopped after message row {after} ({error}); "
+                          f"{len(rows)} later rows read from the file's pages, up to row "
+                          f"{last}{where}")
+
+    def _guess_topics(self, rows: list[tuple[int, list[Any]]]) -> dict[int, tuple[str, str]]:
+        """Without a topics table, name each topic whose first message decodes as a
+        LaserScan ``topic <id>`` (said in ``notes``)."""
+        first: dict[int, bytes] = {}
+        for _, values in rows:
+            first.setdefault(values[1], values[3])
+        found = {}
+        for topic_id, raw in sorted(first.items()):
+            try:
+                msg = _typestore(False).deserialize_cdr(raw, LASERSCAN)
+                ok = len(msg.ranges) > 0 and float(msg.angle_increment) != 0.0
+            except Exception:  # not a LaserScan
+                ok = False
+            if ok:
+                found[topic_id] = (f"topic {topic_id}", LASERSCAN)
+                self.notes.append(f"{self.path.name}: topic names lost with the topics table; "
+                                  f"topic id {topic_id} holds LaserScans, read as "
+                                  f"'topic {topic_id}'")
+        return found
 
 
 class Rosbag2Log(_BagLog):
@@ -727,11 +814,10 @@ class Rosbag2Log(_BagLog):
         return reader
 
     def _list_topics(self) -> list[TopicEntry]:
-        self._salvage = False
+        self._expected: dict[str, int] = {}
         try:
             reader = self._open_reader()
         except Exception as exc:  # sqlite/mcap/yaml errors alike
-            self._salvage = True
             self._notes.append(f"rosbags could not open the bag ({exc}); "
                                "read its storage files record by record")
             return self._salvage_topics()
@@ -741,6 +827,8 @@ class Rosbag2Log(_BagLog):
                 counts[(c.topic, c.msgtype)] += c.msgcount
         finally:
             reader.close()
+        for (topic, _), n in counts.items():
+            self._expected[topic] = self._expected.get(topic, 0) + n
         return [TopicEntry(t, m, n) for (t, m), n in counts.items()]
 
     def _storage_readers(self) -> list[McapRecordReader | Sqlite3RecordReader]:
@@ -755,42 +843,48 @@ class Rosbag2Log(_BagLog):
             raise ValueError(f"{self.path}: no .mcap or .db3 storage file in the ROS 2 bag")
         return readers
 
-    def _salvaged(self) -> Iterator[tuple[str, str, int, bytes]]:
+    def _salvaged(self, lost: Counter[str] | None = None) -> Iterator[tuple[str, str, int, bytes]]:
+        """Messages of every storage file in turn, each read record by record: a damaged
+        file is reported (with where) and the next one still read."""
         for reader in self._storage_readers():
             try:
                 for topic, msgtype, stamp, raw in reader.messages():
                     yield topic, normalize_msgtype(msgtype), stamp, raw
             except BagFormatError as exc:
                 raise ValueError(f"{reader.path}: {exc}") from None
+            for note in getattr(reader, "notes", []):
+                if note not in self._notes:
+                    self._notes.append(note)
+            if lost is not None:
+                lost.update(getattr(reader, "lost", Counter()))
             if reader.truncated:
                 self._skip(TRUNCATED, f"{reader.path.name}: {reader.truncated}")
-                return
 
     def _salvage_topics(self) -> list[TopicEntry]:
         counts: Counter[tuple[str, str]] = Counter()
-        strict, self.strict = self.strict, False  # the truncation is reported when reading
+        strict, self.strict = self.strict, False  # the damage is reported when reading
         try:
             for topic, msgtype, _, _ in self._salvaged():
                 counts[(topic, msgtype)] += 1
         finally:
             self.strict = strict
+            self._damage = list(self.skip_examples.values())
             self._skipped.clear()
             self.skip_examples.clear()
         return [TopicEntry(t, m, n) for (t, m), n in counts.items()]
 
     def _raw_messages(self) -> Iterator[tuple[int, bytes]]:
-        if self._salvage:
-            for topic, msgtype, stamp, raw in self._salvaged():
-                if topic == self.topic and msgtype == LASERSCAN:
-                    yield stamp, raw
-            return
-        reader = self._open_reader()
-        try:
-            conns = [c for c in reader.connections if c.topic == self.topic]
-            try:
-                for _, time_ns, raw in reader.messages(connections=conns):
-                    yield time_ns, raw
-            except Exception as exc:  # a damaged file fails mid-way
-                self._skip(TRUNCATED, "reading messages", str(exc) or type(exc).__name__)
-        finally:
-            reader.close()
+        """The scan topic's messages, always read by the record readers (which survive
+        damage); scans the bag's metadata or the storage says were lost are counted."""
+        lost: Counter[str] = Counter()
+        delivered = 0
+        for topic, msgtype, stamp, raw in self._salvaged(lost):
+            if topic == self.topic and msgtype == LASERSCAN:
+                delivered += 1
+                yield stamp, raw
+        expected = self._expected.get(self.topic or "")
+        missing = expected - delivered if expected is not None else lost[self.topic or ""]
+        missing = max(missing, lost[""] if expected is None else 0)
+        if missing > 0:
+            self._skip(DAMAGED, f"{missing} message(s) of {self.topic} missing from damaged "
+                       "storage", count=missing)
