@@ -14,7 +14,7 @@ import pytest
 from bioslam.batch import BatchSpec, expand_grid, run_batch
 from bioslam.batch.engines import ProcessEngine, make_engine
 from bioslam.batch.results import MACHINE_COLUMNS, read_csv
-from bioslam.batch.runner import DONE_MARKER, log_names
+from bioslam.batch.runner import DONE_MARKER, finished_row, log_names, plan
 from bioslam.batch.task import Files, Outcome, Task, pack, run_task, unpack
 from bioslam.cli import main
 from bioslam.io.bag_writer import write_scan_bag
@@ -81,7 +81,7 @@ def test_grid_expands_dotted_keys_tables_and_fixed_values():
 
 
 def test_grid_rejects_what_no_run_could_use():
-    with pytest.raises(ValueError, match="unknown setting 'resolutoin'"):
+    with pytest.raises(ValueError, match=r"unknown setting 'odometry\.resolutoin'"):
         expand_grid({"odometry.resolutoin": [0.03, 0.05]})
     with pytest.raises(ValueError, match="mode must be one of"):
         expand_grid({"mode": ["fast"]})
@@ -168,6 +168,11 @@ def test_a_rerun_skips_finished_runs_and_retries_the_rest(pool_batch, logs, tmp_
     assert without_machine_columns(read_csv(out / "results.csv")) == without_machine_columns(
         read_csv(first / "results.csv")
     )
+    # a run is finished for its log, settings and ground truth: another --gt-from reruns it
+    task = plan(spec(logs, out))[0]
+    assert finished_row(task)["ate_rmse_m"] is not None
+    assert finished_row(replace(task, reference=None, reference_name=None)) is None
+    assert finished_row(replace(task, point=expand_grid({"odometry.resolution": 0.04})[0])) is None
 
 
 class InterruptedEngine:
@@ -204,3 +209,15 @@ def test_the_command_refuses_a_folder_it_did_not_write(logs, tmp_path, capsys):
     assert code != 0
     assert "not a batch output folder" in capsys.readouterr().err
     assert (tmp_path / "mine.txt").read_text() == "keep me"
+
+
+def test_shipped_data_gives_the_run_a_shared_path_gives(logs, tmp_path):
+    point = expand_grid({"mode": "odometry-only", "max_scans": 12})[0]
+    task = Task("drive3-scans", str(logs[0]), point, str(tmp_path / "shared"))
+    in_place = run_task(task)
+    shipped = run_task(task, pack(logs[0]))
+    assert in_place.status == shipped.status == "ok"
+    assert in_place.summary["scans"] == shipped.summary["scans"] == 12  # max_scans is a prefix
+    assert shipped.files is not None and "trajectory.tum" in shipped.files
+    assert shipped.files["trajectory.tum"] == (tmp_path / "shared" / "trajectory.tum").read_bytes()
+    assert shipped.peak_rss_mb > 10

@@ -131,7 +131,8 @@ class RayEngine:
         }
         if self.address is None:
             self.workers = workers or os.cpu_count() or 1
-            ray.init(num_cpus=self.workers, **options)
+            # "local": a new instance of our own even when another one runs on this machine
+            ray.init(address="local", num_cpus=self.workers, **options)
         else:
             ray.init(address=self.address, **options)
             self.workers = workers or int(ray.cluster_resources().get("CPU", 1))

@@ -178,8 +178,10 @@ def markdown(rows: Sequence[dict], header: Sequence[str], fixed: dict[str, Any],
     if fixed:
         shared = ", ".join(f"`{k} = {v}`" for k, v in fixed.items())
         lines += [f"Settings of every run: {shared}.", ""]
-    lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(_fmt(r.get(c)) for c in header) + " |" for r in rows]
+    # the settings' own columns say what the config id says
+    shown = [c for c in header if c != "config"] if len(header) > len(columns(())) else header
+    lines += ["| " + " | ".join(shown) + " |", "|" + "---|" * len(shown)]
+    lines += ["| " + " | ".join(_fmt(r.get(c)) for c in shown) + " |" for r in rows]
     best = best_per_metric(rows)
     if best and len({r["config"] for r in rows}) > 1:
         lines += [

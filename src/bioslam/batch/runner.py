@@ -7,8 +7,9 @@ Layout under the output folder::
     <log>/<config-id>/         the run's usual outputs (as ``bioslam run`` writes them)
     <log>/<config-id>/batch-run.json   written last, only for a finished run: its row
 
-A run whose ``batch-run.json`` exists and names the same log and settings is finished and is
-not run again; any other run folder is an unfinished attempt and is cleared before running.
+A run whose ``batch-run.json`` exists and names the same log, settings and ground-truth file
+is finished and is not run again; any other run folder is an unfinished attempt and is
+cleared before running.
 """
 
 from __future__ import annotations
@@ -22,11 +23,13 @@ from typing import Any
 
 from tqdm import tqdm
 
+from bioslam import signals
 from bioslam.batch.engines import Engine, close_engine
 from bioslam.batch.grid import GridPoint
 from bioslam.batch.results import ResultsWriter, make_row
 from bioslam.batch.task import Files, Outcome, Task, clear_run_dir, pack, unpack
 from bioslam.io.jsonio import read_json, write_json
+from bioslam.io.outdir import check_output_dir, expected_output_bytes, path_bytes
 from bioslam.io.tum import read_tum
 from bioslam.trajectory import Trajectory
 
@@ -139,7 +142,9 @@ def finished_row(task: Task) -> dict | None:
         done = read_json(marker)
     except ValueError:
         return None
-    same = done.get("log_path") == task.log_path and done.get("settings") == task.point.settings
+    same = (done.get("log_path"), done.get("settings"), done.get("reference")) == (
+        task.log_path, task.point.settings, task.reference_name
+    )
     return done.get("row") if same else None
 
 
@@ -147,11 +152,12 @@ def prepare_out_dir(spec: BatchSpec) -> None:
     """Create the output folder or accept a previous batch's; refuse any other non-empty one
     rather than mix results into it."""
     out = spec.out
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out} is a file")
     if out.is_dir() and any(out.iterdir()) and not (out / BATCH_FILE).is_file():
         raise ValueError(f"--out {out} is not empty and holds no {BATCH_FILE}: not a batch "
                          "output folder; choose a new or empty folder")
+    # writable, and room for the largest log's run at least (as `bioslam run` checks)
+    largest = max(path_bytes(log) for log in spec.logs)
+    check_output_dir(out, True, expected_output_bytes(input_bytes=largest))
     write_json(out / BATCH_FILE, {
         "logs": [str(p.resolve()) for p in spec.logs],
         "configs": {p.config_id: p.settings for p in spec.points},
@@ -198,7 +204,8 @@ def _record(task: Task, outcome: Outcome) -> dict:
     row = make_row(outcome, task.point.settings, task.point.varying)
     if outcome.status == "ok":
         write_json(out / DONE_MARKER, {
-            "log_path": task.log_path, "settings": task.point.settings, "row": row,
+            "log_path": task.log_path, "settings": task.point.settings,
+            "reference": task.reference_name, "row": row,
         })
     return row
 
@@ -231,16 +238,19 @@ def run_batch(spec: BatchSpec, engine: Engine, progress: bool = True) -> BatchRe
         bar = _Progress(len(todo), engine.workers, progress)
         try:
             for outcome in engine.run(todo, shipped):
-                writer.add(_record(by_key[outcome.key], outcome))
+                with signals.protected():  # a row and its run's marker are written whole
+                    writer.add(_record(by_key[outcome.key], outcome))
                 bar.add(outcome)
-        except KeyboardInterrupt:
+        except KeyboardInterrupt:  # Ctrl-C, or SIGTERM under the command's handlers
             report.interrupted = True
-            engine.stop()
+            with signals.protected():
+                engine.stop()
         finally:
             bar.close()
             note = "Stopped early (interrupted); re-run the command to finish." \
                 if report.interrupted else ""
-            writer.finish([t.key for t in tasks], note)
+            with signals.protected():
+                writer.finish([t.key for t in tasks], note)
     finally:
         close_engine(engine)
     report.rows = writer.rows

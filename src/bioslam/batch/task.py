@@ -169,15 +169,26 @@ def _workspace(task: Task, shipped: Files | None) -> Iterator[tuple[Path, Path]]
         yield root / "log" / top[0], root / "out"
 
 
-def _run(task: Task, log_path: Path, out: Path) -> dict[str, Any]:
-    """The run itself, with the same pipeline and outputs as ``bioslam run``."""
+def _run(task: Task, log_path: Path, out_path: Path) -> dict[str, Any]:
+    """The run itself, with the same pipeline, outputs, output marker and checks of what was
+    read as ``bioslam run``; a problem those checks find is the summary's ``error``."""
+    from bioslam.cli.common import (
+        DEFAULT_MIN_READ_SHARE,
+        read_counts,
+        read_problem,
+        run_status,
+        source_skipped,
+    )
     from bioslam.cli.run import reference_trajectory
     from bioslam.io.logs import open_log
+    from bioslam.io.outdir import OutputDir
     from bioslam.pipeline import RunOptions, run_slam, write_results
 
     point = task.point
     config = point.config()
     source = open_log(log_path, topic=task.topic)
+    out = OutputDir(out_path, command=["bioslam", "batch", task.log_path, point.config_id])
+    out.prepare()
     scans = source if point.max_scans is None else islice(source, point.max_scans)
     options = RunOptions(odometry_only=point.mode == "odometry-only", progress=False)
     result = run_slam(scans, config, options)
@@ -188,14 +199,23 @@ def _run(task: Task, log_path: Path, out: Path) -> dict[str, Any]:
     extra: dict[str, Any] = {
         "input": task.log_path,
         "format": source.format,
-        "skipped": source.skipped,
+        "skipped": source_skipped(source),
+        **read_counts(source),
         "batch": {"log": task.log_name, "config_id": point.config_id, "settings": point.settings},
     }
     if reference_name:
         extra["reference"] = reference_name
     summary = write_results(result, out, reference, options, extra)
+    problems = [f"run stopped early ({result.error})"] if result.error else []
+    # a prefix (max_scans) is a complete read of what was asked for
+    problem = read_problem(summary["scans"], source, DEFAULT_MIN_READ_SHARE, False)
+    problems += [problem] if problem else []
+    problems += [f"could not write {e}" for e in summary.get("write_errors", [])]
     if result.interrupted:
-        summary["error"] = "interrupted"
+        problems.append("interrupted")
+    out.finish(run_status(summary, problems))
+    if problems:
+        summary["error"] = "; ".join(problems)
     return summary
 
 

@@ -16,7 +16,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "Ray (a local instance, or the cluster at --address / RAY_ADDRESS) or, without Ray, on "
         "a local process pool. Each run's outputs go to OUT/<log>/<config-id>/; results.csv and "
         "results.md get one row per run and the best configuration per metric. Re-running the "
-        "same command skips the runs already finished; Ctrl-C stops and keeps finished rows.",
+        "same command skips the runs already finished; Ctrl-C stops and keeps finished rows. "
+        "Exit codes: 0 every run ok, 1 some runs failed (rows with their errors), 2 invalid "
+        "input (nothing run), 130/143 interrupted (finished rows kept).",
     )
     parser.add_argument("logs", nargs="+", type=Path, help="log files or ROS 2 bag directories")
     parser.add_argument("--out", type=Path, required=True, help="output directory")
@@ -49,6 +51,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> dict[str, Any]:
     from bioslam.batch import BatchSpec, load_grid, run_batch
     from bioslam.batch.engines import default_engine, make_engine
+    from bioslam.cli.common import conclude
 
     points = load_grid(args.grid)
     for log in args.logs:
@@ -58,11 +61,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     name = args.engine or default_engine()
     engine = make_engine(name, args.workers, args.address)
     report = run_batch(spec, engine, progress=not args.no_progress)
-    summary = {
+    results = args.out / "results.csv"
+    summary: dict[str, Any] = {
         "engine": name, "workers": engine.workers, "runs": report.runs,
         "skipped": report.skipped, "ok": report.ok, "failed": report.failed,
-        "seconds": report.seconds, "results": str(args.out / "results.csv"),
+        "seconds": report.seconds, "results": str(results),
     }
     if report.interrupted:
-        raise KeyboardInterrupt
-    return summary
+        summary["interrupted"] = True
+    problems = [f"{report.failed} of {len(report.rows)} runs failed (their errors are in "
+                f"{results})"] if report.failed else []
+    return conclude(summary, problems, None)

@@ -9,25 +9,20 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bioslam.io.bag_writer import STORAGES, ScanBagWriter
-from bioslam.io.tum import write_tum
-from bioslam.sim import (
-    LIDAR_PRESETS,
-    ROUTES,
-    WORLDS,
-    MovingObstacle,
-    Route,
-    World,
-    load_world,
-    make_route,
-    people_on_roadmap,
-    scan_stamps,
-    simulate_scans,
-)
+from bioslam.sim.lidar import LIDAR_PRESETS
+from bioslam.sim.worlds import WORLDS
 
+if TYPE_CHECKING:
+    from bioslam.sim import MovingObstacle, Route, World
+
+#: ``--route`` names (``bioslam.sim.ROUTES``; named here so that ``--help`` loads no Numba).
+ROUTE_NAMES = ("tour", "adversarial")
+#: ``--storage`` names (``bioslam.io.bag_writer.STORAGES``; likewise without loading rosbags).
+STORAGE_NAMES = ("sqlite3", "mcap")
 BAG_NAME = "scans"
 GT_NAME = "gt.tum"
 FIGURE_NAME = "world.png"
@@ -51,7 +46,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--route",
-        choices=sorted(ROUTES),
+        choices=ROUTE_NAMES,
         default="tour",
         help="'tour': along the corridor centre-lines (default); 'adversarial': weaving up to "
         "0.5 m off centre, turning back part way, spinning on the spot, then driving fast",
@@ -68,7 +63,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--fast-turns", action="store_true", help="take corners at 1 rad/s (odometry stress)"
     )
     p.add_argument("--people", type=int, default=0, help="people walking the corridors (default 0)")
-    p.add_argument("--storage", choices=sorted(STORAGES), default="sqlite3", help="bag storage")
+    p.add_argument("--storage", choices=STORAGE_NAMES, default="sqlite3", help="bag storage")
     p.add_argument("--out", required=True, type=Path, help="output directory")
     p.add_argument("--force", action="store_true", help=f"replace an existing OUT/{BAG_NAME}")
     p.set_defaults(func=run)
@@ -119,6 +114,8 @@ def save_world_figure(
 
 
 def _make_route(world: World, args: argparse.Namespace) -> Route:
+    from bioslam.sim import ROUTES, make_route
+
     limits = {
         "max_speed": args.max_speed,
         "max_yaw_rate": args.max_yaw_rate,
@@ -140,6 +137,10 @@ def run(args: argparse.Namespace) -> dict:
     from dataclasses import replace
 
     from tqdm import tqdm
+
+    from bioslam.io.bag_writer import ScanBagWriter
+    from bioslam.io.tum import write_tum
+    from bioslam.sim import load_world, people_on_roadmap, scan_stamps, simulate_scans
 
     started = time.perf_counter()
     world = load_world(args.world)

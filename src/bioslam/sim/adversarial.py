@@ -28,6 +28,7 @@ from bioslam.sim.route import (
     _turn,
     _Walker,
     check_clearance,
+    make_route,
 )
 from bioslam.sim.world import Roadmap, World
 
@@ -38,6 +39,8 @@ _SHARPEST_ARC = 2.0
 _CORNER = np.deg2rad(45.0)
 # Sampling of spins on the spot, seconds.
 _SPIN_DT = 0.005
+# Waypoints closer than this (metres) are one: no stretch between spins is shorter.
+_MIN_STEP = 0.05
 # Extra distance kept from walls by the sideways offset, metres (room for the smoothing).
 _OFFSET_MARGIN = 0.05
 
@@ -53,8 +56,10 @@ class AdversarialConfig:
             offset weaves from side to side, each swing between half and all of it, and is cut
             where the corridor has no room for it (the clearance is always kept).
         swing: range of distances between the extremes of the weave, metres.
-        reverse_prob: chance, on each roadmap edge, that the robot stops part way along it,
-            turns on the spot and drives back (the place revisited the other way).
+        turn_back_every: mean distance between turn-backs, metres: on an edge of length L the
+            robot stops part way with probability ``1 - exp(-L / turn_back_every)``, turns on
+            the spot and drives back (the place revisited the other way). Per metre, so that
+            roadmaps of short edges (map_server lattices) and of long aisles are alike.
         spin_prob: chance that a corner of 45 degrees or more is taken by stopping and turning
             on the spot instead of on an arc.
         spin_rate: fastest turn on the spot, rad/s; ``spin_accel`` its angular acceleration.
@@ -67,7 +72,7 @@ class AdversarialConfig:
     )
     lateral_offset: float = 0.5
     swing: tuple[float, float] = (3.0, 8.0)
-    reverse_prob: float = 0.15
+    turn_back_every: float = 40.0
     spin_prob: float = 0.3
     spin_rate: float = 1.5
     spin_accel: float = 3.0
@@ -78,10 +83,9 @@ class AdversarialConfig:
             raise ValueError(f"lateral offset must be >= 0, got {self.lateral_offset}")
         if not 0.0 < self.swing[0] <= self.swing[1]:
             raise ValueError(f"swing must be a range of positive distances, got {self.swing}")
-        for name in ("reverse_prob", "spin_prob"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
-        for name in ("spin_rate", "spin_accel", "fast_speed"):
+        if not 0.0 <= self.spin_prob <= 1.0:
+            raise ValueError(f"spin_prob must be in [0, 1], got {self.spin_prob}")
+        for name in ("turn_back_every", "spin_rate", "spin_accel", "fast_speed"):
             if not getattr(self, name) > 0.0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
 
@@ -116,11 +120,12 @@ def adversarial_walk(
             turn = _turn(nodes, prev, cur, nxt)
             sharp = turn > _SHARPEST_ARC or (turn > _CORNER and rng.random() < cfg.spin_prob)
             way.stop[-1] = way.stop[-1] or sharp
-        if rng.random() < cfg.reverse_prob:
+        edge = float(np.hypot(*(nodes[nxt] - nodes[cur])))
+        if rng.random() < -np.expm1(-edge / cfg.turn_back_every):
             f = rng.uniform(0.4, 1.0)
             way.add(nodes[cur] + f * (nodes[nxt] - nodes[cur]), stop=True)
             way.add(nodes[cur])
-            length += 2.0 * f * float(np.hypot(*(nodes[nxt] - nodes[cur])))
+            length += 2.0 * f * edge
             prev = nxt  # back where it came from: now it may leave by any other exit
             continue
         length += walker.drive(cur, nxt)
@@ -147,6 +152,8 @@ def lateral_offsets(
     step = np.hypot(*np.diff(path, axis=0).T)
     s = np.concatenate([[0.0], np.cumsum(step)])
     total = float(s[-1])
+    if total < cfg.swing[0]:
+        return np.zeros(len(path))  # too short a stretch to weave
     gaps = rng.uniform(*cfg.swing, size=int(total / cfg.swing[0]) + 2)
     knots = np.concatenate([[0.0], np.cumsum(gaps)])
     knots = knots[knots < total - 0.5 * cfg.swing[0]]
@@ -204,14 +211,15 @@ def _spin(heading: float, delta: float, cfg: AdversarialConfig) -> tuple[NDArray
 
 
 def _legs(way: _Waypoints) -> list[NDArray]:
-    """The waypoints cut at every stop; consecutive repeats dropped."""
+    """The waypoints cut at every stop; points within ``_MIN_STEP`` of the previous one are
+    merged into it (a stop there happens at the previous point)."""
     legs, current = [], [way.points[0]]
     for point, stop in zip(way.points[1:], way.stop[1:], strict=True):
-        if np.hypot(*(point - current[-1])) > 1e-9:
+        if np.hypot(*(point - current[-1])) > _MIN_STEP:
             current.append(point)
         if stop and len(current) > 1:
             legs.append(np.array(current))
-            current = [point]
+            current = [current[-1]]
     if len(current) > 1:
         legs.append(np.array(current))
     return legs
@@ -225,6 +233,7 @@ def _drive_leg(
     slack = world.distance_to_walls(points) - cfg.clearance - cfg.corner_margin
     points, slack = _drop_straight_vertices(points, slack)
     dense = _rounded_polyline(points, slack, cfg.effective_turn_radius, cfg.step)
+    dense = dense[np.concatenate([[True], np.hypot(*np.diff(dense, axis=0).T) > 1e-9])]
     if adv.lateral_offset > 0.0 and len(dense) > 2:
         dense = _offset_path(dense, lateral_offsets(world, dense, adv, rng))
     xy = _smoothed(dense, cfg)
@@ -286,3 +295,8 @@ def make_adversarial_route(
     all_t, all_p = all_t[: cut + 1], all_p[: cut + 1]
     check_clearance(world, all_p, adv.route.clearance)
     return Route(all_t, all_p, float(duration), np.asarray(way.tour, dtype=np.int64))
+
+
+#: Route generators by name (``bioslam sim --route``): each takes ``(world, duration, seed,
+#: config)``.
+ROUTES = {"tour": make_route, "adversarial": make_adversarial_route}

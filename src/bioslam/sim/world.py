@@ -4,11 +4,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from bioslam.sim.raycast import SegmentGrid, build_segment_grid
+if TYPE_CHECKING:
+    from bioslam.sim.raycast import SegmentGrid
 
 # Point-segment pairs per batch when measuring distances to walls: bounds the temporary
 # (points x segments) buffers to a few tens of megabytes whatever the size of the world.
@@ -63,6 +65,8 @@ class World:
     @cached_property
     def grid(self) -> SegmentGrid:
         """The ray-casting index over the walls (built once, on first use)."""
+        from bioslam.sim.raycast import build_segment_grid  # Numba: only when casting rays
+
         return build_segment_grid(self.segments, self.grid_cell)
 
     def distance_to_walls(self, points: NDArray[np.float64]) -> NDArray[np.float64]:
