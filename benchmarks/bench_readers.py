@@ -134,6 +134,8 @@ def main() -> None:
     parser.add_argument("--child", nargs=2, metavar=("KIND", "PATH"), help=argparse.SUPPRESS)
     parser.add_argument("--defects", action="store_true",
                         help="share of the laser records read from logs with stamp defects")
+    parser.add_argument("--ate-only", action="store_true",
+                        help="with --defects --ate-prefix: skip the table of shares read")
     parser.add_argument("--ate-prefix", type=int, default=0, metavar="N",
                         help="with --defects: odometry-only ATE on the first N laser records "
                         "of freiburg and intel (0 = skip)")
@@ -142,7 +144,7 @@ def main() -> None:
         print(json.dumps(child(args.child[0], args.child[1], args.repeat)))
         return
     if args.defects:
-        defects_report(args.ate_prefix)
+        defects_report(args.ate_prefix, shares=not args.ate_only)
         return
     with tempfile.TemporaryDirectory() as tmp:
         cases = {name: DATA / file for name, file in LOGS.items()}
@@ -207,7 +209,8 @@ def mutated_text_logs(out: Path, prefix: int = 0) -> list[tuple[str, str, Path]]
             continue
         carmen = name != "exp1"
         lines = _prefix(_text_lines(src), prefix, "FLASER" if carmen else "")
-        suffix = ".log" if carmen else ".dat"
+        # "corrected" in the name: the CARMEN reader takes the logs' poses as the reference
+        suffix = "-corrected.log" if carmen else ".dat"
         clean = out / f"{name}-clean{suffix}"
         clean.write_text("".join(lines), encoding="latin-1")
         cases.append((name, "clean", clean))
@@ -278,11 +281,11 @@ def odometry_ate(path: Path, out: Path) -> float | None:
     return json.loads(lines[-1]).get("ate_rmse_m")
 
 
-def defects_report(ate_prefix: int) -> None:
+def defects_report(ate_prefix: int, shares: bool = True) -> None:
     out = Path(tempfile.mkdtemp(prefix="bioslam-bench-readers-"))
     clean_counts: dict[str, int] = {}
     print(f"{'log':<14}{'defect':<15}{'read':>7}{'total':>7}{'share':>8}  time source")
-    for log, defect, path in mutated_text_logs(out) + mutated_bags(out):
+    for log, defect, path in (mutated_text_logs(out) + mutated_bags(out)) if shares else []:
         read, seen, source = read_share(path)
         if defect == "clean":
             clean_counts[log] = seen
