@@ -277,10 +277,8 @@ def _worst_pairs(est: Trajectory, ref: Trajectory, est_idx: np.ndarray, ref_pose
             "rpe1m_cm_without_worst": round(100 * float(np.sqrt(np.mean(rest**2))), 2)}  # fmt: skip
 
 
-# the recovery as it was before the score test, the wide search and the gap trigger
-CLOSE_SEARCH_ONLY = OdometryConfig(
-    recovery_score_ratio=0.0, wide_recovery_distance=0.0, gap_time=float("inf")
-)
+# no wide-basin search: Gauss-Newton from the prediction alone
+NO_SEARCH = OdometryConfig(search_distance=0.0)
 
 
 def short_range_models() -> list[tuple[str, object]]:
@@ -334,18 +332,18 @@ def main() -> None:
             sim_case(f"maze utm30lx, 1 scan in {n} ({n / 40:.1f} s apart){label}", utm,
                      duration, config, every=n)
             for n in (20, 40)
-            for label, config in (("", None), (", close search only", CLOSE_SEARCH_ONLY))
+            for label, config in (("", None), (", no search", NO_SEARCH))
         ],
         "freiburg": lambda: log_case("freiburg079", "freiburg-079-corrected.log.gz", True),
         "freiburgthinned": lambda: [
             log_case(f"freiburg079 thinned to {d} m / {a} rad{label}",
                      "freiburg-079-corrected.log.gz", False, config, thinned(d, a))
             for d, a in ((0.5, 0.4), (1.0, 0.6))
-            for label, config in (("", None), (", close search only", CLOSE_SEARCH_ONLY))
+            for label, config in (("", None), (", no search", NO_SEARCH))
         ],
         "intel": lambda: [
             log_case(f"intel (thinned){label}", "intel-corrected.log.gz", False, config)
-            for label, config in (("", None), (", close search only", CLOSE_SEARCH_ONLY))
+            for label, config in (("", None), (", no search", NO_SEARCH))
         ],
         "maps": lambda: [
             log_case("exp1", "exp1.dat", True),

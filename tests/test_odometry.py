@@ -169,7 +169,7 @@ def test_a_scan_after_a_gap_is_found_by_the_wide_search(wide):
     went 0.9 m and turned 35 degrees: beyond Gauss-Newton's basin and the close search
     around the start, within the wide search around the last pose."""
     rng = np.random.default_rng(12)
-    cfg = OdometryConfig() if wide else OdometryConfig(wide_recovery_distance=0.0)
+    cfg = OdometryConfig() if wide else OdometryConfig(search_distance=0.0)
     odo = LidarOdometry(cfg, initial_pose=(-2.0, 0.0, 0.0))
     for k in range(8):
         odo.update(make_scan(ROOM, (-2.0 + 0.1 * k, 0.0, 0.0), stamp=0.1 * k, sigma=0.01,
@@ -327,5 +327,5 @@ def test_map_memory_stays_bounded_over_a_long_run():
 def test_config_is_validated():
     with pytest.raises(ValueError, match="max_iterations"):
         OdometryConfig(levels=2)
-    with pytest.raises(ValueError, match="recovery_seeds"):
-        OdometryConfig(recovery_seeds=0)
+    with pytest.raises(ValueError, match="search_level"):
+        OdometryConfig(search_level=3)

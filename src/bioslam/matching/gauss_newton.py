@@ -47,9 +47,11 @@ class MatchReport:
         predicted_only: no usable scan; the pose is the constant-velocity prediction.
         converged: the finest level stopped on a small step within its iteration budget.
         free_fraction: matched endpoints that fell in cells the map knows to be free.
-        recovered: the match comes from an exhaustive search, run because the first match
-            failed or after a gap between scans (``OdometryConfig.recovery_*``,
-            ``gap_time``), which found a better one.
+        recovered: the match comes from the wide-basin search, run because the prediction
+            could not be trusted (``OdometryConfig.search_*``, ``gap_time``), which found a
+            better one.
+        ambiguous: the search found a distinct pose that fits about as well as the match
+            kept (a look-alike); the match nearest the prediction was kept.
     """
 
     iterations: int = 0
@@ -63,6 +65,7 @@ class MatchReport:
     converged: bool = False
     free_fraction: float = 0.0
     recovered: bool = False
+    ambiguous: bool = False
 
 
 # --------------------------------------------------------------------------------------------
