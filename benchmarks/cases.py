@@ -12,7 +12,7 @@ from __future__ import annotations
 import gzip
 import subprocess
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +31,11 @@ class Case:
     """One benchmark input.
 
     ``source``: ``"sim"`` (generated with ``bioslam sim``) or a file name in ``../shared/data``.
-    ``lidar`` / ``duration_s`` / ``seed``: the simulator's settings (sim cases).
+    ``lidar`` / ``duration_s`` / ``seed`` / ``world`` / ``route``: the simulator's settings
+    (sim cases; ``bioslam sim --world``, ``--route``).
+    ``thin_m``: thin the input to one scan per that many metres travelled (``bioslam thin``,
+    along the ground truth or the log's reference), as the public "corrected" logs were made;
+    0 = every scan.
     ``max_scans``: read only the first scans of a real log (quick runs); ``None`` = all.
     ``repeats``: the most timed repetitions worth spending on this case (long cases run once).
     ``settings``: JSON overrides of the bioslam configuration for both bioslam rows (e.g. an
@@ -47,6 +51,9 @@ class Case:
     max_scans: int | None = None
     repeats: int = 3
     settings: str = ""
+    world: str = "maze"
+    route: str = "tour"
+    thin_m: float = 0.0
 
 
 @dataclass
@@ -86,6 +93,40 @@ def full_cases() -> list[Case]:
              "ablation: the 20 min RPLIDAR route with a gyro-like heading drift of 0.0115 deg/s "
              "added to the odometry", lidar="rplidar", duration_s=1200.0, seed=2, repeats=1,
              settings=GYRO_BIAS_SETTINGS),
+        *repetitive_cases(),
+    ]  # fmt: skip
+
+
+def repetitive_cases() -> list[Case]:
+    """Simulated cases the dense maze hides: identical aisles and rooms, sparse and short-range
+    scanners, routes that weave off the centre-line and turn back."""
+    return [
+        Case("sim-warehouse-sick", "sim",
+             "warehouse of identical aisles, 600 s, SICK LMS 180°/1° (181 beams), 10 Hz",
+             lidar="sick", duration_s=600.0, repeats=1, world="warehouse"),
+        Case("sim-warehouse-utm30lx", "sim",
+             "warehouse of identical aisles, 600 s, Hokuyo UTM-30LX",
+             lidar="utm30lx", duration_s=600.0, repeats=1, world="warehouse"),
+        Case("sim-maze-urg04lx", "sim",
+             "maze of the demo, 600 s, Hokuyo URG-04LX 240°, 5.6 m, 10 Hz",
+             lidar="urg04lx", duration_s=600.0, repeats=1),
+        Case("sim-rooms-sick-adversarial", "sim",
+             "identical rooms off a corridor, 600 s, SICK 181 beams, adversarial route (0.5 m "
+             "off centre, turn-backs, spins then 1.2 m/s)",
+             lidar="sick", duration_s=600.0, repeats=1, world="rooms", route="adversarial"),
+        Case("sim-warehouse-utm30lx-adversarial", "sim",
+             "warehouse, 600 s, Hokuyo UTM-30LX, adversarial route",
+             lidar="utm30lx", duration_s=600.0, repeats=1, world="warehouse",
+             route="adversarial"),
+        Case("freiburg-079-thin1m", "freiburg-079-corrected.log.gz",
+             "freiburg-079 thinned to one scan per metre along its corrected poses (as public "
+             "corrected logs were made); reference = corrected poses", thin_m=1.0),
+        Case("sim-warehouse-sick-thin1m", "sim",
+             "sim-warehouse-sick thinned to one scan per metre of ground truth",
+             lidar="sick", duration_s=600.0, repeats=1, world="warehouse", thin_m=1.0),
+        Case("sim-maze-sick-thin1m", "sim",
+             "the demo's maze, 600 s, SICK 181 beams, thinned to one scan per metre",
+             lidar="sick", duration_s=600.0, repeats=1, thin_m=1.0),
     ]  # fmt: skip
 
 
@@ -95,17 +136,15 @@ GYRO_BIAS_SETTINGS = '{"heading_bias": 0.0002}'
 
 def quick_cases() -> list[Case]:
     """Short versions of the same cases (``--quick``, about 5 min), one timed run each."""
-    short = {"sim-maze-utm30lx": 20.0, "sim-long-rplidar": 60.0, "sim-long-gyro-bias": 60.0}
-    heads = {"freiburg-079": 300, "intel": 150, "exp1": 300, "ros1-bag": None}
+    short = {"sim-maze-utm30lx": 20.0}
+    heads = {"freiburg-079": 300, "intel": 150, "exp1": 300}
     out = []
     for c in full_cases():
         if c.source == "sim":
-            out.append(
-                Case(c.name, c.source, c.description, c.lidar, short[c.name], c.seed, repeats=1,
-                     settings=c.settings)
-            )
+            length = short.get(c.name, 120.0 if c.thin_m else 60.0)
+            out.append(replace(c, duration_s=length, repeats=1))
         else:
-            out.append(Case(c.name, c.source, c.description, max_scans=heads[c.name], repeats=1))
+            out.append(replace(c, max_scans=heads.get(c.name), repeats=1))
     return out
 
 
@@ -129,7 +168,9 @@ def _simulate(case: Case, folder: Path) -> tuple[Path, Path]:
             *bioslam_cli(),
             "sim",
             "--world",
-            "maze",
+            case.world,
+            "--route",
+            case.route,
             "--lidar",
             case.lidar,
             "--duration",
@@ -143,6 +184,24 @@ def _simulate(case: Case, folder: Path) -> tuple[Path, Path]:
         if proc.returncode != 0:
             raise RuntimeError(f"{' '.join(cmd[2:])} failed: {proc.stderr.strip()[-400:]}")
     return _find_bag(folder), gt
+
+
+def _thin(case: Case, source: Path, reference: Path | None, folder: Path) -> Path:
+    """``bioslam thin`` of a case's input into ``folder``: by the simulator's ground truth (a
+    bag and gt.tum), or by a CARMEN log's corrected poses (a CARMEN log)."""
+    if reference is not None:
+        out, by, result = folder, ["--by", str(reference)], folder / "scans"
+    else:
+        name = source.name.removesuffix(".gz")
+        out = result = folder / f"thin{case.thin_m:g}m-{name}"
+        by = []
+    if not result.exists():
+        cmd = [*bioslam_cli(), "thin", str(source), "--out", str(out), "--distance",
+               f"{case.thin_m:g}", *by]  # fmt: skip
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise RuntimeError(f"{' '.join(cmd[2:])} failed: {proc.stderr.strip()[-400:]}")
+    return result
 
 
 def _is_scan_line(line: str, fmt: str) -> bool:
@@ -187,7 +246,8 @@ def prepare(case: Case, work: Path) -> PreparedCase:
     # The simulator's settings are part of the folder name: a cached bag is reused only when
     # it was generated with the same lidar, duration and seed.
     # Cases driving the same simulated route share its folder.
-    sim_key = f"sim-{case.lidar}-{case.duration_s:g}s-seed{case.seed}"
+    place = "" if (case.world, case.route) == ("maze", "tour") else f"{case.world}-{case.route}-"
+    sim_key = f"sim-{place}{case.lidar}-{case.duration_s:g}s-seed{case.seed}"
     folder = work / "cases" / (sim_key if case.source == "sim" else case.name)
     folder.mkdir(parents=True, exist_ok=True)
     notes: list[str] = []
@@ -195,6 +255,12 @@ def prepare(case: Case, work: Path) -> PreparedCase:
         input_path, reference = _simulate(case, folder)
     else:
         input_path, reference = _real_log(case, folder), None
+    if case.thin_m:
+        if case.source == "sim":  # the simulated route's folder is shared: thin beside it
+            folder = folder.parent / f"{folder.name}-thin{case.thin_m:g}m"
+            folder.mkdir(parents=True, exist_ok=True)
+        input_path = _thin(case, Path(input_path), reference, folder)
+        reference = folder / "gt.tum" if reference is not None else None
     log = open_log(input_path)
     scans = list(log)
     if not scans:

@@ -117,7 +117,9 @@ def run_bioslam(
 ) -> None:
     """One ``bioslam run`` of the case; accuracy and counters are read on the first run."""
     out.mkdir(parents=True, exist_ok=True)
-    cmd = [*bioslam_cli(), "run", str(prepared.input_path), "--out", str(out), "--no-progress"]
+    # --overwrite: timed repeats rerun into the same folder, which also holds stdout.txt
+    cmd = [*bioslam_cli(), "run", str(prepared.input_path), "--out", str(out), "--no-progress",
+           "--overwrite"]
     if odometry_only:
         cmd.append("--odometry-only")
     if prepared.config_path is not None:

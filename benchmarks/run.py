@@ -306,7 +306,8 @@ def warm_numba_cache(work: Path) -> None:
     kernels: in a fresh clone the first timed row otherwise pays the compilation (measured:
     freiburg's full system 42 s wall instead of 14 s, and 627 MB peak instead of ~500 MB)."""
     out = work / "warm-up"
-    cmd = [*bioslam_cli(), "demo", "--duration", "20", "--out", str(out), "--no-progress"]
+    cmd = [*bioslam_cli(), "demo", "--duration", "20", "--out", str(out), "--no-progress",
+           "--overwrite"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         print(f"[bench] warm-up failed: {proc.stderr.strip()[-400:]}", file=sys.stderr, flush=True)

@@ -64,7 +64,8 @@ def test_eval_max_dt_controls_the_association(tmp_path, capsys):
 
 
 def test_eval_reports_a_short_path_rpe_as_null(tmp_path, capsys):
-    gt = Trajectory(np.arange(5) * 0.1, np.column_stack([np.arange(5) * 0.01, np.zeros((5, 2))]))
+    n = 12  # enough poses for an ATE, a path far shorter than the 1 m of an RPE pair
+    gt = Trajectory(np.arange(n) * 0.1, np.column_stack([np.arange(n) * 0.01, np.zeros((n, 2))]))
     path = _write(tmp_path, "gt.tum", gt)
     assert main(["eval", str(path), str(path)]) == 0
     summary = json.loads(capsys.readouterr().out.splitlines()[-1])

@@ -27,8 +27,14 @@ def test_info_prints_table_then_json_summary(tmp_path, capsys):
         + "FLASER 181 1 2 3\n"  # line 7: cut short
         + _flaser(10.5)  # line 8: earlier than the scan before it (within 2 s: reordered)
     )
-    code, out, _ = _run(capsys, str(log))
+    code, out, err = _run(capsys, str(log))
+    # 7 of 8 scan records read: below the default 90 %, so the command fails unless told
+    assert code == 1
+    assert "only 7 of 8 scan records read" in err and "--accept-partial" in err
+    assert "skipped 1 x wrong beam count (first: line 7" in err
+    code, out, _ = _run(capsys, str(log), "--accept-partial")
     assert code == 0
+    assert _run(capsys, str(log), "--min-read-share", "0.85")[0] == 0
     lines = out.strip().splitlines()
     summary = json.loads(lines[-1])
     assert summary["format"] == "carmen"
@@ -37,6 +43,7 @@ def test_info_prints_table_then_json_summary(tmp_path, capsys):
     assert summary["fov_deg"] == pytest.approx(180.0)
     assert summary["duration_s"] == pytest.approx(1.0)
     assert summary["skipped"] == {"wrong beam count": 1}
+    assert summary["scan_records"] == 8 and summary["read_share"] == pytest.approx(7 / 8)
     table = "\n".join(lines[:-1])
     assert "Format:" in table and "carmen" in table
     assert "Scans:             7" in table

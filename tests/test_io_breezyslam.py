@@ -9,7 +9,7 @@ import pytest
 from _io_data import shared_log
 
 from bioslam.io.breezyslam import BreezySlamConfig, integrate_wheel_odometry
-from bioslam.io.logs import MALFORMED, NON_MONOTONIC, WRONG_BEAM_COUNT, open_log
+from bioslam.io.logs import MALFORMED, WRONG_BEAM_COUNT, open_log
 
 CFG = BreezySlamConfig()
 METRES_PER_TICK = 2 * math.pi * CFG.wheel_radius_m / CFG.ticks_per_rev
@@ -76,8 +76,10 @@ def test_bad_lines_are_skipped_and_counted(tmp_path):
         + line(0, 0, 0) + line(5_000_000, 0, 0)
     )
     source = open_log(path)
-    assert [s.stamp for s in source] == [1.0, 4.0, 5.0]
-    assert source.skipped == {WRONG_BEAM_COUNT: 1, MALFORMED: 1, NON_MONOTONIC: 1}
+    # the line stamped 0 between 4 s and 5 s is repaired, and its odometry follows it
+    assert [s.stamp for s in source] == [1.0, 4.0, 4.5, 5.0]
+    np.testing.assert_array_equal(source.odometry.stamps, [1.0, 4.0, 4.5, 5.0])
+    assert source.skipped == {WRONG_BEAM_COUNT: 1, MALFORMED: 1}
     assert source.skip_examples[WRONG_BEAM_COUNT].startswith("line 2: wrong beam count: 625")
     assert source.skip_examples[MALFORMED].startswith("line 3:")
     with pytest.raises(ValueError, match=r"bad\.dat: line 2: wrong beam count"):

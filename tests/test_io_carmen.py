@@ -13,7 +13,6 @@ from bioslam.io.logs import (
     EMPTY_SCAN,
     MALFORMED,
     NO_VALID_RETURNS,
-    NON_MONOTONIC,
     TRUNCATED,
     WRONG_BEAM_COUNT,
     open_log,
@@ -133,15 +132,19 @@ def _bad_log(tmp_path):
 def test_bad_records_are_skipped_and_counted(tmp_path):
     source = open_log(_bad_log(tmp_path))
     scans = list(source)
-    assert [s.stamp for s in scans] == [1.0, 4.0, 7.0, 8.0]
+    # the stamp 5.5 s back in time and one of the repeated ones are repaired from their
+    # neighbours (6.0 on line 8, 7.0 on line 11), not dropped
+    np.testing.assert_allclose([s.stamp for s in scans], [1.0, 4.0, 19 / 3, 20 / 3, 7.0, 8.0])
     np.testing.assert_array_equal(scans[1].valid_mask, [False, False, True])
     assert scans[1].endpoints().shape == (1, 2)
     assert source.skipped == {MALFORMED: 1, WRONG_BEAM_COUNT: 1, EMPTY_SCAN: 1,
-                              NO_VALID_RETURNS: 1, NON_MONOTONIC: 2}
+                              NO_VALID_RETURNS: 1}
+    assert source.records_seen == 10 and source.scans_read == 6
     assert source.skip_examples[MALFORMED].startswith("line 4:")
     assert "oops" in source.skip_examples[MALFORMED]
     assert source.skip_examples[WRONG_BEAM_COUNT].startswith("line 5:")
-    assert source.skip_examples[NON_MONOTONIC].startswith("line 10:")
+    assert source.time_source.startswith("log stamps (2 repaired")
+    assert any("2 repaired" in note for note in source.notes())
 
 
 def test_strict_mode_raises_naming_file_and_line(tmp_path):

@@ -263,6 +263,20 @@ class BoundaryCells:
         r, a = scan.valid_polar()
         return self.activity_polar(r, a, _beam_spacing(scan.angles))
 
+    def coverage(self, scan: LaserScan) -> NDArray[np.bool_]:
+        """Which angular bins of a ring the scan's field of view covers (a bin whose centre
+        lies within the span of its beams): the sectors two views can be compared over."""
+        return self.coverage_span(float(scan.angles[0]), float(scan.angles[-1]))
+
+    def coverage_span(self, first: float, last: float) -> NDArray[np.bool_]:
+        """``coverage`` for beams swept from ``first`` to ``last`` radians (counter-clockwise)."""
+        span = last - first
+        if not np.isfinite(span) or span >= 2.0 * math.pi - self.config.sigma_alpha:
+            return np.ones(self.config.cells_per_ring, dtype=bool)
+        offset = np.mod(self.config.cell_angles() - first, 2.0 * math.pi)
+        margin = 0.5 * self.config.sigma_alpha
+        return (offset >= margin) & (offset <= span - margin)
+
     def activity_polar(
         self, ranges: FloatArray, angles: FloatArray, beam_spacing: float = 0.0
     ) -> FloatArray:

@@ -307,6 +307,18 @@ class CognitiveMap:
         """(N, 3) relaxed experience poses (a copy)."""
         return self._poses.view.copy()
 
+    @property
+    def experience_poses_view(self) -> FloatArray:
+        """(N, 3) relaxed experience poses, read-only and without a copy (per-look queries)."""
+        view = self._poses.view
+        view.flags.writeable = False
+        return view
+
+    @property
+    def payloads(self) -> list[Any]:
+        """The payload stored with each experience, by id (the map's own list: do not edit)."""
+        return self._payloads
+
     def link_distance(self, a: int, b: int, within: float) -> float | None:
         """The length (m) of the shortest chain of links joining experiences ``a`` and ``b``,
         if one is at most ``within`` metres long, else None: how much odometry relates the
@@ -403,8 +415,14 @@ class CognitiveMap:
         stamp: float,
         payload: Any = None,
         refine: Callable[[Experience], ArrayLike | None] | None = None,
+        nearby: int | None = None,
     ) -> MapEvent:
-        """One topological action for the active view (see the module docstring)."""
+        """One topological action for the active view (see the module docstring).
+
+        ``nearby``: an experience the path-integration cue puts the robot near
+        (:mod:`bioslam.closure`); when the view proposes no move, the robot moves there if
+        ``refine`` accepts it, instead of making a new experience.
+        """
         vid = int(view_id)
         centre = np.asarray(pc_centre, dtype=np.float64).reshape(3)
         stamp = float(stamp)
@@ -416,6 +434,10 @@ class CognitiveMap:
             best = int(np.argmin(dist))
             if dist[best] <= self.config.match_threshold:
                 return self._move_to(candidates[best], stamp, refine)
+        if nearby is not None and nearby != self._current:
+            event = self._move_to(int(nearby), stamp, refine)
+            if not event.rejected:
+                return event
         return self._new_experience(vid, centre, stamp, payload)
 
     def _add_experience(

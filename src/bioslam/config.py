@@ -15,7 +15,10 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import tomllib
+import types
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -77,7 +80,28 @@ class LoopClosureConfig:
             registrations keep failing (noisy sensors, clutter): consecutive scans that
             close say the same thing anyway.
         payload_spacing: spacing (m) of the scan points kept with each experience.
-        registration: the pairwise registration's parameters.
+        proximity: also propose, as a loop candidate, the experience nearest the robot's map
+            pose within the drift bound (the path-integration cue, :mod:`bioslam.closure`),
+            not only the one its view cell recognises.
+        min_loop_travel: metres of travel since an experience was made before the proximity
+            cue proposes it (a place just left is not a loop).
+        submap_reach: the verification submap fuses the scans of the experiences made within
+            this many metres of travel of the candidate, on its own pass (m).
+        submap_step: the submap takes one scan per this many metres of travel (m).
+        submap_spacing: the submap is thinned to one point per cell of this size (m).
+        search_distance, search_angle: caps (m, rad) on the window the verification
+            searches around the map's prediction; within them the window is the drift bound.
+        search_level: the pyramid level (0 finest) whose grid the wide-basin search runs on;
+            Gauss-Newton then refines on every level.
+        rival_distance, rival_angle: a rival pose must lie farther than this from the best
+            (m, rad) to count as another place (nearer ones are the best's own peak).
+        max_ambiguity: a candidate is refused when its best distinct rival scores at least
+            this fraction of the best: the scan fits a look-alike place as well.
+        prior_margin: the map's prediction, refined where it stands, is a rival too: a best
+            pose farther than the rival distance from it is refused unless its score (share
+            of points on the submap) beats the prediction's by more than this (along a
+            corridor the best may sit on a plateau the scan barely constrains).
+        registration: the registration's map and Gauss-Newton parameters.
     """
 
     refine: bool = True
@@ -97,6 +121,18 @@ class LoopClosureConfig:
     deadband_angle: float = 0.006
     registration_interval: float = 0.25
     payload_spacing: float = 0.02
+    proximity: bool = True
+    min_loop_travel: float = 3.0
+    submap_reach: float = 1.5
+    submap_step: float = 0.5
+    submap_spacing: float = 0.03
+    search_distance: float = 1.5
+    search_angle: float = math.radians(45.0)
+    search_level: int = 1
+    rival_distance: float = 0.5
+    rival_angle: float = math.radians(20.0)
+    max_ambiguity: float = 0.9
+    prior_margin: float = 0.1
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)
 
 
@@ -126,34 +162,180 @@ class SLAMConfig:
     heading_bias: float = 0.0
 
 
-def _apply(obj: Any, overrides: dict[str, Any], where: str) -> Any:
-    """A copy of the dataclass ``obj`` with ``overrides`` applied, recursing into sub-configs."""
+#: Settings that may be negative (all other numbers are sizes, rates, thresholds or counts,
+#: for which a negative value has no meaning).
+SIGNED = frozenset({
+    "heading_bias", "odometry.free_logodds", "odometry.log_odds.l_hit",
+    "odometry.log_odds.l_miss", "odometry.log_odds.l_min", "odometry.log_odds.l_max",
+    "pose_cells.start",
+})
+#: Settings with physical limits beyond their sign: ``key -> (low, high, low_inclusive)``.
+RANGES: dict[str, tuple[float, float, bool]] = {
+    "odometry.resolution": (1e-3, 10.0, True),
+    "odometry.map_size": (1.0, 1e4, True),
+    "odometry.max_range": (0.0, 1e4, False),
+    "odometry.levels": (1, 8, True),
+    "odometry.point_spacing": (0.0, 10.0, False),
+    "odometry.recovery_free_fraction": (0.0, 1.0, True),
+    "odometry.recovery_score_ratio": (0.0, 1.0, True),
+    "boundary.cells_per_ring": (1, 3600, True),
+    "views.ds": (0.0, 1e3, False),
+    "pose_cells.cell_size_xy": (0.0, 1e3, False),
+    "loop_closure.min_score": (0.0, 1.0, True),
+    "loop_closure.payload_spacing": (1e-3, 10.0, True),
+    "loop_closure.registration.resolution": (1e-3, 10.0, True),
+    "loop_closure.registration.max_range": (0.0, 1e4, False),
+    "loop_closure.registration.levels": (1, 8, True),
+    "loop_closure.registration.hit_level": (0.0, 1.0, True),
+    "cognitive_map.correction": (0.0, 1.0, True),
+}
+#: Largest grid (cells) a setting may ask for: 10^8 float64 cells are 800 MB.
+MAX_GRID_CELLS = 10**8
+
+
+def _show(value: Any) -> str:
+    """A value as the user wrote it in the file (JSON spelling: ``true``, ``"fine"``)."""
+    try:
+        text = json.dumps(value)
+    except (TypeError, ValueError):
+        text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _type_name(hint: Any) -> str:
+    return getattr(hint, "__name__", None) or str(hint).replace("typing.", "")
+
+
+def _check_number(value: Any, hint: type, key: str) -> float | int:
+    """An int or float setting: a JSON/TOML number of the right kind, finite, in range."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        kind = "an integer" if hint is int else "a number"
+        raise ValueError(f"{key} = {_show(value)}: expected {kind}")
+    if hint is int and not isinstance(value, int):
+        raise ValueError(f"{key} = {_show(value)}: expected an integer")
+    if not math.isfinite(value):
+        raise ValueError(f"{key} = {_show(value)}: expected a finite number")
+    name = key.split("[")[0]
+    if value < 0 and name not in SIGNED:
+        raise ValueError(f"{key} = {_show(value)}: must not be negative")
+    if name in RANGES:
+        lo, hi, inclusive = RANGES[name]
+        if not (value >= lo if inclusive else value > lo) or value > hi:
+            bracket = "[" if inclusive else "("
+            raise ValueError(f"{key} = {_show(value)}: must be in {bracket}{lo:g}, {hi:g}]")
+    return float(value) if hint is float else value
+
+
+def _check_value(value: Any, hint: Any, key: str) -> Any:
+    """``value`` checked (and converted: int -> float, list -> tuple) against ``hint``."""
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):
+        options = [h for h in typing.get_args(hint) if h is not type(None)]
+        if value is None and len(options) < len(typing.get_args(hint)):
+            return None
+        errors = []
+        for option in options:
+            try:
+                return _check_value(value, option, key)
+            except ValueError as exc:
+                errors.append(str(exc))
+        raise ValueError(errors[0] if len(errors) == 1 else f"{key} = {_show(value)}: expected "
+                         + " or ".join(_type_name(h) for h in typing.get_args(hint)))
+    if origin is tuple:
+        args = typing.get_args(hint)
+        if not isinstance(value, (list, tuple)):
+            raise ValueError(f"{key} = {_show(value)}: expected a list")
+        if len(args) == 2 and args[1] is Ellipsis:
+            args = (args[0],) * len(value)
+            if not value:
+                raise ValueError(f"{key} = []: expected at least one value")
+        elif len(value) != len(args):
+            raise ValueError(f"{key} = {_show(value)}: expected {len(args)} values")
+        return tuple(_check_value(v, a, f"{key}[{i}]") for i, (v, a) in
+                     enumerate(zip(value, args, strict=True)))
+    if hint in (int, float):
+        return _check_number(value, hint, key)
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise ValueError(f"{key} = {_show(value)}: expected true or false")
+        return value
+    if hint is str:
+        if not isinstance(value, str):
+            raise ValueError(f"{key} = {_show(value)}: expected a string")
+        return value
+    raise ValueError(f"{key}: settings of type {_type_name(hint)} cannot be given in a file")
+
+
+def _apply(obj: Any, overrides: Any, where: str, prefix: str = "") -> Any:
+    """A copy of the dataclass ``obj`` with ``overrides`` applied, recursing into sub-configs;
+    each value is checked against the field's type hint (and :data:`RANGES`), and an error
+    names ``where`` (the file) and the setting's dotted key."""
+    section = prefix.rstrip(".") or "the top level"
+    if not isinstance(overrides, dict):
+        raise ValueError(f"{where}: {section} must be a table of settings, "
+                         f"got {_show(overrides)}")
     names = {f.name: f for f in dataclasses.fields(obj)}
+    hints = typing.get_type_hints(type(obj))
     changes: dict[str, Any] = {}
     for key, value in overrides.items():
+        dotted = prefix + str(key)
         if key not in names:
-            raise ValueError(f"{where}: unknown setting {key!r}; known: {', '.join(names)}")
-        current = getattr(obj, key)
-        if dataclasses.is_dataclass(current) and isinstance(value, dict):
-            changes[key] = _apply(current, value, f"{where}.{key}")
-        elif isinstance(current, tuple) and isinstance(value, list):
-            changes[key] = tuple(value)
+            raise ValueError(f"{where}: unknown setting {dotted!r}; known in {section}: "
+                             f"{', '.join(names)}")
+        hint = hints[key]
+        if dataclasses.is_dataclass(hint):
+            changes[key] = _apply(getattr(obj, key), value, where, dotted + ".")
         else:
-            changes[key] = value
-    return dataclasses.replace(obj, **changes)
+            try:
+                changes[key] = _check_value(value, hint, dotted)
+            except ValueError as exc:
+                raise ValueError(f"{where}: {exc}") from None
+    try:
+        return dataclasses.replace(obj, **changes)
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"{where}: {section}: {exc}") from None
+
+
+def check_sizes(config: SLAMConfig, where: str = "config") -> None:
+    """Refuse settings whose grids would not fit in memory (a resolution of 1e-9 m asks for
+    petabytes) before anything is allocated."""
+    odo, reg = config.odometry, config.loop_closure.registration
+    grids = {
+        "odometry.map_size / odometry.resolution": (odo.map_size / odo.resolution) ** 2,
+        "loop_closure.registration.max_range / resolution":
+            (2 * reg.max_range / reg.resolution) ** 2,
+        "pose_cells.dims": float(math.prod(config.pose_cells.dims)),
+        "boundary.ring_distances x cells_per_ring":
+            float(len(config.boundary.ring_distances) * config.boundary.cells_per_ring),
+    }
+    for what, cells in grids.items():
+        if not cells <= MAX_GRID_CELLS:
+            raise ValueError(f"{where}: {what} asks for a grid of {cells:.3g} cells, more than "
+                             f"{MAX_GRID_CELLS:.0e} (it would not fit in memory)")
 
 
 def config_from_dict(overrides: dict[str, Any], where: str = "config") -> SLAMConfig:
-    """Defaults with ``overrides`` (nested dicts named like the fields) applied."""
-    return _apply(SLAMConfig(), overrides, where)
+    """Defaults with ``overrides`` (nested dicts named like the fields) applied and checked."""
+    config = _apply(SLAMConfig(), overrides, where)
+    check_sizes(config, where)
+    return config
 
 
 def load_config(path: str | Path | None) -> SLAMConfig:
-    """Read a TOML (``.toml``) or JSON file of overrides; ``None`` gives the defaults."""
+    """Read a TOML (``.toml``) or JSON file of overrides; ``None`` gives the defaults.
+
+    Every problem (unreadable file, syntax, unknown key, wrong type, value out of range) is a
+    ``ValueError`` naming the file and the key, raised before any work starts.
+    """
     if path is None:
         return SLAMConfig()
     path = Path(path)
-    text = path.read_text()
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise FileNotFoundError(f"--config {path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"--config {path}: cannot read it: {exc}") from None
     try:
         data = tomllib.loads(text) if path.suffix != ".json" else json.loads(text)
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:

@@ -45,12 +45,25 @@ class EvalConfig:
     rpe_delta_s: elapsed time of an RPE pair (s); 1 s as asked by the evaluation issue.
     pairs_from_reference: pick RPE pairs along the reference instead of the estimate
         (evo's ``--pairs_from_reference``; off by default, as in evo).
+    min_pairs: fewest associated poses :func:`evaluate` accepts. The SE(2) alignment has
+        three degrees of freedom: with one pair the ATE is 0 whatever the estimate, with a
+        handful it mostly measures how well the alignment fits noise.
     """
 
     max_dt: float = 0.02
     rpe_delta_m: float = 1.0
     rpe_delta_s: float = 1.0
     pairs_from_reference: bool = False
+    min_pairs: int = 10
+
+
+def _check_finite(trajectory: Trajectory, what: str) -> None:
+    """Refuse NaN/inf stamps or poses: they would turn every statistic into NaN silently."""
+    bad = ~(np.isfinite(trajectory.stamps) & np.all(np.isfinite(trajectory.poses), axis=1))
+    if np.any(bad):
+        k = int(np.argmax(bad))
+        raise ValueError(f"{what} pose {k} (stamp {trajectory.stamps[k]}) is not finite: "
+                         f"{trajectory.poses[k].tolist()}")
 
 
 def _check_sorted(stamps: FloatArray, what: str) -> None:
@@ -85,6 +98,8 @@ def associate(
     """
     if len(est) == 0 or len(gt) == 0:
         raise ValueError(f"cannot associate: estimate has {len(est)} poses, reference {len(gt)}")
+    _check_finite(est, "estimate")
+    _check_finite(gt, "reference")
     _check_sorted(est.stamps, "estimate")
     _check_sorted(gt.stamps, "reference")
     if len(est) > len(gt):
@@ -334,10 +349,17 @@ def evaluate(est: Trajectory, gt: Trajectory, config: EvalConfig | None = None) 
 
     Keys: ``ate_rmse_m, ate_mean_m, ate_max_m, rpe_1m_trans_m, rpe_1m_rot_deg,
     rpe_1s_trans_m, rpe_1s_rot_deg`` and ``pairs`` (associated poses). RPE values are RMSE
-    over all pairs, NaN when the trajectory is too short for a single pair.
+    over all pairs, NaN when the trajectory is too short for a single pair. Raises
+    ``ValueError`` with fewer than ``config.min_pairs`` associated poses or non-finite poses.
     """
     cfg = config or EvalConfig()
     a = ate(est, gt, align=True, max_dt=cfg.max_dt)
+    if a["pairs"] < cfg.min_pairs:
+        raise ValueError(
+            f"only {a['pairs']} associated poses within {cfg.max_dt} s ({len(est)} estimated, "
+            f"{len(gt)} reference); at least {cfg.min_pairs} are needed for a meaningful ATE "
+            "(the alignment alone fits a few poses)"
+        )
     r_m = rpe_distance(est, gt, cfg.rpe_delta_m, cfg.max_dt, cfg.pairs_from_reference)
     r_s = rpe_time(est, gt, cfg.rpe_delta_s, cfg.max_dt)
     return {

@@ -19,12 +19,14 @@ import numpy as np
 from numpy.typing import NDArray
 from tqdm import tqdm
 
+from bioslam import signals
 from bioslam.cognitive_map import CognitiveMap
 from bioslam.config import SLAMConfig
 from bioslam.evaluation import evaluate, position_errors
 from bioslam.geometry import Pose2D, compose, inverse
 from bioslam.io.jsonio import write_json
 from bioslam.io.mapfile import OccupancyImage, write_map
+from bioslam.io.outdir import OutputDir
 from bioslam.io.tum import write_tum
 from bioslam.occupancy_grid import OccupancyGrid
 from bioslam.odometry import LidarOdometry, register_scans
@@ -137,6 +139,8 @@ class RunResult:
     map_max_range: float = 30.0
     interrupted: bool = False
     error: str | None = None
+    first_stamp: float | None = None
+    last_stamp: float = 0.0
 
 
 def cognitive_map_snapshot(system: BioSLAM, elapsed: float) -> Snapshot:
@@ -212,35 +216,19 @@ def run_slam(
     )
     result = RunResult(system, map_max_range=config.odometry.max_range)
     if options.warm_up:
-        result.startup_s = warm_up(config, options.odometry_only)
+        try:
+            with signals.interruptible():
+                result.startup_s = warm_up(config, options.odometry_only)
+        except KeyboardInterrupt:
+            result.interrupted = True
+            return result
     pending_snapshots = sorted(options.snapshot_times)
-    last_key: FloatArray | None = None
-    first_stamp: float | None = None
-    last_stamp = 0.0
     bar = tqdm(total=total, unit="scan", disable=not options.progress, file=sys.stderr,
                dynamic_ncols=True, smoothing=0.05)
     started = time.perf_counter()
     try:
-        for scan in scans:
-            t0 = time.thread_time()
-            pose = system.process(scan)
-            result.scan_seconds.append(time.thread_time() - t0)
-            first_stamp = scan.stamp if first_stamp is None else first_stamp
-            last_stamp = scan.stamp
-            odo_pose = system.self_motion.pose
-            if _is_keyframe(odo_pose, last_key, options):
-                last_key = odo_pose.copy()
-                result.keyframe_index.append(system.num_scans - 1)
-                result.keyframe_points.append(
-                    thin_points(scan.endpoints(), options.map_point_spacing)
-                )
-            while pending_snapshots and scan.stamp - first_stamp >= pending_snapshots[0]:
-                if isinstance(system, BioSLAM):
-                    result.snapshots.append(cognitive_map_snapshot(system, pending_snapshots[0]))
-                pending_snapshots.pop(0)
-            if observer is not None:
-                observer(scan, pose, system)
-            bar.update(1)
+        with signals.interruptible():
+            _feed(scans, system, result, options, pending_snapshots, bar, observer)
     except KeyboardInterrupt:
         result.interrupted = True
     except Exception as exc:  # the run's results must survive a failure half-way
@@ -249,15 +237,49 @@ def run_slam(
         bar.close()
         result.wall_s = time.perf_counter() - started
     system.finish()
-    if isinstance(system, BioSLAM) and first_stamp is not None:
+    if isinstance(system, BioSLAM) and result.first_stamp is not None:
         # A snapshot asked for at the very end (600 s of a 600 s run) falls a scan period
         # after the last stamp: it is the final map.
         result.snapshots += [
             cognitive_map_snapshot(system, wanted)
             for wanted in pending_snapshots
-            if wanted - (last_stamp - first_stamp) <= options.snapshot_tolerance
+            if wanted - (result.last_stamp - result.first_stamp) <= options.snapshot_tolerance
         ]
     return result
+
+
+def _feed(
+    scans: Iterable[LaserScan],
+    system: BioSLAM | OdometryOnly,
+    result: RunResult,
+    options: RunOptions,
+    pending_snapshots: list[float],
+    bar: tqdm,
+    observer: ScanObserver | None,
+) -> None:
+    """The scan loop of :func:`run_slam`: process, time, keep keyframes and snapshots."""
+    last_key: FloatArray | None = None
+    for scan in scans:
+        t0 = time.thread_time()
+        pose = system.process(scan)
+        result.scan_seconds.append(time.thread_time() - t0)
+        if result.first_stamp is None:
+            result.first_stamp = scan.stamp
+        result.last_stamp = scan.stamp
+        odo_pose = system.self_motion.pose
+        if _is_keyframe(odo_pose, last_key, options):
+            last_key = odo_pose.copy()
+            result.keyframe_index.append(system.num_scans - 1)
+            result.keyframe_points.append(
+                thin_points(scan.endpoints(), options.map_point_spacing)
+            )
+        while pending_snapshots and scan.stamp - result.first_stamp >= pending_snapshots[0]:
+            if isinstance(system, BioSLAM):
+                result.snapshots.append(cognitive_map_snapshot(system, pending_snapshots[0]))
+            pending_snapshots.pop(0)
+        if observer is not None:
+            observer(scan, pose, system)
+        bar.update(1)
 
 
 def render_map(
@@ -297,76 +319,120 @@ def timing_summary(result: RunResult, trajectory: Trajectory) -> dict[str, float
 
 def write_results(
     result: RunResult,
-    out_dir: str | Path,
+    out_dir: str | Path | OutputDir,
     gt: Trajectory | None = None,
     options: RunOptions | None = None,
     extra: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
-    """Write trajectories, cognitive map, map, figures and ``summary.json``; return the summary."""
+    """Write trajectories, cognitive map, map, figures and ``summary.json``; return the summary.
+
+    The trajectories, the cognitive map and the summary are written whole even when a signal
+    arrives meanwhile; the map and the figures are abandoned on a signal (the summary then
+    says ``"interrupted": true``). A file that cannot be written (a full disk) is listed in
+    ``write_errors`` and the others are still written.
+    """
     options = options or RunOptions()
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = out_dir if isinstance(out_dir, OutputDir) else OutputDir(out_dir, marker=False)
+    out.path.mkdir(parents=True, exist_ok=True)
     system = result.system
-    trajectory = system.trajectory()
-    odometry = system.odometry_trajectory()
-    summary: dict[str, Any] = {"scans": len(trajectory), **timing_summary(result, trajectory)}
-    summary.update(system.summary())
-    write_tum(out / "trajectory.tum", trajectory)
-    write_tum(out / "odometry.tum", odometry)
-    if isinstance(system, BioSLAM):
-        write_json(out / "cognitive_map.json", system.cognitive_map.to_dict())
+    with signals.protected():
+        trajectory = system.trajectory()
+        odometry = system.odometry_trajectory()
+        summary: dict[str, Any] = {"scans": len(trajectory), **timing_summary(result, trajectory)}
+        summary.update(system.summary())
+        out.save("trajectory.tum", write_tum, trajectory)
+        out.save("odometry.tum", write_tum, odometry)
+        if isinstance(system, BioSLAM):
+            out.save("cognitive_map.json", write_json, system.cognitive_map.to_dict())
+        if gt is not None and len(trajectory) > 1:
+            gt = _evaluate_into(summary, trajectory, odometry, gt)
     if len(trajectory):
-        image = render_map(result, trajectory, options.map_resolution)
-        write_map(out, image)
-        _write_figures(result, out / "figures", trajectory, odometry, gt, image)
-    if gt is not None and len(trajectory) > 1:
-        summary.update(evaluate(trajectory, gt))
-        summary["odometry"] = evaluate(odometry, gt)
-    if result.interrupted:
+        _write_map_and_figures(result, out, trajectory, odometry, gt, options, summary)
+    if result.interrupted or signals.received() is not None:
         summary["interrupted"] = True
     if result.error:
         summary["error"] = result.error
     summary.update(extra or {})
-    write_json(out / "summary.json", summary)
+    with signals.protected():
+        if out.errors:
+            summary["write_errors"] = list(out.errors)
+        out.save("summary.json", write_json, summary)
+    if out.errors:
+        summary["write_errors"] = list(out.errors)
     return summary
+
+
+def _evaluate_into(
+    summary: dict[str, Any], trajectory: Trajectory, odometry: Trajectory, gt: Trajectory
+) -> Trajectory | None:
+    """Add the ``bioslam eval`` keys (and the odometry's) to ``summary``; a reference that
+    cannot be evaluated against (too few matching stamps) is reported in
+    ``evaluation_error`` instead, and ``None`` returned so that no figure uses it."""
+    try:
+        summary.update(evaluate(trajectory, gt))
+        summary["odometry"] = evaluate(odometry, gt)
+    except ValueError as exc:
+        summary["evaluation_error"] = str(exc)
+        return None
+    return gt
+
+
+def _write_map_and_figures(
+    result: RunResult,
+    out: OutputDir,
+    trajectory: Trajectory,
+    odometry: Trajectory,
+    gt: Trajectory | None,
+    options: RunOptions,
+    summary: dict[str, Any],
+) -> None:
+    """The occupancy map and the figures: long to draw, so a signal abandons them (what was
+    written stays), and a plotting failure is reported rather than losing the summary."""
+    try:
+        with signals.interruptible():
+            image = render_map(result, trajectory, options.map_resolution)
+            out.write(["map.pgm", "map.yaml"], lambda: write_map(out.path, image))
+            _write_figures(result, out, trajectory, odometry, gt, image)
+    except KeyboardInterrupt:
+        result.interrupted = True
+    except Exception as exc:  # a figure must not cost the summary
+        summary["figures_error"] = f"{type(exc).__name__}: {exc}"
 
 
 def _write_figures(
     result: RunResult,
-    folder: Path,
+    out: OutputDir,
     trajectory: Trajectory,
     odometry: Trajectory,
     gt: Trajectory | None,
     image: OccupancyImage,
 ) -> None:
     system = result.system
-    figures.plot_occupancy(folder / "map.png", image, trajectory.poses[:, :2])
+
+    def draw(name: str, plot: Any, *args: Any) -> None:
+        out.save(f"figures/{name}", plot, *args)
+
+    draw("map.png", figures.plot_occupancy, image, trajectory.poses[:, :2])
     if not isinstance(system, BioSLAM):
         return
     final = cognitive_map_snapshot(system, float(trajectory.stamps[-1] - trajectory.stamps[0]))
     aligned_gt = _gt_in_map_frame(trajectory, gt) if gt is not None else None
-    figures.plot_cognitive_map(
-        folder / "cognitive_map.png", final.nodes_xy, final.links, aligned_gt
-    )
+    draw("cognitive_map.png", figures.plot_cognitive_map, final.nodes_xy, final.links, aligned_gt)
     records = system.records
     stamps = np.array([r.stamp for r in records])
     view_ids = np.array([r.view_id for r in records])
     new_mask = np.array([r.view_is_new for r in records])
-    figures.plot_active_view(folder / "active_view.png", stamps, view_ids, new_mask)
+    draw("active_view.png", figures.plot_active_view, stamps, view_ids, new_mask)
     if gt is None:
         return
     err_t, err = position_errors(trajectory, gt)
     odo_t, odo_err = position_errors(odometry, gt)
-    figures.plot_error_over_time(folder / "error.png", err_t, err, (odo_t, odo_err))
-    figures.plot_views_and_errors(
-        folder / "views_and_error.png", stamps, view_ids, new_mask, err_t, err, (odo_t, odo_err)
-    )
+    draw("error.png", figures.plot_error_over_time, err_t, err, (odo_t, odo_err))
+    draw("views_and_error.png", figures.plot_views_and_errors, stamps, view_ids, new_mask,
+         err_t, err, (odo_t, odo_err))
     if result.snapshots:
-        figures.plot_mapping_progress(
-            folder / "mapping_progress.png",
-            [(s.elapsed, s.nodes_xy, s.links) for s in result.snapshots],
-            aligned_gt,
-        )
+        draw("mapping_progress.png", figures.plot_mapping_progress,
+             [(s.elapsed, s.nodes_xy, s.links) for s in result.snapshots], aligned_gt)
 
 
 def _gt_in_map_frame(trajectory: Trajectory, gt: Trajectory) -> FloatArray:

@@ -10,7 +10,6 @@ No file or terminal I/O here: :mod:`bioslam.pipeline` owns progress, timing and 
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -19,17 +18,28 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bioslam.boundary import BoundaryCells
+from bioslam.closure import (
+    Check,
+    fuse_submap,
+    nearest_experience,
+    pass_neighbours,
+    thin_points,
+    verify,
+    within,
+)
 from bioslam.cognitive_map import CognitiveMap, Experience
 from bioslam.config import SLAMConfig
 from bioslam.geometry import Pose2D, between, compose
 from bioslam.occupancy_grid import subsample_by_spacing
-from bioslam.odometry import LidarOdometry, register_scans
+from bioslam.odometry import LidarOdometry
 from bioslam.pose_cells import PoseCellNetwork
 from bioslam.scan import LaserScan
 from bioslam.trajectory import Trajectory
 from bioslam.views import ViewCells
 
 FloatArray = NDArray[np.float64]
+
+__all__ = ["BioSLAM", "SelfMotion", "StepRecord", "thin_points"]
 
 
 @dataclass(frozen=True)
@@ -43,26 +53,10 @@ class StepRecord:
     experience_id: int
 
 
-def thin_points(points: FloatArray, spacing: float) -> NDArray[np.float32]:
-    """Keep one point per ``spacing``-sized grid cell: a compact scan to store with a place."""
-    if points.shape[0] == 0 or spacing <= 0.0:
-        return points.astype(np.float32)
-    cells = np.floor(points / spacing).astype(np.int64)
-    # One integer key per cell (a 1-D unique is far cheaper than a row-wise one).
-    keys = (cells[:, 0] << 32) + (cells[:, 1] & 0xFFFFFFFF)
-    _, first = np.unique(keys, return_index=True)
-    return points[np.sort(first)].astype(np.float32)
-
-
 def _scan_payload(points: FloatArray, spacing: float) -> NDArray[np.float32]:
     """The scan kept with a place for registration: its endpoints at least ``spacing`` apart
     along the scan (computed at every look, so cheaper than :func:`thin_points`)."""
     return points[subsample_by_spacing(points, spacing)].astype(np.float32)
-
-
-def _within(correction: FloatArray, distance: float, angle: float) -> bool:
-    """Whether a pose correction moves by at most ``distance`` metres and ``angle`` radians."""
-    return bool(np.hypot(correction[0], correction[1]) <= distance and abs(correction[2]) <= angle)
 
 
 class SelfMotion:
@@ -95,7 +89,7 @@ class BioSLAM:
         cfg = self.config
         self.self_motion = SelfMotion(cfg)
         self.boundary_cells = BoundaryCells(cfg.boundary)
-        self.view_cells = ViewCells(cfg.views)
+        self.view_cells = ViewCells(cfg.views, cells_per_ring=cfg.boundary.cells_per_ring)
         self.pose_cells = PoseCellNetwork(cfg.pose_cells)
         self.cognitive_map = CognitiveMap.from_pose_cells(cfg.cognitive_map, cfg.pose_cells)
         self._stamps: list[float] = []
@@ -108,6 +102,10 @@ class BioSLAM:
         self._last_registration = -np.inf
         self._travelled_at_entry = 0.0
         self._pending = np.zeros(3)
+        #: every loop-closure verification's outcome, in order (for benchmarks and figures)
+        self.checks: list[Check] = []
+        self._proposed: int | None = None
+        self._stamp = 0.0
 
     # --- the per-scan update ---------------------------------------------------------------
 
@@ -138,11 +136,17 @@ class BioSLAM:
         # Egocentric views of corridors running in different directions look alike; the map
         # heading lets the view cells compare only views learned facing the same way.
         heading = self.cognitive_map.pose()[2] + dp[2] if len(self.cognitive_map) else dp[2]
-        match = self.view_cells.observe(self.boundary_cells.activity(scan), heading=heading)
+        match = self.view_cells.observe(
+            self.boundary_cells.activity(scan),
+            heading=heading,
+            coverage=self.boundary_cells.coverage(scan),
+        )
         self.pose_cells.path_integrate(dp)
         self.pose_cells.inject_view(match.view_id, match.activity, match.is_new)
         self.pose_cells.step()
         self.cognitive_map.integrate_odometry(dp, scan.stamp)
+        self._stamp = scan.stamp
+        self._proposed = self._nearby()
         event = self.cognitive_map.update(
             match.view_id,
             match.is_new,
@@ -150,6 +154,7 @@ class BioSLAM:
             scan.stamp,
             payload=_scan_payload(points, self.config.loop_closure.payload_spacing),
             refine=self._refiner(points) if self.config.loop_closure.refine else None,
+            nearby=self._proposed,
         )
         if event.kind == "loop":
             self.cognitive_map.relax()
@@ -162,6 +167,28 @@ class BioSLAM:
             StepRecord(scan.stamp, match.view_id, match.is_new, event.kind, event.experience)
         )
 
+    def _nearby(self) -> int | None:
+        """The path-integration cue: the experience nearest the robot's map pose, made long
+        enough ago to be a loop and not already joined to the current one by a short chain
+        of links (:func:`bioslam.closure.nearest_experience`)."""
+        cfg = self.config.loop_closure
+        cmap = self.cognitive_map
+        if not (cfg.proximity and cfg.refine) or len(cmap) < 2:
+            return None
+        if self._travelled - self._last_registration < cfg.registration_interval:
+            return None
+        travelled = np.asarray(self._travelled_at_experience)
+        drift, _ = self._drift_bound(self._travelled, False)
+        found = nearest_experience(
+            cmap.experience_poses_view, travelled, cmap.pose(), self._travelled,
+            min(cfg.recognition_radius, drift), cfg.min_loop_travel,
+        )  # fmt: skip
+        if found is None or found == cmap.current:
+            return None
+        if cmap.link_distance(cmap.current, found, cfg.chain_distance) is not None:
+            return None
+        return found
+
     def _refiner(self, points: FloatArray) -> Callable[[Experience], FloatArray | None]:
         """A callable for the cognitive map that refines a move to a recognised experience."""
         return functools.partial(self._refine, points=points)
@@ -170,8 +197,7 @@ class BioSLAM:
         """The robot's pose in ``experience``'s frame, from registering this scan against the
         scan stored with it, or None to reject the recognition."""
         cfg = self.config.loop_closure
-        reference = experience.payload
-        if reference is None or len(reference) < 3 or points.shape[0] < 3:
+        if experience.payload is None or points.shape[0] < 3:
             return None
         if self._travelled - self._last_registration < cfg.registration_interval:
             return None
@@ -180,25 +206,34 @@ class BioSLAM:
         drift, drift_angle = self._drift_bound(since, linked)
         if np.hypot(predicted[0], predicted[1]) > cfg.recognition_radius + drift:
             return None
-        # The map's prediction is good to within the drift bound, so the registration need
-        # not search wider: re-recognising a place just left costs little.
-        registration = dataclasses.replace(
-            cfg.registration,
-            search_distance=min(cfg.registration.search_distance, drift),
-            search_angle=min(cfg.registration.search_angle, drift_angle),
-        )
-        self._last_registration = self._travelled
-        rel, quality = register_scans(reference, points, predicted, registration)
-        fits = quality.score >= cfg.min_score and not (cfg.reject_degenerate and quality.degenerate)
-        correction = between(predicted, rel)
-        # larger than the odometry can have drifted: a look-alike place
-        if not (fits and _within(correction, drift, drift_angle)):
+        reference = self._submap(experience.id)
+        if reference.shape[0] < 3:
             return None
-        if _within(correction, cfg.deadband, cfg.deadband_angle):
+        self._last_registration = self._travelled
+        verdict = verify(reference, points, predicted, (drift, drift_angle), cfg)
+        cue = "proximity" if experience.id == self._proposed else "view"
+        self.checks.append(Check(self._stamp, experience.id, experience.stamp, cue, verdict))
+        if not verdict.accepted:
+            return None
+        if within(between(predicted, verdict.pose), cfg.deadband, cfg.deadband_angle):
             # The map already agrees with the registration to within the registration's own
             # error: keep the map's estimate rather than inject that error into the map.
             return predicted
-        return rel
+        return verdict.pose
+
+    def _submap(self, anchor: int) -> NDArray[np.float32]:
+        """The scans around ``anchor`` on its own pass, fused in its frame
+        (:func:`bioslam.closure.fuse_submap`); the last ``submap_reach`` metres of travel,
+        which the current scan would match trivially, are left out."""
+        cfg = self.config.loop_closure
+        cmap = self.cognitive_map
+        members = pass_neighbours(
+            np.asarray(self._travelled_at_experience), anchor, cfg.submap_reach,
+            cfg.submap_step, self._travelled - cfg.submap_reach,
+        )  # fmt: skip
+        return fuse_submap(
+            cmap.experience_poses_view, cmap.payloads, anchor, members, cfg.submap_spacing
+        )
 
     def _odometry_relation(self, experience_id: int) -> tuple[bool, float]:
         """Whether a short chain of links joins the current experience to

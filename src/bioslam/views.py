@@ -22,6 +22,23 @@ Deviations from the paper, each measured by ``benchmarks/bench_views.py``:
   caller passes its heading estimate (the pose cells' head-direction dimension, or odometry)
   to ``observe``, a view only matches if it was learned within ``heading_gate`` of that
   heading. Without a heading, matching is the paper's.
+* Rotation search (Scan Context style, when the view cells know the ring layout,
+  ``cells_per_ring``). A robot back at a place facing another way sees the same boundary-cell
+  rings circularly shifted. Eq. 8 is then evaluated for each circular shift ``m`` of the
+  stored view's angular bins within the heading window, over the angular sectors both scans
+  cover (a 180 or 270 deg scanner compares what its fields of view share, at least
+  ``min_shared`` of a ring), and the smallest ``S`` wins; ``ViewMatch.heading_offset``
+  (``m`` bins) is the current heading minus the view's, which seeds the registration that
+  verifies the place. With a heading estimate, the shifts are those within ``heading_gate``
+  of the heading difference it implies, so a corridor driven the other way is compared
+  turned round (and matches), while a rotated twin (a corridor running elsewhere that looks
+  alike when turned) is not compared at all. Without a heading every shift is tried. Eq. 6's
+  sum is then taken per covered sector (``sum(B) * cells_per_ring / covered``); it is
+  rotation-invariant for a 360 deg scanner only (a turned 270 deg scanner's sum changed by
+  13 % at the median, 37 % at the 90th percentile for 30 deg on the maze), so a scanner that
+  sees part of each ring skips the hash and compares every view. Measured in
+  ``benchmarks/bench_views.py`` section 5: a place is recognised 30 deg off its learned
+  heading (0 % before).
 * ``S`` values at or above ``s_t`` are not computed exactly: they give ``V = 0`` whatever
   their value, so a candidate is dropped as soon as a lower bound on ``S`` reaches ``s_t``
   (reported as ``inf``). Matches and ``V`` are exactly those of the full computation.
@@ -44,6 +61,9 @@ from bioslam.geometry import wrap_angle
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
+
+#: Whole-bin shifts are screened against this multiple of ``s_t`` before the fractional one.
+_COARSE_SLACK = 4.0
 
 
 def coarse_view_feature(B: ArrayLike, ds: float) -> int:
@@ -113,8 +133,117 @@ def _similarities(
     return out
 
 
-def _grow(a: FloatArray) -> FloatArray:
-    grown = np.empty((2 * a.shape[0], *a.shape[1:]))
+@njit(cache=True)
+def _shift_similarities(
+    store: FloatArray,
+    cover: NDArray[np.bool_],
+    ring_sums: FloatArray,
+    idx: IntArray,
+    lo: IntArray,
+    hi: IntArray,
+    B: FloatArray,
+    b_cover: NDArray[np.bool_],
+    b_ring_sums: FloatArray,
+    cols: int,
+    limit: float,
+    min_cols: int,
+) -> tuple[FloatArray, IntArray]:
+    # Eq. 8 between B and each stored view circularly shifted by m bins (m in lo..hi),
+    # over the sectors both cover: B[r, c] against view[r, (c + m) % cols]. Per candidate the
+    # smallest S below ``limit`` and its shift; inf when none. When both views cover the whole
+    # ring, the ring sums do not change with the shift and bound every shift at once
+    # (Cauchy-Schwarz, as in _similarities); a running sum that reaches the best so far stops.
+    rings = B.size // cols
+    out = np.full(idx.size, np.inf)
+    shift = np.zeros(idx.size, dtype=np.int64)
+    b_full = True
+    for c in range(cols):
+        b_full = b_full and b_cover[c]
+    for n in range(idx.size):
+        v = idx[n]
+        full = b_full
+        for c in range(cols):
+            full = full and cover[v, c]
+        if full:
+            bound = 0.0
+            for r in range(rings):
+                diff = ring_sums[v, r] - b_ring_sums[r]
+                bound += diff * diff / cols
+            if bound >= limit * rings * cols:
+                continue
+        row = store[v]
+        best = limit
+        for m in range(lo[n], hi[n] + 1):
+            mm = m % cols
+            count = 0
+            for c in range(cols):
+                if b_cover[c] and cover[v, (c + mm) % cols]:
+                    count += 1
+            if count < min_cols:
+                continue
+            budget = best * rings * count
+            acc = 0.0
+            for r in range(rings):
+                base = r * cols
+                for c in range(cols):
+                    k = (c + mm) % cols
+                    if b_cover[c] and cover[v, k]:
+                        diff = B[base + c] - row[base + k]
+                        acc += diff * diff
+                if acc >= budget:
+                    break
+            if acc < budget:
+                best = acc / (rings * count)
+                out[n] = best
+                shift[n] = mm
+    return out, shift
+
+
+@njit(cache=True)
+def _fractional_shift(
+    row: FloatArray,
+    cover: NDArray[np.bool_],
+    B: FloatArray,
+    b_cover: NDArray[np.bool_],
+    m: int,
+    cols: int,
+) -> tuple[float, float]:
+    # Eq. 8 against the stored view shifted by m + f bins, f in [-1, 1], the shifted view
+    # interpolated linearly between neighbouring bins: S(f) is quadratic in f on each side,
+    # so its minimum is closed-form. A robot turned by half a bin would otherwise differ
+    # from its view by as much as a neighbouring place does.
+    rings = B.size // cols
+    best_s = np.inf
+    best_f = 0.0
+    for side in (-1, 1):
+        e0 = 0.0
+        e1 = 0.0
+        e2 = 0.0
+        count = 0
+        for c in range(cols):
+            k0 = (c + m) % cols
+            k1 = (c + m + side) % cols
+            if not (b_cover[c] and cover[k0] and cover[k1]):
+                continue
+            count += 1
+            for r in range(rings):
+                a = B[r * cols + c] - row[r * cols + k0]
+                d = row[r * cols + k1] - row[r * cols + k0]
+                e0 += a * a
+                e1 += a * d
+                e2 += d * d
+        if count == 0:
+            continue
+        f = min(max(e1 / e2, 0.0), 1.0) if e2 > 0.0 else 0.0
+        value = (e0 - 2.0 * f * e1 + f * f * e2) / (rings * count)
+        if value < best_s:
+            best_s = value
+            best_f = side * f
+    return best_s, best_f
+
+
+def _grow(a: NDArray) -> NDArray:
+    grown = np.empty((2 * a.shape[0], *a.shape[1:]), dtype=a.dtype)
     grown[: a.shape[0]] = a
     return grown
 
@@ -135,12 +264,15 @@ class ViewMatch(NamedTuple):
         is_new: True when no stored view matched and ``B`` was learned as ``view_id``.
         similarity: ``S`` (Eq. 8) of the active view; for a new view, ``inf`` (no candidate
             came below ``s_t``, and such ``S`` are not computed exactly).
+        heading_offset: radians, the current heading minus the matched view's, from the
+            circular shift that matched (rotation search); 0 for a new view or without it.
     """
 
     view_id: int
     activity: float
     is_new: bool
     similarity: float
+    heading_offset: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -165,9 +297,13 @@ class ViewCellConfig:
         neighbour_buckets: also compare views whose ``h`` differs by up to this much (module
             docstring); 0 is the paper's rule.
         heading_gate: radians; with a heading given to ``observe``, views learned more than
-            this far from it are not compared. Default 45 deg: rejects the 90 and 180 deg
-            twins of a grid-like building while tolerating 25 deg of heading drift on top of
-            the 20 deg within which an egocentric view is recognised.
+            this far from it are not compared (with the rotation search: shifts more than
+            this far from the heading difference are not tried). Default 45 deg: rejects the
+            90 and 180 deg twins of a grid-like building while tolerating the heading drift
+            of a long loop and the few degrees of a shift's quantisation.
+        min_shared: with the rotation search, the least share of a ring that both views must
+            cover for a shift to be compared (default 0.25: 90 deg; a 180 deg scanner turned
+            by 90 deg still shares that much).
         bound_block: cells per block for the lower bound on ``S`` (any size is exact; the
             default 36 is one ring of the default layout).
         prematch: False compares every stored view (brute force, for benchmarks).
@@ -177,6 +313,7 @@ class ViewCellConfig:
     s_t: float = 0.02
     neighbour_buckets: int = 1
     heading_gate: float = math.radians(45.0)
+    min_shared: float = 0.25
     bound_block: int = 36
     prematch: bool = True
 
@@ -187,15 +324,28 @@ class ViewCellConfig:
             raise ValueError(f"neighbour_buckets must be >= 0, got {self.neighbour_buckets}")
         if self.bound_block < 1:
             raise ValueError(f"bound_block must be >= 1, got {self.bound_block}")
+        if not 0.0 < self.min_shared <= 1.0:
+            raise ValueError(f"min_shared must be in (0, 1], got {self.min_shared}")
 
 
 class ViewCells:
-    """The learned boundary views and their activity ``V``."""
+    """The learned boundary views and their activity ``V``.
 
-    def __init__(self, config: ViewCellConfig | None = None) -> None:
+    ``cells_per_ring``: the boundary cells' angular bins per ring (``B`` is ring after ring,
+    as :class:`bioslam.boundary.BoundaryCells` lays it out). Given, views are compared over
+    circular shifts (module docstring); None treats ``B`` as a plain vector (the paper).
+    """
+
+    def __init__(
+        self, config: ViewCellConfig | None = None, cells_per_ring: int | None = None
+    ) -> None:
         self.config = config or ViewCellConfig()
+        if cells_per_ring is not None and cells_per_ring < 1:
+            raise ValueError(f"cells_per_ring must be >= 1, got {cells_per_ring}")
+        self.cells_per_ring = cells_per_ring
         self._store = np.empty((0, 0))
         self._sums = np.empty((0, 0))
+        self._cover = np.empty((0, 0), dtype=bool)
         self._h: list[int] = []
         self._payloads: list[Any] = []
         self._headings = np.empty(0)
@@ -229,28 +379,100 @@ class ViewCells:
         keep = self._last_v > 0.0
         return self._last_ids[keep].copy(), self._last_v[keep].copy()
 
-    def observe(self, B: ArrayLike, payload: Any = None, heading: float | None = None) -> ViewMatch:
+    def observe(
+        self,
+        B: ArrayLike,
+        payload: Any = None,
+        heading: float | None = None,
+        coverage: ArrayLike | None = None,
+    ) -> ViewMatch:
         """Match ``B`` against the stored views; learn it (with ``payload``) if none matches.
 
         ``heading``: the robot's current heading estimate in the map frame, radians (the
         head-direction state), if the caller has one. Stored views learned with a heading
         then match only within ``heading_gate`` of it (module docstring).
+        ``coverage``: with the rotation search, which angular bins of a ring the scanner's
+        field of view covers (:meth:`bioslam.boundary.BoundaryCells.coverage`); None = all.
         """
         b = self._checked(B)
-        h = coarse_view_feature(b, self.config.ds)
-        ids = self._candidates(h)
-        if heading is not None and ids.size:
-            ids = self._gate(ids, float(heading))
-        S = self._similarities(ids, b)
+        cover = self._coverage(coverage)
+        h = self._coarse(b, cover)
+        # Eq. 6's sum does not survive a turn of a scanner that sees part of each ring (what
+        # leaves the field of view differs): such scans are compared with every view, the
+        # shifts within the heading window and the bounded Eq. 8 keeping that cheap.
+        ids = self._candidates(h) if cover.all() else np.arange(self.num_views, dtype=np.int64)
+        shifts = np.zeros(ids.size)
+        if self.cells_per_ring is None:
+            if heading is not None and ids.size:
+                ids = self._gate(ids, float(heading))
+            S = self._similarities(ids, b)
+        else:
+            S, shifts = self._shift_similarities(ids, b, cover, heading)
         V = view_cell_activity(S, self.config.s_t)
         chosen = self._choose(S)
         if chosen >= 0:
             self._last_ids, self._last_v = ids, np.asarray(V)
-            return ViewMatch(int(ids[chosen]), float(V[chosen]), False, float(S[chosen]))
-        new_id = self._learn(h, b, payload, heading)
+            offset = float(wrap_angle(shifts[chosen] * self._bin_angle()))
+            return ViewMatch(int(ids[chosen]), float(V[chosen]), False, float(S[chosen]), offset)
+        new_id = self._learn(h, b, payload, heading, cover)
         self._last_ids = np.append(ids, new_id)
         self._last_v = np.append(V, 1.0)
         return ViewMatch(new_id, 1.0, True, math.inf)
+
+    def _bin_angle(self) -> float:
+        return 2.0 * math.pi / self.cells_per_ring if self.cells_per_ring else 0.0
+
+    def _coverage(self, coverage: ArrayLike | None) -> NDArray[np.bool_]:
+        cols = self.cells_per_ring or 1
+        if coverage is None:
+            return np.ones(cols, dtype=bool)
+        cover = np.asarray(coverage, dtype=bool).reshape(-1)
+        if cover.size != cols:
+            raise ValueError(f"coverage has {cover.size} bins, a ring has {cols}")
+        return cover
+
+    def _coarse(self, b: FloatArray, cover: NDArray[np.bool_]) -> int:
+        """Eq. 6, per covered sector when the scanner sees only part of each ring."""
+        share = max(int(cover.sum()), 1) / cover.size
+        return coarse_view_feature(b / share, self.config.ds)
+
+    def _shift_similarities(
+        self, ids: IntArray, b: FloatArray, cover: NDArray[np.bool_], heading: float | None
+    ) -> tuple[FloatArray, FloatArray]:
+        """Eq. 8 over circular shifts (module docstring): best ``S`` and shift (bins, with a
+        fraction) per candidate; ``inf`` at or above ``s_t``."""
+        cols = int(self.cells_per_ring or 1)
+        if ids.size == 0:
+            return np.empty(0), np.empty(0)
+        lo = np.full(ids.size, 0, dtype=np.int64)
+        hi = np.full(ids.size, cols - 1, dtype=np.int64)
+        if heading is not None:
+            step = self._bin_angle()
+            centre = wrap_angle(float(heading) - self._headings[ids]) / step
+            reach = math.floor(self.config.heading_gate / step + 1e-9)
+            known = np.isfinite(centre)
+            mid = np.round(np.where(known, centre, 0.0)).astype(np.int64)
+            lo = np.where(known, mid - reach, lo)
+            hi = np.where(known, np.minimum(mid + reach, mid - reach + cols - 1), hi)
+        # Whole-bin shifts first, with a loose limit that prunes most views early; the few
+        # left are refined to the best fractional shift.
+        coarse, shift = _shift_similarities(
+            self._store, self._cover, self._sums, ids, lo, hi, b, cover,
+            block_sums(b, cols), cols, _COARSE_SLACK * self.config.s_t,
+            max(1, math.ceil(self.config.min_shared * cols - 1e-9)),
+        )  # fmt: skip
+        S = np.full(ids.size, np.inf)
+        offsets = shift.astype(np.float64)
+        for n in np.flatnonzero(np.isfinite(coarse)):
+            v = int(ids[n])
+            value, frac = _fractional_shift(
+                self._store[v], self._cover[v], b, cover, int(shift[n]), cols
+            )
+            value = min(value, coarse[n])
+            if value < self.config.s_t:
+                S[n] = value
+                offsets[n] = shift[n] + (frac if value < coarse[n] else 0.0)
+        return S, offsets
 
     def _similarities(self, ids: IntArray, b: FloatArray) -> FloatArray:
         if ids.size == 0:
@@ -267,15 +489,26 @@ class ViewCells:
         best = int(np.argmin(sims))
         return best if sims[best] < self.config.s_t else -1
 
-    def learn(self, B: ArrayLike, payload: Any = None, heading: float | None = None) -> int:
+    def learn(
+        self,
+        B: ArrayLike,
+        payload: Any = None,
+        heading: float | None = None,
+        coverage: ArrayLike | None = None,
+    ) -> int:
         """Store ``B`` as a new view without matching it (e.g. to seed a map); its id."""
         b = self._checked(B)
-        return self._learn(coarse_view_feature(b, self.config.ds), b, payload, heading)
+        cover = self._coverage(coverage)
+        return self._learn(self._coarse(b, cover), b, payload, heading, cover)
 
     def _checked(self, B: ArrayLike) -> FloatArray:
         b = np.ascontiguousarray(B, dtype=np.float64)
         if b.ndim != 1 or b.size == 0:
             raise ValueError(f"boundary activity must be a non-empty 1-D array, got {b.shape}")
+        if self.cells_per_ring is not None and b.size % self.cells_per_ring:
+            raise ValueError(
+                f"boundary activity has {b.size} cells, not whole rings of {self.cells_per_ring}"
+            )
         if self.num_views and b.size != self._store.shape[1]:
             raise ValueError(
                 f"boundary activity has {b.size} cells, views have {self._store.shape[1]}"
@@ -304,20 +537,26 @@ class ViewCells:
         diff = np.abs(wrap_angle(self._headings[ids] - heading))
         return ids[~(diff > self.config.heading_gate)]
 
-    def _learn(self, h: int, b: FloatArray, payload: Any, heading: float | None) -> int:
+    def _learn(
+        self, h: int, b: FloatArray, payload: Any, heading: float | None, cover: NDArray[np.bool_]
+    ) -> int:
         new_id = self.num_views
-        sums = block_sums(b, self.config.bound_block)
+        # Per ring with the rotation search: ring sums do not change with a shift.
+        sums = block_sums(b, self.cells_per_ring or self.config.bound_block)
         if new_id == 0:
             self._store = np.empty((16, b.size))
             self._sums = np.empty((16, sums.size))
             self._headings = np.empty(16)
+            self._cover = np.empty((16, cover.size), dtype=bool)
         elif new_id == self._store.shape[0]:
             # Doubling keeps appends amortised O(1) as thousands of views accumulate.
             self._store = _grow(self._store)
             self._sums = _grow(self._sums)
             self._headings = _grow(self._headings)
+            self._cover = _grow(self._cover)
         self._store[new_id] = b
         self._sums[new_id] = sums
+        self._cover[new_id] = cover
         self._headings[new_id] = math.nan if heading is None else float(heading)
         self._h.append(h)
         self._payloads.append(payload)

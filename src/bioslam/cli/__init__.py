@@ -8,13 +8,12 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import json
 import sys
 from collections.abc import Sequence
 
-from bioslam import __version__
+from bioslam import __version__, signals
 
-SUBCOMMAND_MODULES = ("info", "sim", "run", "demo", "eval")
+SUBCOMMAND_MODULES = ("info", "sim", "thin", "run", "demo", "eval", "batch")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -31,24 +30,59 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def print_summary(summary: dict) -> None:
-    """Print the machine-readable summary as the last stdout line."""
-    print(json.dumps(summary, sort_keys=False, default=float), flush=True)
+    """Print the machine-readable summary as the last stdout line (strict JSON: NaN and
+    infinities become null; anything else not JSON fails loudly)."""
+    from bioslam.io.jsonio import dumps_json
+
+    print(dumps_json(summary, indent=None), flush=True)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run a subcommand; the exit code is described in :mod:`bioslam.cli.common`.
+
+    SIGINT and SIGTERM are handled for the whole command: never a traceback, and a command
+    that has started writing results finishes them with ``"interrupted": true``.
+    """
+    with signals.installed():
+        try:
+            return _main(argv)
+        except signals.Interrupted as exc:
+            # Only reached before a command created any output.
+            print(f"bioslam: interrupted by {exc}", file=sys.stderr)
+            return exc.exit_code
+
+
+def _main(argv: Sequence[str] | None) -> int:
+    from bioslam.cli.common import EXIT_INVALID, CommandError
+
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
+    args.argv = list(sys.argv[1:] if argv is None else argv)
+    code, message = 0, None
     try:
         summary = args.func(args)
-    except (FileNotFoundError, ValueError, RuntimeError) as exc:
-        print(f"bioslam {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    if summary is not None:
-        print_summary(summary)
-    return 0
+    except CommandError as exc:
+        summary, code, message = exc.summary, exc.code, str(exc)
+    except (OSError, ValueError, RuntimeError) as exc:
+        print(f"bioslam {args.command}: error: {_message(exc)}", file=sys.stderr)
+        return EXIT_INVALID
+    with signals.protected():
+        if summary is not None:
+            print_summary(summary)
+        if message:
+            print(f"bioslam {args.command}: error: {message}", file=sys.stderr)
+    return code
+
+
+def _message(exc: BaseException) -> str:
+    """An OSError's own text names the file as ``[Errno 2] No such file...: 'x'``: say it
+    the way the other errors do, ``x: No such file or directory``."""
+    if isinstance(exc, OSError) and exc.filename is not None and exc.strerror:
+        return f"{exc.filename}: {exc.strerror}"
+    return str(exc)
 
 
 if __name__ == "__main__":

@@ -10,8 +10,20 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from pathlib import Path
 from typing import Any
+
+from bioslam import signals
+from bioslam.cli.common import (
+    add_output_options,
+    check_system,
+    conclude,
+    open_output,
+    run_status,
+)
+from bioslam.io.outdir import expected_output_bytes
+from bioslam.recording import session as recording
 
 #: The paper's reported simulation result (Sec. IV-A): mean and maximum position error.
 PAPER_MEAN_ERROR_M = 0.0284
@@ -31,6 +43,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--seed", type=int, default=0, help="route and noise seed (default 0)")
     parser.add_argument("--config", type=Path, help="TOML or JSON file of setting overrides")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    add_output_options(parser)
+    recording.add_arguments(parser)
     parser.set_defaults(func=demo_command)
 
 
@@ -76,25 +90,47 @@ def demo_command(args: argparse.Namespace) -> dict[str, Any]:
     from bioslam.pipeline import RunOptions, run_slam, write_results
     from bioslam.sim import LIDAR_PRESETS, make_route, maze_world, scan_stamps, simulate_scans
 
+    if not (math.isfinite(args.duration) and args.duration > 0):
+        raise ValueError(f"--duration must be a positive number of seconds, got {args.duration}")
+    session = recording.Session.from_args(args, False, input="simulated maze")
     config = load_config(args.config)
+    check_system(config, False, args.config)
     world = maze_world()
     lidar = LIDAR_PRESETS["utm30lx"]
     route = make_route(world, duration=args.duration, seed=args.seed)
     stamps = scan_stamps(lidar, route)
     gt = route.trajectory(stamps)
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
-    write_tum(out / GT_NAME, gt)
-    save_world_figure(out / FIGURE_NAME, world, route)
-    options = RunOptions(
-        progress=not args.no_progress, snapshot_times=snapshot_times(route.duration)
-    )
-    scans = (scan for scan, _ in simulate_scans(world, lidar, route, seed=args.seed))
-    result = run_slam(scans, config, options, total=int(stamps.size))
-    extra = {"input": "simulated maze", "lidar": lidar.name, "seed": args.seed}
-    summary = write_results(result, out, gt, options, extra)
-    print(comparison_table(summary))
-    print(f"results in {out}/ (figures in {out}/figures/)")
-    if result.error:
-        raise RuntimeError(f"demo stopped early ({result.error}); results so far are in {out}")
-    return summary
+    needed = expected_output_bytes(scans=int(stamps.size))
+    out = open_output(args.out, args.overwrite, needed, getattr(args, "argv", []))
+    with signals.protected():
+        out.save(GT_NAME, write_tum, gt)
+        stopped = False
+        try:
+            with signals.interruptible():
+                out.save(FIGURE_NAME, save_world_figure, world, route)
+        except KeyboardInterrupt:
+            stopped = True  # no run: write the (empty) results, marked interrupted
+        options = RunOptions(
+            progress=not args.no_progress and not stopped, warm_up=not stopped,
+            snapshot_times=snapshot_times(route.duration),
+        )
+        scans = (scan for scan, _ in simulate_scans(world, lidar, route, seed=args.seed))
+        with session:
+            result = run_slam(iter(()) if stopped else scans, config, options,
+                              int(stamps.size), observer=session.observer)
+            session.finish(result.system)
+        result.interrupted |= stopped
+        extra = {"input": "simulated maze", "lidar": lidar.name, "seed": args.seed}
+        extra.update(session.summary())
+        summary = write_results(result, out, gt, options, extra)
+        print(comparison_table(summary))
+        print(f"results in {out.path}/ (figures in {out.path}/figures/)")
+        print(f"bioslam demo: {summary['scans']} of {stamps.size} simulated scans processed, "
+              "none skipped", file=sys.stderr)
+        problems = []
+        if result.error:
+            problems.append(f"demo stopped early ({result.error})")
+        elif summary["scans"] == 0 and not summary.get("interrupted"):
+            problems.append("0 scans processed")
+        out.finish(run_status(summary, problems))
+    return conclude(summary, problems, out.path)

@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 import math
 from pathlib import Path
-from typing import Any
 
 from bioslam.evaluation import EvalConfig, evaluate, three_cornered_hat
 from bioslam.io.tum import read_tum
@@ -44,6 +43,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="a third, independent estimate of the same motion (TUM): also estimate each "
         "trajectory's own 1 m RPE, the reference's included (three-cornered hat)",
     )
+    parser.add_argument(
+        "--min-pairs",
+        type=int,
+        default=EvalConfig.min_pairs,
+        help="refuse (exit 2) fewer associated poses than this (default: %(default)s)",
+    )
     parser.set_defaults(func=run)
 
 
@@ -56,23 +61,15 @@ def _load(path: Path, role: str) -> Trajectory:
     return trajectory
 
 
-def _json_safe(value: Any) -> Any:
-    """NaN (a path too short for any RPE pair, a negative square in the three-cornered hat)
-    becomes null, which every JSON reader accepts."""
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_json_safe(v) for v in value]
-    return None if isinstance(value, float) and math.isnan(value) else value
-
-
 def run(args: argparse.Namespace) -> dict:
-    if args.max_dt <= 0:
-        raise ValueError(f"--max-dt must be positive, got {args.max_dt}")
+    if not args.max_dt > 0 or not math.isfinite(args.max_dt):
+        raise ValueError(f"--max-dt must be a positive number, got {args.max_dt}")
+    if args.min_pairs < 1:
+        raise ValueError(f"--min-pairs must be at least 1, got {args.min_pairs}")
     est = _load(args.estimate, "estimated")
     gt = _load(args.reference, "reference")
     try:
-        summary = evaluate(est, gt, EvalConfig(max_dt=args.max_dt))
+        summary = evaluate(est, gt, EvalConfig(max_dt=args.max_dt, min_pairs=args.min_pairs))
     except ValueError as exc:
         raise ValueError(f"{args.estimate} vs {args.reference}: {exc}") from None
     print(f"{summary['pairs']} associated poses ({len(est)} estimated, {len(gt)} reference)")
@@ -80,7 +77,7 @@ def run(args: argparse.Namespace) -> dict:
         print(f"  {label:<14} {summary[key]:10.4f} {unit}")
     if args.third is not None:
         summary["three_cornered_hat"] = _own_errors(args, est, gt)
-    return _json_safe(summary)
+    return summary
 
 
 def _own_errors(args: argparse.Namespace, est: Trajectory, gt: Trajectory) -> dict:

@@ -5,8 +5,18 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Iterable, Iterator
+from pathlib import Path
 from typing import Any
 
+from bioslam import signals
+from bioslam.cli.common import (
+    add_read_options,
+    check_input,
+    conclude,
+    read_counts,
+    read_problem,
+    read_report,
+)
 from bioslam.io.logs import SUPPORTED_FORMATS, open_log
 from bioslam.scan import LaserScan
 
@@ -33,15 +43,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--strict", action="store_true", help="fail on the first bad record instead of skipping"
     )
+    add_read_options(p)
     p.set_defaults(func=run)
 
 
 def _progress(scans: Iterable[LaserScan], label: str) -> Iterator[LaserScan]:
-    """A progress bar on stderr when it is a terminal (quiet in scripts and CI logs)."""
+    """A progress bar on stderr when it is a terminal (quiet in scripts and CI logs); stops
+    at the first SIGINT/SIGTERM so that what was read so far is still reported."""
     from tqdm import tqdm
 
-    yield from tqdm(scans, desc=label, unit=" scans", disable=not sys.stderr.isatty(),
-                    leave=False, file=sys.stderr)
+    for scan in tqdm(scans, desc=label, unit=" scans", disable=not sys.stderr.isatty(),
+                     leave=False, file=sys.stderr):
+        if signals.received() is not None:
+            return
+        yield scan
 
 
 def format_table(info: dict[str, Any]) -> str:
@@ -105,7 +120,20 @@ def _section(title: str, items: list[str]) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
+    check_input(Path(args.input))
     source = open_log(args.input, args.topic, strict=args.strict)
-    info = source.info(progress=lambda scans: _progress(scans, source.path.name))
-    print(format_table(info), flush=True)
-    return {key: info[key] for key in SUMMARY_KEYS if key in info}
+    with signals.protected():
+        info = source.info(progress=lambda scans: _progress(scans, source.path.name))
+        print(format_table(info), flush=True)
+        for line in read_report(source, source.scans_read):
+            print(f"bioslam info: {line}", file=sys.stderr)
+    summary = {key: info[key] for key in SUMMARY_KEYS if key in info}
+    summary.update(read_counts(source))
+    problems = []
+    if signals.received() is not None:
+        summary["interrupted"] = True
+    else:
+        problem = read_problem(source.scans_read, source, args.min_read_share,
+                               args.accept_partial)
+        problems += [problem] if problem else []
+    return conclude(summary, problems, None)

@@ -3,10 +3,28 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
-from bioslam.io.tum import read_tum, write_tum
+from bioslam import signals
+from bioslam.cli.common import (
+    add_output_options,
+    add_read_options,
+    check_input,
+    check_system,
+    conclude,
+    open_output,
+    read_counts,
+    read_problem,
+    read_reference,
+    read_report,
+    run_status,
+    source_skipped,
+)
+from bioslam.io.outdir import OutputDir, expected_output_bytes, path_bytes
+from bioslam.io.tum import write_tum
+from bioslam.recording import session as recording
 from bioslam.trajectory import Trajectory
 
 
@@ -17,7 +35,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Run the LiDAR-only biologically-inspired SLAM on a log and write "
         "trajectory.tum, odometry.tum, cognitive_map.json, map.pgm/map.yaml, figures/ and "
         "summary.json into --out. With --gt (or a log that carries corrected poses) the "
-        "trajectory is evaluated too.",
+        "trajectory is evaluated too. Exit codes: 0 success, 1 incomplete result (written), "
+        "2 invalid input (nothing run), 130/143 interrupted (results so far written).",
     )
     parser.add_argument("input", type=Path, help="log file or ROS 2 bag directory")
     parser.add_argument("--out", type=Path, required=True, help="output directory")
@@ -28,18 +47,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--odometry-only", action="store_true", help="run the LiDAR odometry alone"
     )
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    add_output_options(parser)
+    add_read_options(parser)
+    recording.add_arguments(parser)
     parser.set_defaults(func=run_command)
 
 
 def reference_trajectory(
-    gt_path: Path | None, log_reference: Trajectory | None, out: Path
+    gt_path: Path | None, log_reference: Trajectory | None, out: Path | OutputDir
 ) -> tuple[Trajectory | None, str | None]:
     """The trajectory to evaluate against: ``--gt`` first, else the log's corrected poses
     (written to ``reference.tum`` so that other tools can use them)."""
     if gt_path is not None:
-        return read_tum(gt_path), str(gt_path)
+        return read_reference(gt_path), str(gt_path)
     if log_reference is not None and len(log_reference) > 1:
-        write_tum(out / "reference.tum", log_reference)
+        target = out if isinstance(out, OutputDir) else OutputDir(out, marker=False)
+        target.save("reference.tum", write_tum, log_reference)
         return log_reference, "log"
     return None, None
 
@@ -50,17 +73,42 @@ def run_command(args: argparse.Namespace) -> dict[str, Any]:
     from bioslam.io.logs import open_log
     from bioslam.pipeline import RunOptions, run_slam, write_results
 
+    # Everything that can be checked is checked before the first scan.
+    session = recording.Session.from_args(args, args.odometry_only, input=args.input)
     config = load_config(args.config)
+    check_system(config, args.odometry_only, args.config)
+    gt = read_reference(args.gt) if args.gt is not None else None
+    check_input(args.input)
     source = open_log(args.input, topic=args.topic)
-    options = RunOptions(odometry_only=args.odometry_only, progress=not args.no_progress)
-    result = run_slam(source, config, options)
-    reference, reference_name = reference_trajectory(args.gt, source.reference, args.out)
-    extra: dict[str, Any] = {"input": str(args.input), "format": source.format}
-    extra["skipped"] = source.skipped
-    if reference_name:
-        extra["reference"] = reference_name
-    summary = write_results(result, args.out, reference, options, extra)
-    if result.error:
-        raise RuntimeError(f"{args.input}: run stopped early ({result.error}); "
-                           f"results so far are in {args.out}")
-    return summary
+    needed = expected_output_bytes(input_bytes=path_bytes(args.input))
+    out = open_output(args.out, args.overwrite, needed, getattr(args, "argv", []))
+    with signals.protected():
+        options = RunOptions(odometry_only=args.odometry_only, progress=not args.no_progress)
+        with session:
+            result = run_slam(source, config, options, observer=session.observer)
+            session.finish(result.system)
+        read = source.records_seen > 0 or source.complete
+        log_reference = source.reference if read else None
+        if gt is not None:
+            reference, reference_name = gt, str(args.gt)
+        else:
+            reference, reference_name = reference_trajectory(None, log_reference, out)
+        extra: dict[str, Any] = {"input": str(args.input), "format": source.format}
+        extra["skipped"] = source_skipped(source)
+        extra.update(read_counts(source))
+        extra.update(session.summary())
+        if reference_name:
+            extra["reference"] = reference_name
+        summary = write_results(result, out, reference, options, extra)
+        processed = summary["scans"]
+        for line in read_report(source, processed):
+            print(f"bioslam run: {line}", file=sys.stderr)
+        problems = []
+        if not summary.get("interrupted"):
+            problem = read_problem(processed, source, args.min_read_share, args.accept_partial)
+            problems += [problem] if problem else []
+        if result.error:
+            problems.append(f"{args.input}: run stopped early ({result.error})")
+        out.finish(run_status(summary, problems))
+    return conclude(summary, problems, args.out)
+

@@ -9,24 +9,20 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from bioslam.io.bag_writer import STORAGES, ScanBagWriter
-from bioslam.io.tum import write_tum
-from bioslam.sim import (
-    LIDAR_PRESETS,
-    MovingObstacle,
-    Route,
-    World,
-    make_route,
-    maze_world,
-    people_on_roadmap,
-    scan_stamps,
-    simulate_scans,
-    world_from_map,
-)
+from bioslam.sim.lidar import LIDAR_PRESETS
+from bioslam.sim.worlds import WORLDS
 
+if TYPE_CHECKING:
+    from bioslam.sim import MovingObstacle, Route, World
+
+#: ``--route`` names (``bioslam.sim.ROUTES``; named here so that ``--help`` loads no Numba).
+ROUTE_NAMES = ("tour", "adversarial")
+#: ``--storage`` names (``bioslam.io.bag_writer.STORAGES``; likewise without loading rosbags).
+STORAGE_NAMES = ("sqlite3", "mcap")
 BAG_NAME = "scans"
 GT_NAME = "gt.tum"
 FIGURE_NAME = "world.png"
@@ -37,7 +33,7 @@ GT_TOPIC = "/ground_truth"
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "sim",
-        help="simulate LiDAR scans along a route through a maze or your own map",
+        help="simulate LiDAR scans along a route through a built-in world or your own map",
         description="Drive a simulated robot with a 2D LiDAR through a world and write "
         f"OUT/{BAG_NAME}/ (ROS 2 bag, {SCAN_TOPIC} sensor_msgs/LaserScan and {GT_TOPIC} "
         f"geometry_msgs/PoseStamped), OUT/{GT_NAME} (ground truth at every scan stamp) and "
@@ -46,7 +42,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--world",
         default="maze",
-        help="'maze' (built-in 16.8 m x 12.6 m maze) or a map_server map YAML (default: maze)",
+        help=f"a built-in world ({', '.join(WORLDS)}) or a map_server map YAML (default: maze)",
+    )
+    p.add_argument(
+        "--route",
+        choices=ROUTE_NAMES,
+        default="tour",
+        help="'tour': along the corridor centre-lines (default); 'adversarial': weaving up to "
+        "0.5 m off centre, turning back part way, spinning on the spot, then driving fast",
     )
     p.add_argument("--lidar", choices=sorted(LIDAR_PRESETS), default="utm30lx", help="LiDAR preset")
     p.add_argument("--duration", type=float, default=600.0, help="seconds (default 600)")
@@ -60,20 +63,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--fast-turns", action="store_true", help="take corners at 1 rad/s (odometry stress)"
     )
     p.add_argument("--people", type=int, default=0, help="people walking the corridors (default 0)")
-    p.add_argument("--storage", choices=sorted(STORAGES), default="sqlite3", help="bag storage")
+    p.add_argument("--storage", choices=STORAGE_NAMES, default="sqlite3", help="bag storage")
     p.add_argument("--out", required=True, type=Path, help="output directory")
     p.add_argument("--force", action="store_true", help=f"replace an existing OUT/{BAG_NAME}")
     p.set_defaults(func=run)
-
-
-def load_world(spec: str) -> World:
-    """``maze`` or a path to a map_server YAML."""
-    if spec == "maze":
-        return maze_world()
-    path = Path(spec)
-    if path.suffix.lower() not in (".yaml", ".yml"):
-        raise ValueError(f"--world must be 'maze' or a map YAML file, got {spec!r}")
-    return world_from_map(path)
 
 
 def _prepare_bag_dir(bag: Path, force: bool) -> None:
@@ -120,10 +113,34 @@ def save_world_figure(
     plt.close(fig)
 
 
+def _make_route(world: World, args: argparse.Namespace) -> Route:
+    from bioslam.sim import ROUTES, make_route
+
+    limits = {
+        "max_speed": args.max_speed,
+        "max_yaw_rate": args.max_yaw_rate,
+        "fast_turns": args.fast_turns or None,
+    }
+    if args.route == "tour":
+        return make_route(world, duration=args.duration, seed=args.seed, **limits)
+    from dataclasses import replace
+
+    from bioslam.sim.adversarial import AdversarialConfig
+
+    adv = AdversarialConfig()
+    given = {k: v for k, v in limits.items() if v is not None}
+    adv = replace(adv, route=replace(adv.route, **given))
+    return ROUTES[args.route](world, duration=args.duration, seed=args.seed, config=adv)
+
+
 def run(args: argparse.Namespace) -> dict:
     from dataclasses import replace
 
     from tqdm import tqdm
+
+    from bioslam.io.bag_writer import ScanBagWriter
+    from bioslam.io.tum import write_tum
+    from bioslam.sim import load_world, people_on_roadmap, scan_stamps, simulate_scans
 
     started = time.perf_counter()
     world = load_world(args.world)
@@ -134,14 +151,7 @@ def run(args: argparse.Namespace) -> dict:
     if args.dropout is not None:
         changes["dropout_prob"] = args.dropout
     lidar = replace(lidar, **changes)
-    route = make_route(
-        world,
-        duration=args.duration,
-        seed=args.seed,
-        max_speed=args.max_speed,
-        max_yaw_rate=args.max_yaw_rate,
-        fast_turns=args.fast_turns,
-    )
+    route = _make_route(world, args)
     out: Path = args.out
     bag = out / BAG_NAME
     _prepare_bag_dir(bag, args.force)
@@ -161,6 +171,7 @@ def run(args: argparse.Namespace) -> dict:
     save_world_figure(out / FIGURE_NAME, world, route, people)
     return {
         "world": world.name,
+        "route": args.route,
         "lidar": lidar.name,
         "scans": writer.count,
         "beams": lidar.beams,

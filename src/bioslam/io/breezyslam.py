@@ -27,7 +27,8 @@ class BreezySlamConfig:
     Attributes:
         beams, fov_deg: 682 beams over 240° (BreezySLAM's ``URG04LX`` sensor class).
         range_min_m, range_max_m: Hokuyo URG-04LX data sheet (20 mm - 5.6 m).
-        scan_period_s: 0.1 s, the URG-04LX's 10 Hz.
+        scan_period_s: 0.1 s, the URG-04LX's 10 Hz (the rate used when the log's stamps are
+            unusable, see :mod:`bioslam.io.timestamps`).
         time_increment_s: URG-04LX: 1024 angular steps per 100 ms mirror turn.
         status_fields: fields between the timestamp and the first range.
         left_ticks_field, right_ticks_field: indices (0 = timestamp) of the encoder counts.
@@ -39,6 +40,7 @@ class BreezySlamConfig:
     fov_deg: float = 240.0
     range_min_m: float = 0.02
     range_max_m: float = 5.6
+    scan_period_s: float = 0.1
     time_increment_s: float = 0.1 / 1024
     status_fields: int = 24
     left_ticks_field: int = 2
@@ -80,11 +82,12 @@ class BreezySlamLog(LogSource):
         c = self.config
         self._angles = np.radians(np.linspace(-c.fov_deg / 2, c.fov_deg / 2, c.beams))
         self._first = 1 + c.status_fields
+        self._declared_period = c.scan_period_s
 
     def topics(self) -> list[dict[str, object]]:
         return []
 
-    def notes(self) -> list[str]:
+    def _format_notes(self) -> list[str]:
         return ["odometry integrated from the wheel encoder counts (BreezySLAM rover geometry)"]
 
     def _records(self) -> Iterator[tuple[LaserScan, str, Pose | None]]:
@@ -101,24 +104,20 @@ class BreezySlamLog(LogSource):
                 continue
             stamp = values[0] * 1e-6
             now = (values[c.left_ticks_field], values[c.right_ticks_field])
-            # An out-of-order line is skipped by the base class; its counts must not move the
-            # rover either.
-            if stamp > self._last_odometry_stamp():
-                if ticks is not None:
-                    d_left, d_right = (
-                        (n - p) * metres_per_tick for n, p in zip(now, ticks, strict=True)
-                    )
-                    pose = integrate_wheel_odometry(pose, d_left, d_right, c.half_axle_m)
-                ticks = now
-                self._add_odometry(stamp, pose, where)
+            # The counts are cumulative: integrated in file order (the order they were
+            # measured in), whatever the line's stamp; the pose takes the scan's planned stamp.
+            if ticks is not None:
+                d_left, d_right = (
+                    (n - p) * metres_per_tick for n, p in zip(now, ticks, strict=True)
+                )
+                pose = integrate_wheel_odometry(pose, d_left, d_right, c.half_axle_m)
+            ticks = now
+            self._add_odometry(stamp, pose, where, of_scan=True)
             ranges = (values[self._first :] * 1e-3).astype(np.float32)
             scan = LaserScan(
                 stamp, ranges, self._angles, c.range_min_m, c.range_max_m, c.time_increment_s
             )
             yield scan, where, None
-
-    def _last_odometry_stamp(self) -> float:
-        return self._odometry[-1][0] if self._odometry else -math.inf
 
     def _parse(self, line: str, where: str) -> np.ndarray | None:
         fields = line.split()

@@ -121,7 +121,7 @@ class CarmenLog(LogSource):
             for name, count in sorted(self._message_counts.items())
         ]
 
-    def notes(self) -> list[str]:
+    def _format_notes(self) -> list[str]:
         kind = "corrected (used as reference)" if self._corrected else "raw (no reference)"
         return [f"laser poses taken as {kind}; message {self.topic} read"]
 

@@ -5,11 +5,17 @@ strictly increasing time order, streamed from the file. Records that cannot be u
 and counted by reason in ``source.skipped`` (the first occurrence of each reason is kept, with
 its line or record number, in ``source.skip_examples``); with ``strict=True`` the first such
 record raises a ``ValueError`` naming the file, the record and the problem instead.
+
+Before the first scan is yielded the stamps of all scan records are checked as a whole
+(:mod:`bioslam.io.timestamps`): isolated bad stamps are repaired from their neighbours, and a
+log whose stamps are unusable is read in record order at the rate the log declares or its
+stamps imply. ``source.time_source`` and ``source.notes()`` say which.
 """
 
 from __future__ import annotations
 
 import bz2
+import dataclasses
 import gzip
 import heapq
 import lzma
@@ -21,7 +27,9 @@ from pathlib import Path
 from typing import IO, Any, ClassVar
 
 import numpy as np
+from numpy.typing import NDArray
 
+from bioslam.io.timestamps import RECORD_ORDER, TimePlan, plan_stamps
 from bioslam.scan import LaserScan
 from bioslam.trajectory import Trajectory
 
@@ -43,6 +51,10 @@ EMPTY_SCAN = "empty scan (no beams)"
 NO_VALID_RETURNS = "no valid returns (all beams NaN, inf, zero or out of range)"
 ODOMETRY_NON_MONOTONIC = "odometry record with non-monotonic timestamp"
 TRUNCATED = "truncated or corrupt file (stopped reading there)"
+
+#: Range bytes of a log kept from the planning pass for the first iteration (above: parsed twice).
+REPLAY_BUDGET_BYTES = 256 * 2**20
+_SCAN, _SKIP, _ODOMETRY = 0, 1, 2
 
 
 class LogSource(ABC):
@@ -74,6 +86,15 @@ class LogSource(ABC):
         self._iterating = False
         self._order: _Reorder | None = None
         self._yielded = 0
+        #: Scan period the log declares (e.g. a ROS ``scan_time``); readers set it while reading.
+        self._declared_period: float | None = None
+        self._plan: TimePlan | None = None
+        self._produced = 0  # scan records produced by ``_records`` in the current pass
+        self._odometry_slots: list[int] = []  # while planning: scan records before each
+        self._recording: list[tuple[Any, ...]] | None = None  # what the planning pass reports
+        self._replay: list[tuple[Any, ...]] | None = None
+        self._odometry_calls = 0
+        self._odometry_stamps: NDArray[np.float64] | None = None  # record-order odometry stamps
 
     # -- what subclasses provide ------------------------------------------------------------
     @abstractmethod
@@ -89,6 +110,9 @@ class LogSource(ABC):
     # -- helpers for subclasses -------------------------------------------------------------
     def _skip(self, reason: str, where: str, detail: str = "") -> None:
         """Count a skipped record; in strict mode raise instead."""
+        if self._recording is not None:
+            self._recording.append((_SKIP, reason, where, detail))
+            return
         message = f"{where}: {reason}" + (f": {detail}" if detail else "")
         if self.strict:
             raise ValueError(f"{self.path}: {message}")
@@ -106,9 +130,25 @@ class LogSource(ABC):
         except (EOFError, OSError, lzma.LZMAError, zlib.error) as exc:
             self._skip(TRUNCATED, f"after line {lineno}", str(exc))
 
-    def _add_odometry(self, stamp: float, pose: Pose, where: str) -> None:
+    def _add_odometry(
+        self, stamp: float, pose: Pose, where: str, of_scan: bool = False
+    ) -> None:
         """Keep an odometry pose; one not later than the previous is counted, never raised
-        (odometry is side information: a bad record must not stop the scans)."""
+        (odometry is side information: a bad record must not stop the scans). ``of_scan``: the
+        pose belongs to the scan record being parsed and takes its planned stamp; otherwise,
+        when the scans are read in record order, so is the odometry: it is stamped by its
+        place among the scan records."""
+        if self._recording is not None:
+            self._recording.append((_ODOMETRY, stamp, pose, where, of_scan))
+            if not of_scan:
+                self._odometry_slots.append(self._produced)
+            return
+        if of_scan:
+            stamp = self._record_stamp(stamp)
+        elif self._odometry_stamps is not None:
+            planned = self._odometry_stamps
+            stamp = float(planned[min(self._odometry_calls, planned.size - 1)])
+            self._odometry_calls += 1
         if self._odometry and not stamp > self._odometry[-1][0]:
             self._skipped[ODOMETRY_NON_MONOTONIC] += 1
             self.skip_examples.setdefault(
@@ -118,19 +158,92 @@ class LogSource(ABC):
             return
         self._odometry.append((stamp, pose))
 
-    # -- public API -------------------------------------------------------------------------
-    def __iter__(self) -> Iterator[LaserScan]:
+    def _record_stamp(self, raw: float) -> float:
+        """The stamp the time plan gives the scan record being parsed."""
+        plan = self._plan
+        if plan is None or self._produced >= plan.stamps.size:
+            return raw
+        return float(plan.stamps[self._produced])
+
+    # -- time plan ----------------------------------------------------------------------------
+    def _reset(self) -> None:
         self._skipped = Counter()
         self.skip_examples = {}
         self._reference = []
         self._odometry = []
+        self._produced = 0
+        self._odometry_calls = 0
+
+    def _make_plan(self) -> TimePlan:
+        """Read the log once and decide each scan record's stamp from all of them.
+
+        What the reader reports while doing so (records, skips, odometry) is kept, up to
+        :data:`REPLAY_BUDGET_BYTES` of ranges, so that the first iteration replays it instead
+        of parsing the file again; a longer log is parsed again.
+        """
+        self._reset()
+        self._recording = []
+        self._odometry_slots = []
+        stamps: list[float] = []
+        budget = REPLAY_BUDGET_BYTES
+        try:
+            for record in self._records():
+                stamps.append(record[0].stamp)
+                self._produced += 1
+                budget -= record[0].ranges.nbytes + 200
+                if budget >= 0:
+                    self._recording.append((_SCAN, *record))
+            plan = plan_stamps(stamps, self._declared_period, self.reorder_window_s)
+            if plan.source == RECORD_ORDER and self._odometry_slots:
+                self._odometry_stamps = _slot_stamps(plan, self._odometry_slots)
+            self._replay = self._recording if budget >= 0 else None
+        finally:
+            self._recording = None
+            self._odometry_slots = []
+        return plan
+
+    def _replayed(
+        self, events: list[tuple[Any, ...]]
+    ) -> Iterator[tuple[LaserScan, str, Pose | None]]:
+        """The records of the planning pass again, with its skips and odometry reported anew
+        (strict mode raises here, at the same record as a fresh parse would)."""
+        for event in events:
+            if event[0] == _SCAN:
+                yield event[1], event[2], event[3]
+            elif event[0] == _SKIP:
+                self._skip(*event[1:])
+            else:
+                self._add_odometry(*event[1:])
+
+    @property
+    def time_plan(self) -> TimePlan:
+        """How the scans are stamped (computed on first use: reads the log's stamps)."""
+        if self._plan is None:
+            self._plan = self._make_plan()
+        return self._plan
+
+    @property
+    def time_source(self) -> str:
+        """Where the scans' stamps come from, for summaries: ``log stamps``, ``log stamps
+        (N repaired ...)`` or ``record order at R Hz (reason)``."""
+        return self.time_plan.describe()
+
+    # -- public API -------------------------------------------------------------------------
+    def __iter__(self) -> Iterator[LaserScan]:
+        plan = self.time_plan
+        replay, self._replay = self._replay, None  # replayed once: later passes stream again
+        self._reset()
         self._complete = False
         self._iterating = True
         self._yielded = 0
         order = _Reorder(self.reorder_window_s)
         self._order = order
         try:
-            for scan, where, ref in self._records():
+            for scan, where, ref in self._replayed(replay) if replay else self._records():
+                k = self._produced
+                self._produced += 1
+                if k < plan.stamps.size and plan.stamps[k] != scan.stamp:
+                    scan = dataclasses.replace(scan, stamp=float(plan.stamps[k]))
                 if scan.num_beams == 0:
                     self._skip(EMPTY_SCAN, where)
                 elif not order.accepts(scan.stamp):
@@ -195,14 +308,21 @@ class LogSource(ABC):
         self._ensure_read()
         return _trajectory(self._odometry)
 
-    def notes(self) -> list[str]:
-        """Remarks about how the log was read (e.g. a fallback that was needed)."""
+    def _format_notes(self) -> list[str]:
+        """Remarks of the format's reader (overridden by readers)."""
         return []
 
-    def _read_notes(self) -> list[str]:
+    def notes(self) -> list[str]:
+        """Remarks about how the log was read: the reader's, a time-stamp repair or fallback,
+        scans put back in order."""
+        out = self._format_notes()
+        plan = self._plan
+        if plan is not None and plan.repaired:
+            out.append(f"time stamps: {plan.describe()}")
         late = self._order.reordered if self._order is not None else 0
-        extra = [f"{late} scan(s) stored out of time order were put back in order"] if late else []
-        return self.notes() + extra
+        if late:
+            out.append(f"{late} scan(s) stored out of time order were put back in order")
+        return out
 
     def info(
         self, progress: Callable[[Iterable[LaserScan]], Iterable[LaserScan]] | None = None
@@ -223,11 +343,29 @@ class LogSource(ABC):
         summary["skip_examples"] = dict(self.skip_examples)
         summary["reference_poses"] = len(self._reference)
         summary["odometry_poses"] = len(self._odometry)
-        summary["notes"] = self._read_notes()
+        summary["notes"] = self.notes()
+        summary["time_source"] = self.time_source
         return summary
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({str(self.path)!r}, topic={self.topic!r})"
+
+
+def _slot_stamps(plan: TimePlan, slots: list[int]) -> NDArray[np.float64]:
+    """Record-order stamps of side records (odometry) from the number of scan records before
+    each: spread evenly between the stamps of the scans around them."""
+    slot = np.asarray(slots, dtype=np.int64)
+    t = plan.stamps
+    before = np.concatenate(([t[0] - plan.period_s], t)) if t.size else np.zeros(1)
+    after = np.concatenate((t, [t[-1] + plan.period_s])) if t.size else np.full(1, plan.period_s)
+    rank = np.zeros(slot.size)
+    count = np.ones(slot.size)
+    starts = np.flatnonzero(np.diff(slot, prepend=-1))
+    sizes = np.diff(np.append(starts, slot.size))
+    for start, size in zip(starts.tolist(), sizes.tolist(), strict=True):
+        rank[start : start + size] = np.arange(1, size + 1)
+        count[start : start + size] = size + 1
+    return before[slot] + (after[slot] - before[slot]) * rank / count
 
 
 def _open_text(path: Path) -> IO[str]:

@@ -72,6 +72,9 @@ class _ScanConverter:
                 self.source._skip(WRONG_BEAM_COUNT, where, f"{n} ranges but the angles describe "
                                   f"{expected} beams")
                 return None
+        scan_time = float(msg.scan_time)
+        if self.source._declared_period is None and np.isfinite(scan_time) and scan_time > 0:
+            self.source._declared_period = scan_time
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         if stamp == 0.0:
             stamp = bag_time_ns * 1e-9
@@ -143,7 +146,7 @@ class _BagLog(LogSource):
     def topics(self) -> list[dict[str, Any]]:
         return [{"name": t.name, "type": t.msgtype, "count": t.count} for t in self._topics]
 
-    def notes(self) -> list[str]:
+    def _format_notes(self) -> list[str]:
         return list(self._notes)
 
     def _records(self) -> Iterator[tuple[LaserScan, str, Pose | None]]:

@@ -8,9 +8,6 @@ from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.ndimage import distance_transform_edt
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from bioslam.io.mapfile import (
     DEFAULT_FREE_THRESH,
@@ -60,6 +57,9 @@ def _two_core(n: int, edges: NDArray[np.int64]) -> NDArray[np.bool_]:
 
 
 def _largest_component(n: int, edges: NDArray[np.int64], alive: NDArray[np.bool_]) -> NDArray:
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     live = edges[alive[edges[:, 0]] & alive[edges[:, 1]]]
     graph = coo_matrix((np.ones(len(live)), (live[:, 0], live[:, 1])), shape=(n, n))
     _, labels = connected_components(graph, directed=False)
@@ -134,6 +134,8 @@ def world_from_occupancy(
     image: OccupancyImage, config: MapWorldConfig | None = None, name: str = "map"
 ) -> World:
     """A world whose walls are the borders of the occupied cells of ``image``."""
+    from scipy.ndimage import distance_transform_edt  # SciPy only when a map is loaded
+
     cfg = config or MapWorldConfig()
     occ = image.occupancy
     unknown = np.isnan(occ)

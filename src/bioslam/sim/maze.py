@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bioslam.sim.world import Roadmap, World, segments_from_occupancy
+from bioslam.sim.world import FloorPlan, Roadmap, World
 
 MAZE_SIZE = (16.8, 12.6)
 # Corridor extents (metres) across the arena; their widths are 1.2-1.5 m as in the issue.
@@ -40,22 +40,17 @@ def _closed_rect(kind: str, c: int, r: int) -> tuple[float, float, float, float]
     return x0, y0, x1, y1
 
 
-def _free_mask() -> np.ndarray:
-    """Free cells of the arena at ``_STEP`` resolution (row 0 at y = 0)."""
-    w, h = (round(s / _STEP) for s in MAZE_SIZE)
-    free = np.zeros((h, w), dtype=bool)
-
-    def cells(lo: float, hi: float) -> slice:
-        return slice(round(lo / _STEP), round(hi / _STEP))
-
+def _floor_plan() -> FloorPlan:
+    """Free space of the arena at ``_STEP`` resolution."""
+    width, height = MAZE_SIZE
+    plan = FloorPlan(width, height, _STEP)
     for x0, x1 in VERTICAL_CORRIDORS:
-        free[:, cells(x0, x1)] = True
+        plan.carve(x0, 0.0, x1, height)
     for y0, y1 in HORIZONTAL_CORRIDORS:
-        free[cells(y0, y1), :] = True
+        plan.carve(0.0, y0, width, y1)
     for kind, c, r in CLOSED:
-        x0, y0, x1, y1 = _closed_rect(kind, c, r)
-        free[cells(y0, y1), cells(x0, x1)] = False
-    return free
+        plan.fill(*_closed_rect(kind, c, r))
+    return plan
 
 
 def _roadmap() -> Roadmap:
@@ -80,9 +75,5 @@ def _roadmap() -> Roadmap:
 
 def maze_world() -> World:
     """The built-in 16.8 m x 12.6 m maze (walls, plus a roadmap along corridor centre-lines)."""
-    free = _free_mask()
-    segments = segments_from_occupancy(~free, _STEP, (0.0, 0.0), outside_occupied=True)
-    world = World(segments, name="maze")
     road = _roadmap()
-    world.roadmap = Roadmap(road.nodes, road.edges, world.distance_to_walls(road.nodes))
-    return world
+    return _floor_plan().world("maze", road.nodes, road.edges)

@@ -152,6 +152,45 @@ def _turn(nodes: NDArray, a: int, b: int, c: int) -> float:
     return abs(float(np.arctan2(u[0] * v[1] - u[1] * v[0], u @ v)))
 
 
+class _Walker:
+    """Chooses exits on a roadmap the way a coverage walk does: the exit driven least often in
+    that direction (ties broken at random), avoiding turns sharper than ``max_turn`` radians
+    where it can, never turning back unless a node is a dead end."""
+
+    def __init__(self, roadmap: Roadmap, rng: np.random.Generator, max_turn: float) -> None:
+        self.nodes = roadmap.nodes
+        self.adj = roadmap.neighbours()
+        if not any(self.adj):
+            raise ValueError("the world's roadmap has no edges to drive along")
+        self.rng = rng
+        self.max_turn = max_turn
+        self.driven: dict[tuple[int, int], int] = {}
+
+    def start(self) -> int:
+        return int(self.rng.choice([i for i, a in enumerate(self.adj) if a]))
+
+    def choose(self, prev: int, cur: int) -> int:
+        """The next node after driving ``prev -> cur`` (``prev`` < 0 at the start)."""
+        options = [n for n in self.adj[cur] if n != prev] or self.adj[cur]
+        keys = [
+            (
+                prev >= 0 and _turn(self.nodes, prev, cur, n) > self.max_turn,
+                self.driven.get((cur, n), 0),
+                self.driven.get((n, cur), 0),
+                # Straight on first among equals: a driver does not zig-zag down a corridor.
+                prev >= 0 and _turn(self.nodes, prev, cur, n) > 0.2,
+                self.rng.random(),
+            )
+            for n in options
+        ]
+        return options[min(range(len(options)), key=keys.__getitem__)]
+
+    def drive(self, cur: int, nxt: int) -> float:
+        """Count the edge as driven; its length, metres."""
+        self.driven[(cur, nxt)] = self.driven.get((cur, nxt), 0) + 1
+        return float(np.hypot(*(self.nodes[nxt] - self.nodes[cur])))
+
+
 def coverage_walk(
     roadmap: Roadmap, rng: np.random.Generator, min_length: float, max_turn: float = 1.75
 ) -> list[int]:
@@ -159,29 +198,12 @@ def coverage_walk(
     driven least often in that direction (ties broken at random), avoiding turns sharper than
     ``max_turn`` radians (100 degrees) where it can, never turning back unless a node is a
     dead end."""
-    adj = roadmap.neighbours()
-    if not any(adj):
-        raise ValueError("the world's roadmap has no edges to drive along")
-    start = int(rng.choice([i for i, a in enumerate(adj) if a]))
-    driven: dict[tuple[int, int], int] = {}
-    tour, prev, length = [start], -1, 0.0
+    walker = _Walker(roadmap, rng, max_turn)
+    tour, prev, length = [walker.start()], -1, 0.0
     while length < min_length:
         cur = tour[-1]
-        options = [n for n in adj[cur] if n != prev] or adj[cur]
-        keys = [
-            (
-                prev >= 0 and _turn(roadmap.nodes, prev, cur, n) > max_turn,
-                driven.get((cur, n), 0),
-                driven.get((n, cur), 0),
-                # Straight on first among equals: a driver does not zig-zag down a corridor.
-                prev >= 0 and _turn(roadmap.nodes, prev, cur, n) > 0.2,
-                rng.random(),
-            )
-            for n in options
-        ]
-        nxt = options[min(range(len(options)), key=keys.__getitem__)]
-        driven[(cur, nxt)] = driven.get((cur, nxt), 0) + 1
-        length += float(np.hypot(*(roadmap.nodes[nxt] - roadmap.nodes[cur])))
+        nxt = walker.choose(prev, cur)
+        length += walker.drive(cur, nxt)
         prev = cur
         tour.append(nxt)
     return tour
@@ -236,9 +258,11 @@ def _rounded_polyline(points: NDArray, slack: NDArray, radius: float, step: floa
     return np.vstack(pieces)
 
 
-def _speed_profile(s: NDArray, heading: NDArray, cfg: RouteConfig) -> NDArray:
+def _speed_profile(
+    s: NDArray, heading: NDArray, cfg: RouteConfig, stop_at_end: bool = False
+) -> NDArray:
     """Fastest speeds at the path samples under the speed, yaw-rate and acceleration limits,
-    starting from rest."""
+    starting from rest (and coming to rest at the end with ``stop_at_end``)."""
     ds = np.diff(s)
     # Curvature of each interval between samples; a sample's speed must respect both of its
     # intervals so that the heading change per interval, over its duration, stays in limits.
@@ -247,6 +271,8 @@ def _speed_profile(s: NDArray, heading: NDArray, cfg: RouteConfig) -> NDArray:
     with np.errstate(divide="ignore"):
         v = np.minimum(cfg.max_speed, cfg.effective_yaw_rate / bend)
     v[0] = 0.0
+    if stop_at_end:
+        v[-1] = 0.0
     two_a = 2.0 * cfg.max_accel
     for i in range(1, len(v)):
         v[i] = min(v[i], np.sqrt(v[i - 1] ** 2 + two_a * ds[i - 1]))
@@ -255,18 +281,40 @@ def _speed_profile(s: NDArray, heading: NDArray, cfg: RouteConfig) -> NDArray:
     return v
 
 
-def _timed_path(dense: NDArray, cfg: RouteConfig) -> tuple[NDArray, NDArray, NDArray]:
+def _smoothed(dense: NDArray, cfg: RouteConfig) -> NDArray:
+    """The path low-pass filtered (continuous curvature), repeated samples dropped."""
     xy = gaussian_filter1d(dense, cfg.smoothing / cfg.step, axis=0, mode="nearest")
     seg = np.hypot(*np.diff(xy, axis=0).T)
     keep = np.concatenate([[True], seg > 1e-9])
-    xy = xy[keep]
+    return xy[keep]
+
+
+def _timed(
+    xy: NDArray, cfg: RouteConfig, stop_at_end: bool = False
+) -> tuple[NDArray, NDArray, NDArray]:
+    """Times, poses (heading along the path, unwrapped) and speeds of the fastest drive along
+    the samples ``xy`` from rest."""
     s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
     grad = np.gradient(xy, s, axis=0)
     heading = np.unwrap(np.arctan2(grad[:, 1], grad[:, 0]))
-    v = _speed_profile(s, heading, cfg)
+    v = _speed_profile(s, heading, cfg, stop_at_end)
     dt = 2.0 * np.diff(s) / (v[1:] + v[:-1])
     times = np.concatenate([[0.0], np.cumsum(dt)])
     return times, np.column_stack([xy, heading]), v
+
+
+def _timed_path(dense: NDArray, cfg: RouteConfig) -> tuple[NDArray, NDArray, NDArray]:
+    return _timed(_smoothed(dense, cfg), cfg)
+
+
+def check_clearance(world: World, poses: NDArray, clearance: float) -> None:
+    """Raise ``ValueError`` when a route comes closer than ``clearance`` to a wall."""
+    nearest = float(world.distance_to_walls(poses[:, :2]).min())
+    if nearest < clearance:
+        raise ValueError(
+            f"route in world {world.name!r} comes {nearest:.3f} m from a wall "
+            f"(clearance {clearance} m); the roadmap is too close to the walls"
+        )
 
 
 def make_route(
@@ -311,10 +359,5 @@ def make_route(
         raise ValueError(f"route too short: {times[-1]:.1f} s of {duration:.1f} s")
     cut = int(np.searchsorted(times, duration)) + 1
     times, poses, speeds = times[: cut + 1], poses[: cut + 1], speeds[: cut + 1]
-    nearest = float(world.distance_to_walls(poses[:, :2]).min())
-    if nearest < cfg.clearance:
-        raise ValueError(
-            f"route in world {world.name!r} comes {nearest:.3f} m from a wall "
-            f"(clearance {cfg.clearance} m); the roadmap is too close to the walls"
-        )
+    check_clearance(world, poses, cfg.clearance)
     return Route(times, poses, float(duration), np.asarray(tour, dtype=np.int64), speeds)

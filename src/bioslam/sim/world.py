@@ -4,11 +4,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
-from bioslam.sim.raycast import SegmentGrid, build_segment_grid
+if TYPE_CHECKING:
+    from bioslam.sim.raycast import SegmentGrid
 
 # Point-segment pairs per batch when measuring distances to walls: bounds the temporary
 # (points x segments) buffers to a few tens of megabytes whatever the size of the world.
@@ -63,6 +65,8 @@ class World:
     @cached_property
     def grid(self) -> SegmentGrid:
         """The ray-casting index over the walls (built once, on first use)."""
+        from bioslam.sim.raycast import build_segment_grid  # Numba: only when casting rays
+
         return build_segment_grid(self.segments, self.grid_cell)
 
     def distance_to_walls(self, points: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -147,3 +151,48 @@ def box_segments(xmin: float, ymin: float, xmax: float, ymax: float) -> NDArray[
         ],
         dtype=np.float64,
     )
+
+
+def world_from_free_mask(
+    free: NDArray[np.bool_],
+    step: float,
+    name: str,
+    nodes: NDArray[np.float64],
+    edges: NDArray[np.int64],
+) -> World:
+    """A built-in world drawn as a free-space mask (row 0 at y = 0, cells ``step`` wide, the
+    space beyond the array solid) with a hand-made roadmap; each node's clearance is measured
+    from the walls, so the route's corner arcs fit whatever the layout."""
+    segments = segments_from_occupancy(~free, step, (0.0, 0.0), outside_occupied=True)
+    world = World(segments, name=name)
+    nodes = np.asarray(nodes, dtype=np.float64)
+    edges = np.asarray(edges, dtype=np.int64)
+    world.roadmap = Roadmap(nodes, edges, world.distance_to_walls(nodes))
+    return world
+
+
+class FloorPlan:
+    """A free-space mask drawn from axis-aligned rectangles, for the built-in worlds.
+
+    Cells are ``step`` wide, row 0 at y = 0, and every coordinate a multiple of ``step`` so
+    that walls fall exactly where the layout says. Start solid, :meth:`carve` free space,
+    :meth:`fill` solid things back in (shelves, pillars, furniture).
+    """
+
+    def __init__(self, width: float, height: float, step: float = 0.1) -> None:
+        self.step = step
+        self.free = np.zeros((round(height / step), round(width / step)), dtype=bool)
+
+    def _cells(self, lo: float, hi: float) -> slice:
+        return slice(round(lo / self.step), round(hi / self.step))
+
+    def carve(self, x0: float, y0: float, x1: float, y1: float) -> None:
+        self.free[self._cells(y0, y1), self._cells(x0, x1)] = True
+
+    def fill(self, x0: float, y0: float, x1: float, y1: float) -> None:
+        self.free[self._cells(y0, y1), self._cells(x0, x1)] = False
+
+    def world(self, name: str, nodes: ArrayLike, edges: ArrayLike) -> World:
+        return world_from_free_mask(
+            self.free, self.step, name, np.asarray(nodes), np.asarray(edges)
+        )

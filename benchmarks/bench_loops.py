@@ -1,0 +1,191 @@
+"""Loop closure on simulated worlds with ground truth: how many revisits are recognised and
+verified, whether any accepted closure is false, what the closures do to the trajectory, and
+what they cost. Every figure is measured in this run.
+
+For each case (world, scanner, route):
+
+* checks: loop-closure verifications run, by cue (``view``: a view cell recognised the place;
+  ``proximity``: the map put the robot near an old experience) and by outcome;
+* precision: an accepted closure is true when its measured pose of the robot in the
+  experience's frame is within 0.5 m and 20 deg of the true one (also the median error of the
+  true ones, cm / deg);
+* recall: the route is cut into 1 m bins of travel; a bin is a *revisit* when the robot passes
+  within 0.5 m of where it was at least ``--gap`` metres of travel earlier, and is *recognised*
+  when a true closure was accepted in it;
+* ATE RMSE of the full system and of its own odometry;
+* per-scan wall time: the full system's median and p99, and the odometry alone on the same
+  scans (median ratio).
+
+    python benchmarks/bench_loops.py [--cases maze-tour,rooms-adversarial,...] [--duration 600]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import os
+import time
+from dataclasses import dataclass
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import numpy as np
+
+from bioslam.config import SLAMConfig
+from bioslam.evaluation import evaluate
+from bioslam.geometry import between
+from bioslam.odometry import LidarOdometry
+from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world, simulate_scans
+from bioslam.slam import BioSLAM
+from bioslam.trajectory import Trajectory
+
+TRUE_DISTANCE = 0.5
+TRUE_ANGLE = math.radians(20.0)
+
+
+@dataclass(frozen=True)
+class SimCase:
+    world: str
+    lidar: str
+    route: str
+
+    @property
+    def name(self) -> str:
+        return f"{self.world}-{self.lidar}-{self.route}"
+
+
+DEFAULT_CASES = (
+    SimCase("maze", "utm30lx", "tour"),
+    SimCase("maze", "utm30lx", "adversarial"),
+    SimCase("maze", "rplidar", "adversarial"),
+    SimCase("rooms", "sick", "adversarial"),
+    SimCase("rooms", "utm30lx", "tour"),
+    SimCase("warehouse", "sick", "tour"),
+    SimCase("warehouse", "utm30lx", "adversarial"),
+)
+
+
+def simulate(case: SimCase, duration: float, seed: int) -> tuple[list, Trajectory]:
+    world = load_world(case.world)
+    route = ROUTES[case.route](world, duration=duration, seed=seed)
+    pairs = list(simulate_scans(world, LIDAR_PRESETS[case.lidar], route, seed=seed))
+    scans = [scan for scan, _ in pairs]
+    return scans, Trajectory(np.array([s.stamp for s in scans]), np.array([p for _, p in pairs]))
+
+
+def timed_run(scans: list, config: SLAMConfig) -> tuple[BioSLAM, np.ndarray]:
+    slam = BioSLAM(config)
+    ms = np.empty(len(scans))
+    for k, scan in enumerate(scans):
+        t0 = time.perf_counter()
+        slam.process(scan)
+        ms[k] = (time.perf_counter() - t0) * 1e3
+    slam.finish()
+    return slam, ms
+
+
+def odometry_ms(scans: list, config: SLAMConfig) -> np.ndarray:
+    odo = LidarOdometry(config.odometry)
+    ms = np.empty(len(scans))
+    for k, scan in enumerate(scans):
+        t0 = time.perf_counter()
+        odo.update(scan)
+        ms[k] = (time.perf_counter() - t0) * 1e3
+    return ms
+
+
+def closure_errors(slam: BioSLAM, gt: Trajectory) -> list[tuple[float, str, float, float]]:
+    """(stamp, cue, metres, degrees) of each accepted closure's error against the truth."""
+    stamps, poses = gt.stamps, gt.poses
+    at = lambda t: poses[min(int(np.searchsorted(stamps, t)), len(stamps) - 1)]  # noqa: E731
+    out = []
+    for check in slam.checks:
+        if not check.verdict.accepted:
+            continue
+        truth = between(at(check.experience_stamp), at(check.stamp))
+        err = between(truth, check.verdict.pose)
+        out.append((check.stamp, check.cue, math.hypot(err[0], err[1]), abs(math.degrees(err[2]))))
+    return out
+
+
+def revisit_recall(gt: Trajectory, true_stamps: np.ndarray, gap: float) -> tuple[int, int]:
+    """(revisit bins, recognised bins): 1 m bins of travel (module docstring)."""
+    xy = gt.poses[:, :2]
+    travel = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
+    bins = np.floor(travel).astype(np.int64)
+    revisit = np.zeros(bins[-1] + 1, dtype=bool)
+    # a sparse sample of the route is enough to find where it was before
+    sample = np.arange(0, len(xy), max(1, len(xy) // 4000))
+    for i in sample:
+        old = sample[travel[sample] <= travel[i] - gap]
+        if old.size and np.min(np.hypot(*(xy[old] - xy[i]).T)) <= TRUE_DISTANCE:
+            revisit[bins[i]] = True
+    hit_bins = bins[np.clip(np.searchsorted(gt.stamps, true_stamps), 0, len(bins) - 1)]
+    recognised = np.zeros_like(revisit)
+    recognised[hit_bins] = True
+    return int(revisit.sum()), int((revisit & recognised).sum())
+
+
+def report(case: SimCase, duration: float, seed: int, gap: float, config: SLAMConfig) -> str:
+    scans, gt = simulate(case, duration, seed)
+    slam, full_ms = timed_run(scans, config)
+    odo_ms = odometry_ms(scans, config)
+    errors = closure_errors(slam, gt)
+    true = [e for e in errors if e[2] <= TRUE_DISTANCE and e[3] <= math.degrees(TRUE_ANGLE)]
+    revisits, recognised = revisit_recall(gt, np.array([e[0] for e in true]), gap)
+    by = {}
+    for check in slam.checks:
+        key = f"{check.cue}:{check.verdict.reason or 'accepted'}"
+        by[key] = by.get(key, 0) + 1
+    full = evaluate(slam.trajectory(), gt)["ate_rmse_m"]
+    odo = evaluate(slam.odometry_trajectory(), gt)["ate_rmse_m"]
+    med_err = (
+        f"{100 * np.median([e[2] for e in true]):.1f} cm / "
+        f"{np.median([e[3] for e in true]):.2f} deg"
+        if true else "-"
+    )
+    lines = [
+        f"{case.name} ({len(scans)} scans, {duration:g} s, seed {seed})",
+        f"  checks: {', '.join(f'{k} {v}' for k, v in sorted(by.items()))}",
+        f"  accepted {len(errors)}, false {len(errors) - len(true)}, precision "
+        f"{len(true) / max(len(errors), 1):.3f}; median error of true ones {med_err}",
+        f"  revisit bins {revisits}, recognised {recognised}, recall "
+        f"{recognised / max(revisits, 1):.3f}; loop links {slam.summary()['loop_closures']}",
+        f"  ATE RMSE full {100 * full:.2f} cm, odometry {100 * odo:.2f} cm",
+        f"  per-scan ms full median {np.median(full_ms):.2f} p99 {np.percentile(full_ms, 99):.2f};"
+        f" odometry median {np.median(odo_ms):.2f} p99 {np.percentile(odo_ms, 99):.2f};"
+        f" ratio of medians {np.median(full_ms) / np.median(odo_ms):.2f}",
+    ]
+    if len(errors) > len(true):
+        worst = max(errors, key=lambda e: e[2])
+        lines.append(
+            f"  worst false: t={worst[0]:.1f} s {worst[1]} {worst[2]:.2f} m {worst[3]:.1f} deg"
+        )
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--cases", default=",".join(c.name for c in DEFAULT_CASES),
+                    help="world-lidar-route names, comma-separated")
+    ap.add_argument("--duration", type=float, default=600.0)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--gap", type=float, default=10.0, help="metres of travel before a revisit")
+    ap.add_argument("--set", action="append", default=[],
+                    help="loop_closure override, e.g. --set deadband=0")
+    args = ap.parse_args()
+    config = SLAMConfig()
+    for item in args.set:
+        key, value = item.split("=", 1)
+        config = dataclasses.replace(
+            config, loop_closure=dataclasses.replace(config.loop_closure, **{key: float(value)})
+        )
+    for name in args.cases.split(","):
+        world, lidar, route = name.split("-")
+        print(report(SimCase(world, lidar, route), args.duration, args.seed, args.gap, config),
+              flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,225 @@
+"""Loop-closure candidates and their verification against local submaps (Sec. III-C).
+
+The paper closes a loop when a view cell fires for a place the pose cells agree with. Two
+things make that fragile on real robots, and this module is where they are handled:
+
+* **Candidates from two cues.** A boundary view is recognised only within a limited offset of
+  where it was learned, while a hand-driven robot returns half a metre off. As an animal's
+  path integration says "I am near where I was", the map proposes the nearest experience
+  within the odometry's drift bound of the robot's map pose (:func:`nearest_experience`),
+  beside the view cells' own candidate. Experiences the robot has just left, or that a short
+  chain of links already joins to the current one, are not loops and are not proposed.
+* **Verification that look-alikes cannot fool.** A candidate is accepted only after the
+  current scan is registered against a *submap* fused from the scans of the experiences
+  around the candidate on its own pass (:func:`fuse_submap`): one scan sees a corridor's
+  walls but not its end, several scans a metre apart see the doors that tell it from its
+  twin. The registration must fit (score), be constrained in every direction (not
+  degenerate), stay within what the odometry can have drifted, and be unambiguous (no
+  distinct rival pose nearly as good, when the matcher reports one).
+
+No I/O here; :class:`bioslam.slam.BioSLAM` calls these once per look.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from bioslam.config import LoopClosureConfig
+from bioslam.geometry import between, transform_points
+from bioslam.matching.branch_and_bound import WideBasinConfig, WideBasinMatcher, refine
+from bioslam.matching.registration import RegistrationConfig, densify_scan
+from bioslam.occupancy_grid import NORMAL_MAX_GAP, LogOddsConfig, MapPyramid, OccupancyGrid
+
+FloatArray = NDArray[np.float64]
+
+
+def thin_points(points: FloatArray, spacing: float) -> NDArray[np.float32]:
+    """Keep one point per ``spacing``-sized grid cell: a compact scan to store with a place."""
+    if points.shape[0] == 0 or spacing <= 0.0:
+        return points.astype(np.float32)
+    cells = np.floor(points / spacing).astype(np.int64)
+    # One integer key per cell (a 1-D unique is far cheaper than a row-wise one).
+    keys = (cells[:, 0] << 32) + (cells[:, 1] & 0xFFFFFFFF)
+    _, first = np.unique(keys, return_index=True)
+    return points[np.sort(first)].astype(np.float32)
+
+
+def pass_neighbours(
+    travelled: FloatArray, anchor: int, reach: float, step: float, before: float
+) -> list[int]:
+    """The experiences whose scans make ``anchor``'s submap: on its own pass (ids are in
+    creation order, ``travelled`` the odometry distance at which each was made,
+    non-decreasing), the one nearest each multiple of ``step`` metres of travel within
+    ``reach`` of it, made no later than ``before`` metres of travel; ``anchor`` always."""
+    centre = travelled[anchor]
+    k = int(reach // step) if step > 0 else 0
+    targets = centre + step * np.arange(-k, k + 1)
+    targets = targets[targets <= before]
+    picks = np.clip(np.searchsorted(travelled, targets), 0, travelled.size - 1)
+    near = [int(i) for i in picks if abs(travelled[i] - centre) <= reach and travelled[i] <= before]
+    return sorted({anchor, *near})
+
+
+def fuse_submap(
+    poses: FloatArray,
+    payloads: Sequence[FloatArray | None],
+    anchor: int,
+    members: Sequence[int],
+    spacing: float,
+) -> NDArray[np.float32]:
+    """The scans stored with ``members`` fused into ``anchor``'s frame, thinned to one point
+    per ``spacing`` cell. Members of one pass are related by the odometry over a few metres,
+    so their relative map poses are good to the odometry's local accuracy."""
+    parts = []
+    for m in members:
+        scan = payloads[m]
+        if scan is None or len(scan) == 0:
+            continue
+        rel = between(poses[anchor], poses[m])
+        parts.append(transform_points(rel, np.asarray(scan, dtype=np.float64)))
+    if not parts:
+        return np.zeros((0, 2), dtype=np.float32)
+    return thin_points(np.concatenate(parts), spacing)
+
+
+def nearest_experience(
+    poses: FloatArray,
+    travelled: FloatArray,
+    position: FloatArray,
+    now: float,
+    radius: float,
+    min_travel: float,
+) -> int | None:
+    """The experience nearest ``position`` (map frame) within ``radius`` metres among those
+    made at least ``min_travel`` metres of travel ago (a place just left is no loop), or None.
+    """
+    old = int(np.searchsorted(travelled, now - min_travel, side="right"))
+    if old == 0:
+        return None
+    d = np.hypot(poses[:old, 0] - position[0], poses[:old, 1] - position[1])
+    best = int(np.argmin(d))
+    return best if d[best] <= radius else None
+
+
+@dataclass(frozen=True)
+class Check:
+    """One verification as the system ran it: when (``stamp``), of which experience (and
+    when that was made), with which cue ('view' or 'proximity'), and its verdict."""
+
+    stamp: float
+    experience: int
+    experience_stamp: float
+    cue: str
+    verdict: Verdict
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The outcome of verifying one candidate: ``pose`` is the robot in the candidate
+    experience's frame; ``score`` the share of its points on the submap; ``ambiguity`` the
+    best distinct rival's search score over the best's; ``reason`` says why a candidate was
+    refused ('' when accepted)."""
+
+    accepted: bool
+    pose: FloatArray
+    score: float
+    ambiguity: float
+    reason: str = ""
+
+
+def verify(
+    reference: FloatArray,
+    query: FloatArray,
+    predicted: FloatArray,
+    window: tuple[float, float],
+    config: LoopClosureConfig,
+) -> Verdict:
+    """Register ``query`` (the current scan, robot frame) against ``reference`` (a submap in
+    a candidate experience's frame) within ``window`` (m, rad) of ``predicted``, and judge it.
+
+    The window is searched whole by the wide-basin matcher (branch and bound,
+    :mod:`bioslam.matching.branch_and_bound`), which also reports the best distinct rival;
+    Gauss-Newton refines the winner. Accepted only when the result fits (``min_score`` of the
+    points land on the submap), is constrained in every direction (not degenerate), and no
+    distinct pose in the window fits nearly as well (``rival / best < max_ambiguity``): in a
+    corridor or among identical rooms the scan alone cannot say where it is, and a false
+    closure bends the whole map. Likewise the map's own prediction, refined where it stands,
+    is a rival: a best pose away from it must score more than ``prior_margin`` above it."""
+    reg = config.registration
+    distance = min(window[0], config.search_distance)
+    angle = min(window[1], config.search_angle)
+    pyramid = _submap_pyramid(reference, reg)
+    matcher = WideBasinMatcher(
+        WideBasinConfig(
+            distance=distance,
+            angle=angle,
+            rival_distance=config.rival_distance,
+            rival_angle=config.rival_angle,
+            min_rival_ratio=config.max_ambiguity,
+        )
+    )
+    matcher.set_map(pyramid.grids[min(config.search_level, len(pyramid.grids) - 1)])
+    found = matcher.search(query, predicted)
+    judge = pyramid.grids[reg.score_level]
+    # Gauss-Newton from the lattice pose on the searched level and finer only: a coarser
+    # level's blur would let it slide along a corridor, away from what the search found.
+    level = min(config.search_level, len(pyramid.grids) - 1)
+    pose, report = refine(pyramid, found.pose, query, _levels_up_to(reg.max_iterations, level))
+    score = _hit_fraction(judge, pose, query, reg.hit_level)
+    # The map's own prediction, refined where it stands. Along a corridor the window's best
+    # may lie on a plateau the scan barely constrains, far from the truth and with no
+    # distinct lattice rival (Gauss-Newton may also slide along it): a correction away from
+    # the prediction must fit clearly better than the prediction itself.
+    kept, _ = refine(pyramid, predicted, query, _levels_up_to(reg.max_iterations, 0))
+    kept_score = _hit_fraction(judge, kept, query, reg.hit_level)
+    agree = within(between(kept, pose), config.rival_distance, config.rival_angle)
+    slid = not within(between(found.pose, pose), 2.0 * matcher.resolution, config.rival_angle)
+    reason = ""
+    if score < config.min_score:
+        reason = "score"
+    elif config.reject_degenerate and report.degenerate:
+        reason = "degenerate"
+    elif found.ambiguity >= config.max_ambiguity or (
+        not agree and kept_score >= score - config.prior_margin
+    ):
+        reason = "ambiguous"
+    elif slid and not agree:
+        reason = "slid"
+    elif not within(between(predicted, pose), distance, angle):
+        reason = "beyond drift"
+    return Verdict(not reason, pose, score, found.ambiguity, reason)
+
+
+def _levels_up_to(iterations: tuple[int, ...], level: int) -> tuple[int, ...]:
+    """Gauss-Newton iterations per level (finest first) with the levels above ``level`` off."""
+    return tuple(n if k <= level else 0 for k, n in enumerate(iterations))
+
+
+def _submap_pyramid(reference: FloatArray, reg: RegistrationConfig) -> MapPyramid:
+    """The submap's points as a map pyramid covering their bounding box (1 m margin)."""
+    ref = np.asarray(reference, dtype=np.float64)
+    lo = ref.min(axis=0) - 1.0
+    hi = ref.max(axis=0) + 1.0
+    pyramid = MapPyramid(reg.resolution, tuple(hi - lo), reg.levels, LogOddsConfig(), origin=lo)
+    pyramid.insert_scan(np.zeros(3), densify_scan(ref, 0.5 * reg.resolution, NORMAL_MAX_GAP))
+    return pyramid
+
+
+def _hit_fraction(grid: OccupancyGrid, pose: FloatArray, query: FloatArray, level: float) -> float:
+    """Share of the query's points inside the submap's grid that land within about a cell of
+    its walls (the map function at least ``level``), as ``register_scans`` scores."""
+    world = transform_points(pose, query)
+    values, _ = grid.value_and_gradient(world, subcell_sigma=1.0)
+    lo = grid.origin + grid.resolution
+    hi = grid.origin + grid.resolution * (np.array(grid.shape[::-1]) - 1)
+    inside = np.all((world >= lo) & (world < hi), axis=1)
+    return float(np.mean(values[inside] >= level)) if inside.any() else 0.0
+
+
+def within(correction: FloatArray, distance: float, angle: float) -> bool:
+    """Whether a pose correction moves by at most ``distance`` metres and ``angle`` radians."""
+    return bool(np.hypot(correction[0], correction[1]) <= distance and abs(correction[2]) <= angle)

@@ -1,0 +1,105 @@
+"""Stopping a run cleanly on SIGINT (Ctrl-C) and SIGTERM.
+
+A run must never lose what it computed because a signal arrived at the wrong moment. The
+command installs :func:`installed` handlers; from then on a signal either raises
+:class:`Interrupted` (inside an :func:`interruptible` section: start-up, the scan loop, the
+figures, which are safe to abandon) or is only recorded (inside a :func:`protected` section:
+writing the trajectories and the summary, which must be whole) and raised at the start of the
+next interruptible section. :func:`received` tells what arrived, so that the command can mark
+its summary ``"interrupted": true`` and exit with ``128 + signal number`` (130, 143).
+
+Without installed handlers (library use) the sections change nothing: Ctrl-C raises
+``KeyboardInterrupt`` as Python does by default.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+from collections.abc import Iterator
+from types import FrameType
+
+HANDLED = (signal.SIGINT, signal.SIGTERM)
+
+
+class Interrupted(KeyboardInterrupt):
+    """A handled signal arrived; ``exit_code`` is the shell's ``128 + signum``."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + self.signum
+
+
+class _State:
+    installed = 0
+    protected = 0
+    received: int | None = None
+    pending = False
+
+
+def _handler(signum: int, frame: FrameType | None) -> None:
+    if _State.received is None:
+        _State.received = signum
+    if _State.protected:
+        _State.pending = True
+        return
+    raise Interrupted(signum)
+
+
+def received() -> int | None:
+    """The first handled signal that arrived since :func:`installed`, or ``None``."""
+    return _State.received
+
+
+def exit_code() -> int | None:
+    """``128 + signum`` of the signal received, ``None`` when none arrived."""
+    return None if _State.received is None else 128 + _State.received
+
+
+@contextlib.contextmanager
+def installed() -> Iterator[None]:
+    """Handle SIGINT and SIGTERM inside the block (main thread only; elsewhere a no-op)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {sig: signal.getsignal(sig) for sig in HANDLED}
+    _State.installed += 1
+    _State.received, _State.pending, _State.protected = None, False, 0
+    for sig in HANDLED:
+        signal.signal(sig, _handler)
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        _State.installed -= 1
+
+
+@contextlib.contextmanager
+def protected() -> Iterator[None]:
+    """Signals arriving inside the block are recorded, not raised: what it writes is whole."""
+    _State.protected += 1
+    try:
+        yield
+    finally:
+        _State.protected -= 1
+
+
+@contextlib.contextmanager
+def interruptible() -> Iterator[None]:
+    """Signals raise :class:`Interrupted` inside the block, including one recorded before it
+    that was not acted on yet (it arrived during a protected write)."""
+    saved = _State.protected
+    _State.protected = 0
+    try:
+        if _State.pending and _State.installed and _State.received is not None:
+            _State.pending = False
+            raise Interrupted(_State.received)
+        yield
+    finally:
+        _State.protected = saved

@@ -1,0 +1,151 @@
+"""Loop-closure candidates and verification (bioslam.closure) and the rotation-searched views."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from _views_world import box, cast
+
+from bioslam.boundary import BoundaryCells
+from bioslam.closure import fuse_submap, nearest_experience, pass_neighbours, verify
+from bioslam.config import LoopClosureConfig
+from bioslam.geometry import between, compose
+from bioslam.views import ViewCellConfig, ViewCells
+
+# A hall with an L-shaped wall, a pillar and a recess: every place in it looks different.
+HALL = [
+    *box(0.0, 0.0, 14.0, 9.0),
+    (4.0, 3.0, 9.0, 3.0),
+    (9.0, 3.0, 9.0, 6.0),
+    *box(2.0, 6.0, 2.6, 6.6),
+    (12.0, 0.0, 12.0, 1.5),
+    (12.0, 1.5, 14.0, 1.5),
+]
+
+
+def _corridor_with_doors(spacing: float, count: int) -> list[tuple[float, float, float, float]]:
+    """A 2 m corridor whose north wall has identical 0.6 m doors every ``spacing`` metres, each
+    opening on an identical 1 m deep niche: every door looks like its neighbours."""
+    walls = [(0.0, 0.0, spacing * count, 0.0)]
+    for k in range(count):
+        x = k * spacing
+        door = x + spacing - 0.6
+        walls += [(x, 2.0, door, 2.0), (door, 2.0, door, 3.0),
+                  (door, 3.0, x + spacing, 3.0), (x + spacing, 3.0, x + spacing, 2.0)]
+    return walls
+
+
+def _points(walls, pose, fov=270.0, noise=0.01, seed=0) -> np.ndarray:
+    """Endpoints with range noise (a scanner's; noise-free walls on cell boundaries would
+    meet the map function's documented half-cell pull)."""
+    scan = cast(walls, pose, fov_deg=fov)
+    ranges = scan.ranges + np.random.default_rng(seed).normal(0.0, noise, scan.ranges.size)
+    ok = np.isfinite(ranges)
+    return np.column_stack([ranges * np.cos(scan.angles), ranges * np.sin(scan.angles)])[ok]
+
+
+def _submap(walls, anchor, around) -> np.ndarray:
+    """Scans taken at ``around`` (world poses) fused in the frame of ``anchor`` (index)."""
+    payloads = [_points(walls, p, seed=k + 1) for k, p in enumerate(around)]
+    return fuse_submap(np.asarray(around), payloads, anchor, range(len(around)), 0.03)
+
+
+def _offset(pose, lateral=0.0, turn=0.0):
+    x, y, th = pose
+    return (x - lateral * math.sin(th), y + lateral * math.cos(th), th + turn)
+
+
+@pytest.mark.parametrize("fov", [360.0, 270.0])
+def test_view_is_recognised_turned_by_30_degrees_with_its_heading_offset(fov):
+    bc = BoundaryCells()
+    vc = ViewCells(cells_per_ring=bc.config.cells_per_ring)
+    learned = cast(HALL, (6.0, 1.5, 0.2), fov_deg=fov)
+    assert vc.observe(bc.activity(learned), heading=0.2, coverage=bc.coverage(learned)).is_new
+    turned = cast(HALL, (6.0, 1.5, 0.2 + math.radians(30.0)), fov_deg=fov)
+    m = vc.observe(bc.activity(turned), heading=0.2 + math.radians(30.0),
+                   coverage=bc.coverage(turned))
+    assert not m.is_new and m.view_id == 0
+    assert m.heading_offset == pytest.approx(math.radians(30.0), abs=math.radians(2.0))
+
+
+def test_corridor_driven_the_other_way_is_recognised_by_a_360_scanner():
+    bc = BoundaryCells()
+    vc = ViewCells(cells_per_ring=bc.config.cells_per_ring)
+    there = cast(HALL, (6.0, 1.5, 0.0), fov_deg=360.0)
+    vc.observe(bc.activity(there), heading=0.0, coverage=bc.coverage(there))
+    back = cast(HALL, (6.0, 1.5, math.pi), fov_deg=360.0)
+    m = vc.observe(bc.activity(back), heading=math.pi, coverage=bc.coverage(back))
+    assert not m.is_new
+    assert abs(abs(m.heading_offset) - math.pi) < math.radians(2.0)
+    # Facing the other way, a 180 deg scanner shares nothing with its view: no match.
+    vc180 = ViewCells(cells_per_ring=bc.config.cells_per_ring)
+    a, b = cast(HALL, (6.0, 1.5, 0.0), fov_deg=180.0), cast(HALL, (6.0, 1.5, math.pi), 180.0)
+    vc180.observe(bc.activity(a), heading=0.0, coverage=bc.coverage(a))
+    assert vc180.observe(bc.activity(b), heading=math.pi, coverage=bc.coverage(b)).is_new
+
+
+def test_rotated_twin_is_not_compared_when_the_heading_disagrees():
+    bc = BoundaryCells()
+    vc = ViewCells(ViewCellConfig(heading_gate=math.radians(45.0)), cells_per_ring=36)
+    scan = cast(HALL, (6.0, 1.5, 0.0), fov_deg=360.0)
+    vc.observe(bc.activity(scan), heading=0.0)
+    # The same scan, but the robot believes it faces 90 deg elsewhere: shift 0 is outside
+    # the heading window, and no other shift fits.
+    assert vc.observe(bc.activity(scan), heading=math.pi / 2).is_new
+
+
+@pytest.mark.parametrize("lateral, turn", [(0.5, 0.0), (0.0, math.radians(30.0)),
+                                           (-0.5, math.radians(-30.0))])
+def test_place_is_verified_from_half_a_metre_sideways_and_30_degrees_turned(lateral, turn):
+    # The experience at the middle of a pass along the hall, with scans 0.5 m apart around it.
+    around = [(5.0 + 0.5 * k, 1.5, 0.0) for k in range(5)]
+    submap = _submap(HALL, 2, around)
+    robot = _offset(around[2], lateral, turn)
+    truth = between(around[2], robot)
+    # The map's prediction is off by what the odometry may have drifted.
+    predicted = compose(truth, (0.15, -0.1, math.radians(4.0)))
+    verdict = verify(submap, _points(HALL, robot), predicted, (0.5, 0.3), LoopClosureConfig())
+    assert verdict.accepted, verdict.reason
+    err = between(truth, verdict.pose)
+    assert math.hypot(err[0], err[1]) < 0.03
+    assert abs(err[2]) < math.radians(0.5)
+
+
+def test_identical_doors_along_a_corridor_are_not_closed():
+    walls = _corridor_with_doors(1.2, 12)
+    around = [(6.0 + 0.5 * k, 1.0, 0.0) for k in range(-2, 3)]
+    submap = _submap(walls, 2, around)
+    # The robot stands one door further than the map believes: the scan fits both places.
+    robot = (7.2, 1.0, 0.0)
+    predicted = between(around[2], (6.6, 1.0, 0.0))
+    verdict = verify(submap, _points(walls, robot), predicted, (1.5, 0.5), LoopClosureConfig())
+    assert not verdict.accepted
+    assert verdict.reason in ("ambiguous", "degenerate")
+
+
+def test_a_wrong_place_is_not_closed_however_well_its_walls_fit():
+    around = [(5.0 + 0.5 * k, 1.5, 0.0) for k in range(5)]
+    submap = _submap(HALL, 2, around)
+    elsewhere = (3.0, 7.5, 0.0)
+    predicted = np.zeros(3)
+    verdict = verify(submap, _points(HALL, elsewhere), predicted, (1.0, 0.3), LoopClosureConfig())
+    assert not verdict.accepted
+
+
+def test_submap_members_are_taken_on_the_candidate_pass_and_before_the_cutoff():
+    travelled = np.arange(0.0, 20.0, 0.1)
+    members = pass_neighbours(travelled, 50, 1.5, 0.5, before=5.6)
+    assert 50 in members
+    assert all(abs(travelled[m] - 5.0) <= 1.5 + 1e-9 for m in members)
+    assert all(travelled[m] <= 5.6 for m in members if m != 50)
+    assert len(members) == 5  # 3.5, 4.0, 4.5, 5.0, 5.5 m
+
+
+def test_nearest_experience_skips_places_just_left():
+    poses = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.2, 0.1, 0.0]])
+    travelled = np.array([0.0, 1.0, 2.0, 10.0])
+    assert nearest_experience(poses, travelled, np.array([0.1, 0.0]), 10.0, 0.5, 3.0) == 0
+    assert nearest_experience(poses, travelled, np.array([5.0, 0.0]), 10.0, 0.5, 3.0) is None
+    assert nearest_experience(poses, travelled, np.array([0.1, 0.0]), 2.5, 0.5, 3.0) is None

@@ -1,0 +1,193 @@
+"""A log's stamps checked as a whole: isolated bad stamps repaired, unusable ones replaced by
+record order, clean logs untouched (unit cases, then the shared logs with each defect)."""
+
+from __future__ import annotations
+
+import functools
+import gzip
+
+import numpy as np
+import pytest
+from _io_data import shared_log
+
+from bioslam.io.defects import (
+    BREEZYSLAM_DEFECTS,
+    CARMEN_DEFECTS,
+    breezyslam_with_defect,
+    carmen_with_defect,
+)
+from bioslam.io.logs import open_log
+from bioslam.io.timestamps import (
+    DEFAULT_PERIOD_S,
+    LOG_STAMPS,
+    RECORD_ORDER,
+    longest_increasing,
+    plan_stamps,
+)
+
+RNG = np.random.default_rng(7)
+# 10 Hz with jitter, starting at an epoch-like time: the stamps of a healthy log
+CLEAN = 1.2e9 + np.cumsum(0.1 + 0.01 * RNG.random(300))
+
+
+def test_clean_stamps_are_kept_bit_for_bit():
+    plan = plan_stamps(CLEAN)
+    assert plan.source == LOG_STAMPS and plan.repaired == 0 and plan.describe() == LOG_STAMPS
+    assert plan.stamps.tobytes() == CLEAN.tobytes()
+    assert plan.period_s == pytest.approx(0.105, abs=0.002)
+
+
+def test_slightly_late_records_keep_their_stamps_for_the_reorder():
+    stamps = CLEAN.copy()
+    stamps[[50, 51]] = stamps[[51, 50]]  # two records swapped: 0.1 s out of order
+    stamps[120] -= 0.8  # stored late by a second logger process
+    plan = plan_stamps(stamps, window=2.0)
+    assert plan.repaired == 0 and plan.stamps.tobytes() == stamps.tobytes()
+
+
+@pytest.mark.parametrize("index", [0, 1, 150, 298, 299])
+@pytest.mark.parametrize("bad", [np.nan, np.inf, 0.0, -5.0, 3600.0, 1e12])
+def test_an_isolated_bad_stamp_is_interpolated_and_nothing_else_changes(index, bad):
+    stamps = CLEAN.copy()
+    stamps[index] = bad if bad in (0.0, -5.0) or not np.isfinite(bad) else stamps[index] + bad
+    plan = plan_stamps(stamps)
+    assert plan.source == LOG_STAMPS and plan.repaired == 1
+    others = np.arange(stamps.size) != index
+    assert plan.stamps[others].tobytes() == CLEAN[others].tobytes()
+    assert np.all(np.diff(plan.stamps) > 0)
+    # between its neighbours (or one median period beyond the last one)
+    assert plan.stamps[index] == pytest.approx(CLEAN[index], abs=0.12)
+    assert f"scan record {index + 1}" in plan.reason
+
+
+def test_scattered_repeats_and_nans_are_repaired_one_by_one():
+    stamps = CLEAN.copy()
+    stamps[10::25] = stamps[9::25][: stamps[10::25].size]  # every 25th repeats its predecessor
+    stamps[17::40] = np.nan
+    plan = plan_stamps(stamps)
+    bad = int(np.count_nonzero(stamps[1:] == stamps[:-1]) + np.isnan(stamps).sum())
+    assert plan.source == LOG_STAMPS and plan.repaired == bad
+    assert np.all(np.diff(plan.stamps) > 0)
+    np.testing.assert_allclose(plan.stamps, CLEAN, atol=0.11)
+
+
+def _quantised(t):
+    return np.array([float(f"{v:.9g}") for v in t])  # 1.2e9 s to 10 s: 100 scans per stamp
+
+
+@pytest.mark.parametrize(
+    ("name", "change", "reason"),
+    [
+        ("all zero", lambda t: np.zeros_like(t), "all 300 stamps are 0"),
+        ("constant", lambda t: np.full_like(t, 1.5e9), "all 300 stamps"),
+        ("nine digits", _quantised, "quantised"),
+        ("decreasing", lambda t: t[::-1].copy(), "stamps decrease"),
+        ("negative", lambda t: -t, "stamps decrease and are negative"),
+        ("concatenated", lambda t: np.concatenate([t[:150], t[:150]]), "in time order"),
+        ("jumping", lambda t: RNG.permutation(t), "in time order"),
+        ("µs read as s", lambda t: t * 1e-6, "not a scanner's"),
+        ("all NaN", lambda t: np.full_like(t, np.nan), "no finite stamp"),
+    ],
+)
+def test_unusable_stamps_give_record_order(name, change, reason):
+    plan = plan_stamps(change(CLEAN.copy()))
+    assert plan.source == RECORD_ORDER, name
+    assert reason in plan.reason, plan.reason
+    assert plan.repaired == CLEAN.size
+    steps = np.diff(plan.stamps)
+    np.testing.assert_allclose(steps, plan.period_s, atol=1e-5)
+    assert plan.describe().startswith(f"record order at {1 / plan.period_s:.4g} Hz")
+
+
+def test_record_order_uses_the_declared_period_first():
+    plan = plan_stamps(np.zeros(50), declared_period_s=0.025)
+    assert plan.period_s == 0.025 and "declared" in plan.reason
+    assert plan_stamps(np.zeros(50)).period_s == DEFAULT_PERIOD_S
+    # an implausible declared period is not used
+    assert plan_stamps(np.zeros(50), declared_period_s=1e-9).period_s == DEFAULT_PERIOD_S
+
+
+def test_record_order_rate_comes_from_the_stamps_when_not_declared():
+    # counting down or concatenated: the step between stamps is still the scan period
+    assert plan_stamps(CLEAN[::-1].copy()).period_s == pytest.approx(0.105, abs=0.002)
+    # quantised to 10 s: most steps are zero, the span over the records gives the period
+    quantised = np.floor(np.arange(3000) * 0.05 / 10.0) * 10.0
+    assert plan_stamps(quantised).period_s == pytest.approx(0.05, rel=0.01)
+
+
+def test_longest_increasing_leaves_out_the_spike():
+    t = np.array([1.0, 2.0, 10.0, 3.0, 4.0, np.nan, 5.0])
+    np.testing.assert_array_equal(longest_increasing(t), [1, 1, 0, 1, 1, 0, 1])
+    assert not longest_increasing(np.array([np.nan])).any()
+
+
+# -- the shared logs --------------------------------------------------------------------------
+
+def _carmen_laser_stamps(lines):
+    return [float(line.split()[-3]) for line in lines if line.startswith("FLASER ")]
+
+
+@pytest.mark.parametrize("name", ["intel-corrected.log.gz", "freiburg-079-corrected.log.gz"])
+def test_clean_carmen_logs_keep_their_stamps(name):
+    path = shared_log(name)
+    with gzip.open(path, "rt", encoding="latin-1") as fh:
+        raw = _carmen_laser_stamps(fh)
+    source = open_log(path)
+    stamps = [s.stamp for s in source]
+    assert source.time_source == LOG_STAMPS
+    assert stamps == sorted(raw)  # the log's own stamps, put in order, none changed
+
+
+def test_clean_exp1_and_bag_keep_their_stamps():
+    path = shared_log("exp1.dat")
+    raw = [float(line.split()[0]) * 1e-6 for line in path.open() if line.strip()]
+    source = open_log(path)
+    assert [s.stamp for s in source] == raw and source.time_source == LOG_STAMPS
+    bag = open_log(shared_log("laser_scan_matcher_demo.bag"))
+    assert sum(1 for _ in bag) == 360 and bag.time_source == LOG_STAMPS
+
+
+def _defect_cases():
+    for defect in CARMEN_DEFECTS:
+        yield "intel-corrected.log.gz", defect
+    for defect in BREEZYSLAM_DEFECTS:
+        yield "exp1.dat", defect
+
+
+@functools.cache
+def _clean(name):
+    """Lines, scan count and duration of a clean shared log (read once per session)."""
+    path = shared_log(name)
+    opener = gzip.open if name.endswith(".gz") else open
+    with opener(path, "rt", encoding="latin-1") as fh:
+        lines = fh.readlines()
+    stamps = [s.stamp for s in open_log(path)]
+    return lines, len(stamps), stamps[-1] - stamps[0]
+
+
+@pytest.mark.parametrize(("name", "defect"), list(_defect_cases()))
+def test_shared_logs_with_a_stamp_defect_are_read_whole(tmp_path, name, defect):
+    lines, count, clean_duration = _clean(name)
+    mutate = carmen_with_defect if name.endswith(".log.gz") else breezyslam_with_defect
+    mutated = tmp_path / name.replace(".gz", "")
+    mutated.write_text("".join(mutate(lines, defect)), encoding="latin-1")
+    expected = count * (2 if defect == "concatenated" else 1)
+    source = open_log(mutated)
+    scans = list(source)
+    assert len(scans) >= 0.99 * expected, source.time_source
+    assert source.records_seen == expected
+    stamps = np.array([s.stamp for s in scans])
+    assert np.all(np.diff(stamps) > 0)
+    assert any("time stamps:" in note for note in source.notes())
+    if defect == "one-hour-late":  # only the bad one changes
+        assert source.time_plan.repaired == 1
+        assert source.time_source.startswith("log stamps (1 repaired")
+    else:
+        assert source.time_source.startswith("record order"), source.time_source
+        # the rate comes from the sensor (exp1: URG-04LX 10 Hz) or the stamps themselves
+        duration = stamps[-1] - stamps[0]
+        if name == "exp1.dat" or defect in ("decreasing", "negative", "concatenated"):
+            factor = 2 if defect == "concatenated" else 1
+            assert duration == pytest.approx(factor * clean_duration, rel=0.15)
+    if source.odometry is not None:
+        assert len(source.odometry) > 0 and np.all(np.diff(source.odometry.stamps) > 0)
