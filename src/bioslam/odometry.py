@@ -434,13 +434,14 @@ class LidarOdometry:
         nearest = min(plausible, key=lambda o: self._pose_distance(o[0], prior))
         basin = [o for o in plausible if not self._distinct(o[0], nearest[0])]
         chosen = max(basin, key=lambda o: quality[id(o)])
+        ambiguous = len(basin) < len(plausible)
         if chosen is not first and self._is_jump(chosen[0], prior):
             q_first = quality[id(first)]
             if not first[2] and q_first > c.overwhelming_ratio * quality[id(chosen)]:
-                chosen = first
+                chosen, ambiguous = first, True  # a look-alike, not overwhelming evidence
         pose, report = chosen[0], chosen[1]
         report.recovered = chosen is not first
-        report.ambiguous = len(basin) < len(plausible)
+        report.ambiguous = ambiguous
         return pose, report
 
     def _pose_distance(self, a: FloatArray, b: FloatArray) -> float:
