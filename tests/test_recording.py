@@ -223,11 +223,12 @@ def test_recorded_map_has_the_walls_where_the_world_has_them(recorded):
 
 
 def _darkest_near(grid, x: float, y: float) -> np.ndarray:
-    """The darkest cell within one cell of (x, y) (a wall's cell may be its neighbour)."""
+    """The darkest seen cell within one cell of (x, y) (a wall's cell may be its neighbour;
+    an unseen cell is black too, but transparent, and must not count as the wall)."""
     res = grid.cell_size.x
     steps = (-1, 0, 1)
     cells = [_grid_cell(grid, x + dx * res, y + dy * res) for dx in steps for dy in steps]
-    return min(cells, key=lambda c: int(c[0]))
+    return min(cells, key=lambda c: (int(c[3]) != 255, int(c[0])))
 
 
 def test_interrupted_run_still_closes_the_file(ring_scans, tmp_path):

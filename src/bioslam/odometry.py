@@ -95,8 +95,12 @@ class OdometryConfig:
         length_scale: metres that make a radian commensurate with a metre when judging how
             well-conditioned the problem is (a typical indoor endpoint distance).
         degeneracy_ratio: a direction whose curvature is below this fraction of the strongest
-            is unconstrained (a featureless corridor): the step keeps the prediction along it
-            instead of letting noise move the pose, and the report flags it.
+            is weakly constrained (a corridor): the report flags it, and a motion prior
+            pulls the pose along it towards the prediction, with a weight of ``prior_weight``
+            times the scan's mean curvature times how far below the ratio it is
+            (:func:`bioslam.matching.gauss_newton.match_scan_to_map`): in a featureless
+            corridor the pose follows the prediction, in a warehouse aisle the uprights
+            still count (a hard hold there: ATE 5.9 m; the prior: 2.6 cm, SICK 600 s).
         subcell_sigma: width of the sub-cell map function's kernels in cells of each level
             (:func:`bioslam.occupancy_grid.subcell_point`); ``None`` uses Hector's bilinear
             M*, which biases the match towards cell centres (benchmark: more drift).
@@ -172,6 +176,7 @@ class OdometryConfig:
     step_tolerance: float = 0.05
     length_scale: float = 3.0
     degeneracy_ratio: float = 0.01
+    prior_weight: float = 0.0005
     velocity_window: float = 0.1
     velocity_scans: int = 3
     start_margin: float = 0.1
@@ -490,7 +495,7 @@ class LidarOdometry:
         c = self.config
         pose, report = match_scan_to_map(
             self.pyramid, level_pts, start, c.max_iterations, c.step_tolerance,
-            c.length_scale, c.degeneracy_ratio, c.subcell_sigma, normals,
+            c.length_scale, c.degeneracy_ratio, c.subcell_sigma, normals, c.prior_weight,
         )  # fmt: skip
         report.free_fraction = self.pyramid.finest.fraction_not_above_near(
             pose, level_pts[0], c.free_logodds

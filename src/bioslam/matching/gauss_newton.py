@@ -266,7 +266,7 @@ def _add_prior(H, b, pose, prior, length):
 
 
 @numba.njit(cache=True)
-def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, prior):
+def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, hold, prior):
     """Gauss-Newton on one level with Levenberg-Marquardt damping (Nielsen's schedule): a
     step that raises the cost is refused and retried shorter, and the damping of an
     accepted step shrinks by how well the quadratic model predicted the gain, so that the
@@ -274,8 +274,8 @@ def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, prior):
     halves the step at once: near the optimum Gauss-Newton underestimates the curvature of
     a peaked M* (its Hessian drops the (1 - M*) M*'' term) and overshoots, mostly in
     heading, and a token damping of 0.001 only wasted iterations (maze: 1.0 vs 1.3 ms per
-    scan, RPE 0.38 cm / 0.085° vs 0.40 cm / 0.106°). ``prior`` is
-    :func:`_add_prior`'s (direction, pose, weight). Returns
+    scan, RPE 0.38 cm / 0.085° vs 0.40 cm / 0.106°). ``hold`` is a direction kept fixed
+    (:func:`_guarded_step`), ``prior`` :func:`_add_prior`'s (direction, pose, weight). Returns
     ``(pose, H, mean M*, iterations, converged)``."""
     pose = pose.copy()
     trial = np.empty(3)
@@ -283,7 +283,6 @@ def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, prior):
     b = np.zeros(3)
     H2 = np.zeros((3, 3))
     b2 = np.zeros(3)
-    no_hold = np.zeros(3)
     mean, cost, inside = _normal_equations(g, pts, pose, H, b)
     cost += _add_prior(H, b, pose, prior, length)
     damping = 0.0
@@ -294,7 +293,7 @@ def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, prior):
         return pose, H, mean, iterations, converged
     for _ in range(max_iter):
         iterations += 1
-        step = _newton_step(H, b, length, ratio, damping, no_hold)
+        step = _newton_step(H, b, length, ratio, damping, hold)
         # judged on the undamped step: a damped one is short without being converged
         undamped = 1.0 + damping
         small = (
@@ -400,7 +399,7 @@ def match_scan_to_map(
     degeneracy_ratio: float = 0.01,
     subcell_sigma: float | None = 1.0,
     normals: FloatArray | None = None,
-    prior_weight: float = 0.001,
+    prior_weight: float | None = None,
 ) -> tuple[FloatArray, MatchReport]:
     """Eq. 3: the pose maximising Σ M*(R_p e_i + T_p) (Eq. 4 transform), by Gauss-Newton.
 
@@ -415,9 +414,11 @@ def match_scan_to_map(
     the scan's geometry is checked first (:func:`geometric_conditioning`); along a direction
     it hardly constrains (conditioning below ``degeneracy_ratio``: a corridor's axis) the
     pose is pulled towards the initial pose (the motion prior) by a term weighted by
-    ``prior_weight`` and by how little the scan constrains it (:func:`_add_prior`). A hard
-    hold there threw away what little the scan has (a warehouse aisle's uprights), and
-    the estimate drifted with the prediction (simulated warehouse, SICK: ATE 5.9 m).
+    ``prior_weight`` and by how little the scan constrains it (:func:`_add_prior`); with
+    ``prior_weight`` None it is held there. The odometry uses the prior: a hard hold threw
+    away what little the scan has (a warehouse aisle's uprights), and the estimate drifted
+    with the prediction (simulated warehouse, SICK: ATE 5.9 m). Pairwise registration,
+    whose start is a search's guess and not a motion prior, holds.
     """
     pose = np.asarray(initial_pose, dtype=np.float64).copy()
     report = MatchReport(num_points=int(level_points[0].shape[0]))
@@ -432,20 +433,23 @@ def match_scan_to_map(
                              weakest[2]])  # fmt: skip
             report.degenerate = True
             report.degenerate_direction = hold
-            weight = prior_weight * (1.0 - cond / degeneracy_ratio)
+            if prior_weight is not None:
+                weight = prior_weight * (1.0 - cond / degeneracy_ratio)
     prior = (hold, pose.copy(), weight)
+    if weight > 0.0:
+        hold = np.zeros(3)
     iters = max_iterations[::-1]
     for k in range(len(pyramid.grids) - 1, -1, -1):
         pose, H, mean, n, converged = _gauss_newton_level(
             grid_args(pyramid.grids[k], subcell_sigma), level_points[k], pose,
             iters[len(pyramid.grids) - 1 - k], step_tolerance * pyramid.grids[k].resolution,
-            length_scale, degeneracy_ratio, prior,
+            length_scale, degeneracy_ratio, hold, prior,
         )  # fmt: skip
         report.iterations += int(n)
     pose[2] = wrap_angle(pose[2])
     if normals is None:
         _, cond, weakest, degenerate = _guarded_step(
-            H, np.zeros(3), length_scale, degeneracy_ratio, 0.0, np.zeros(3)
+            H, np.zeros(3), length_scale, degeneracy_ratio, 0.0, hold
         )
         report.condition = float(cond)
         report.degenerate = bool(degenerate)
