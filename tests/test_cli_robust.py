@@ -233,6 +233,9 @@ def test_full_disk_leaves_no_half_written_file(tmp_path):
         ('{"view_distance": -1}', "view_distance = -1: must not be negative"),
         ('{"loop_closure": {"min_score": NaN}}', "expected a finite number"),
         ('{"odometry": {"deskew": 1}}', "odometry.deskew = 1: expected true or false"),
+        ('{"cognitive_map": {"sweeps_per_update": 1e12}}', "expected an integer"),
+        ('{"cognitive_map": {"sweeps_per_update": 1000000000000}}', "must be at most"),
+        ('{"pose_cells": {"dims": [1000, 1000, 36]}}', "pose_cells.dims asks for a grid"),
     ],
 )
 def test_config_errors_name_the_file_and_the_key(tmp_path, text, message):
