@@ -5,6 +5,7 @@ never prints a traceback. Children run in parallel to keep the suite short."""
 from __future__ import annotations
 
 import json
+import math
 import os
 import random
 import re
@@ -36,21 +37,28 @@ def strict_json(text: str):
 class Child:
     """A ``bioslam run`` child whose stderr is collected as it comes."""
 
-    def __init__(self, log: Path, out: Path, *extra: str) -> None:
+    def __init__(self, log: Path | None, out: Path, *extra: str) -> None:
         self.out = out
         env = {**os.environ, "PYTHONPATH": str(SRC)}
+        argv = ["run", str(log), "--out", str(out)] if log is not None else []
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "bioslam.cli", "run", str(log), "--out", str(out), *extra],
+            [sys.executable, "-m", "bioslam.cli", *argv, *extra],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
         )
         self.err = ""
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
+        self._out = b""
+        self._readers = [threading.Thread(target=self._read_err, daemon=True),
+                         threading.Thread(target=self._read_out, daemon=True)]
+        for reader in self._readers:
+            reader.start()
         self.signum: int | None = None
 
-    def _read(self) -> None:
+    def _read_err(self) -> None:
         for chunk in iter(lambda: self.proc.stderr.read1(4096), b""):
             self.err += chunk.decode(errors="replace")
+
+    def _read_out(self) -> None:
+        self._out = self.proc.stdout.read()
 
     def handlers_installed(self) -> bool:
         """True once the command handles SIGTERM (Python itself only catches SIGINT)."""
@@ -60,6 +68,15 @@ class Child:
             return False
         caught = int(re.search(r"SigCgt:\s*([0-9a-f]+)", status).group(1), 16)
         return bool(caught >> (signal.SIGTERM - 1) & 1)
+
+    def cpu_seconds(self) -> float:
+        """CPU time the child has used (on a shared machine, a better clock of how far it
+        got than wall time)."""
+        try:
+            stat = Path(f"/proc/{self.proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            return math.inf
+        return (int(stat[11]) + int(stat[12])) / os.sysconf("SC_CLK_TCK")
 
     def marker(self) -> dict | None:
         try:
@@ -77,9 +94,10 @@ class Child:
             self.proc.send_signal(signum)
 
     def finish(self) -> tuple[int, str]:
-        stdout, _ = self.proc.communicate(timeout=300)
-        self._reader.join(timeout=10)
-        return self.proc.returncode, stdout.decode()
+        self.proc.wait(timeout=300)
+        for reader in self._readers:
+            reader.join(timeout=10)
+        return self.proc.returncode, self._out.decode()
 
 
 def wait_for(condition, timeout: float = 120.0) -> None:
@@ -154,3 +172,27 @@ def test_signals_at_random_moments(tmp_path):
         child.send(signum)
     for child, _, _ in children:
         check_outcome(child, 200)
+
+
+def test_info_and_demo_stop_cleanly_and_say_so(tmp_path):
+    log = write_carmen(tmp_path / "big.log", scans=3000)
+    info = Child(None, tmp_path / "unused", "info", str(log))
+    demo = Child(None, tmp_path / "demo", "demo", "--duration", "40", "--out",
+                 str(tmp_path / "demo"), "--no-progress")
+    wait_for(lambda: info.handlers_installed() or info.proc.poll() is not None)
+    cpu = info.cpu_seconds()
+    wait_for(lambda: info.cpu_seconds() > cpu + 0.5 or info.proc.poll() is not None)
+    info.send(signal.SIGINT)
+    wait_for(lambda: "world.png" in (demo.marker() or {}).get("files", []))
+    cpu = demo.cpu_seconds()
+    wait_for(lambda: demo.cpu_seconds() > cpu + 1.0 or demo.proc.poll() is not None)
+    demo.send(signal.SIGTERM)
+
+    code, stdout = info.finish()
+    assert "Traceback" not in info.err and code in (0, 130), info.err
+    if code == 130 and stdout:  # stopped while reading: what was read is reported
+        summary = strict_json(stdout.strip().splitlines()[-1])
+        assert summary["interrupted"] is True and summary["scans"] <= 3000
+        assert "interrupted by SIGINT" in info.err
+    summary = check_outcome(demo, 1600)
+    assert demo.proc.returncode == 143 and (tmp_path / "demo" / "gt.tum").is_file()

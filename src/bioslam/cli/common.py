@@ -10,7 +10,6 @@ interrupted, with everything computed so far written.
 from __future__ import annotations
 
 import argparse
-import math
 import signal
 from pathlib import Path
 from typing import Any
@@ -149,8 +148,8 @@ def read_problem(
 def read_counts(source: Any) -> dict[str, Any]:
     """Summary keys: scan records met and the share read."""
     seen = source.records_seen
-    share = source.scans_read / seen if seen else math.nan
-    return {"scan_records": seen, "read_share": round(share, 4) if seen else None}
+    return {"scan_records": seen,
+            "read_share": round(source.scans_read / seen, 4) if seen else None}
 
 
 def run_status(summary: dict[str, Any], problems: list[str]) -> str:
