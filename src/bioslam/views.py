@@ -396,7 +396,7 @@ class ViewCells:
         """
         b = self._checked(B)
         cover = self._coverage(coverage)
-        h = self._coarse(b, cover)
+        h = self.coarse_feature(b, cover)
         # Eq. 6's sum does not survive a turn of a scanner that sees part of each ring (what
         # leaves the field of view differs): such scans are compared with every view, the
         # shifts within the heading window and the bounded Eq. 8 keeping that cheap.
@@ -431,7 +431,7 @@ class ViewCells:
             raise ValueError(f"coverage has {cover.size} bins, a ring has {cols}")
         return cover
 
-    def _coarse(self, b: FloatArray, cover: NDArray[np.bool_]) -> int:
+    def coarse_feature(self, b: FloatArray, cover: NDArray[np.bool_]) -> int:
         """Eq. 6, per covered sector when the scanner sees only part of each ring."""
         share = max(int(cover.sum()), 1) / cover.size
         return coarse_view_feature(b / share, self.config.ds)
@@ -499,7 +499,7 @@ class ViewCells:
         """Store ``B`` as a new view without matching it (e.g. to seed a map); its id."""
         b = self._checked(B)
         cover = self._coverage(coverage)
-        return self._learn(self._coarse(b, cover), b, payload, heading, cover)
+        return self._learn(self.coarse_feature(b, cover), b, payload, heading, cover)
 
     def _checked(self, B: ArrayLike) -> FloatArray:
         b = np.ascontiguousarray(B, dtype=np.float64)
