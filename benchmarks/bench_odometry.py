@@ -21,6 +21,9 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
   recovery search alone.
 - ``intel``: the thinned Intel log (0.67 m and 22 degrees apart at the median), with and
   without the wide search.
+- ``warehouse``: the warehouse of identical aisles, 600 s, SICK (181 beams, 10 Hz) and
+  UTM-30LX, with and without the wide-basin search: ATE, and jumps (the position error
+  changing by more than 0.3 m between consecutive scans).
 - ``maps``: occupancy maps built from the odometry poses of exp1.dat, the ROS 1 bag and
   freiburg-079, written to ``benchmarks/results/odometry_map_<name>.png``.
 
@@ -41,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bioslam.evaluation import associate, rpe_distance, rpe_distance_pairs, three_cornered_hat
+from bioslam.evaluation import associate, ate, rpe_distance, rpe_distance_pairs, three_cornered_hat
 from bioslam.geometry import between, transform_points
 from bioslam.io.logs import open_log
 from bioslam.occupancy_grid import OccupancyGrid
@@ -49,6 +52,7 @@ from bioslam.odometry import LidarOdometry, OdometryConfig
 from bioslam.sim import (
     LIDAR_PRESETS,
     MovingObstacle,
+    load_world,
     make_route,
     maze_world,
     people_on_roadmap,
@@ -88,10 +92,14 @@ def summary(name: str, est: Trajectory, gt: Trajectory, ms: np.ndarray, extra: d
     rpe = rpe_distance(est, gt, 1.0)
     length = gt.path_length()
     end = float(np.hypot(*(est.poses[-1, :2] - gt.poses[-1, :2])))
+    error = est.poses[:, :2] - gt.poses[:, :2]
+    # a jump: the position error changing by more than 0.3 m from one scan to the next
+    change = np.hypot(*np.diff(error, axis=0).T)
     row = {
         "case": name,
         "scans": len(est),
         "path_m": round(length, 1),
+        "ate_cm": round(100 * ate(est, gt)["rmse"], 2),
         "rpe1m_cm": round(100 * rpe["trans_rmse_m"], 2),
         "rpe1m_deg": round(rpe["rot_rmse_deg"], 3),
         "end_drift_pct": round(100 * end / max(length, 1e-9), 3),
@@ -101,15 +109,19 @@ def summary(name: str, est: Trajectory, gt: Trajectory, ms: np.ndarray, extra: d
         "degenerate_scans": extra["odometry_degenerate"],
         "predicted_only": extra["odometry_predicted_only"],
         "recovered": extra["odometry_recovered"],
+        "ambiguous": extra["odometry_ambiguous"],
+        "max_error_change_m": round(float(change.max(initial=0.0)), 3),
+        "jumps_over_0.3m": int(np.sum(change > 0.3)),
     }
     print("  ".join(f"{k}={v}" for k, v in row.items()), flush=True)
     return row
 
 
 def sim_case(name, lidar, duration, config=None, fast_turns=False, obstacles=(), seed=0,
-             every=1):  # fmt: skip
-    """One simulated maze run; ``every`` > 1 keeps one scan in ``every`` (a thinned log)."""
-    world = maze_world()
+             every=1, world="maze"):  # fmt: skip
+    """One simulated run (the maze by default); ``every`` > 1 keeps one scan in ``every``
+    (a thinned log)."""
+    world = load_world(world)
     route = make_route(world, duration=duration, seed=seed, fast_turns=fast_turns)
     obstacles = obstacles(route) if callable(obstacles) else obstacles
     scans = simulate_scans(world, lidar, route, seed=seed, obstacles=obstacles)
@@ -277,10 +289,8 @@ def _worst_pairs(est: Trajectory, ref: Trajectory, est_idx: np.ndarray, ref_pose
             "rpe1m_cm_without_worst": round(100 * float(np.sqrt(np.mean(rest**2))), 2)}  # fmt: skip
 
 
-# the recovery as it was before the score test, the wide search and the gap trigger
-CLOSE_SEARCH_ONLY = OdometryConfig(
-    recovery_score_ratio=0.0, wide_recovery_distance=0.0, gap_time=float("inf")
-)
+# no wide-basin search: Gauss-Newton from the prediction alone
+NO_SEARCH = OdometryConfig(search_distance=0.0)
 
 
 def short_range_models() -> list[tuple[str, object]]:
@@ -334,18 +344,24 @@ def main() -> None:
             sim_case(f"maze utm30lx, 1 scan in {n} ({n / 40:.1f} s apart){label}", utm,
                      duration, config, every=n)
             for n in (20, 40)
-            for label, config in (("", None), (", close search only", CLOSE_SEARCH_ONLY))
+            for label, config in (("", None), (", no search", NO_SEARCH))
         ],
         "freiburg": lambda: log_case("freiburg079", "freiburg-079-corrected.log.gz", True),
         "freiburgthinned": lambda: [
             log_case(f"freiburg079 thinned to {d} m / {a} rad{label}",
                      "freiburg-079-corrected.log.gz", False, config, thinned(d, a))
             for d, a in ((0.5, 0.4), (1.0, 0.6))
-            for label, config in (("", None), (", close search only", CLOSE_SEARCH_ONLY))
+            for label, config in (("", None), (", no search", NO_SEARCH))
         ],
         "intel": lambda: [
             log_case(f"intel (thinned){label}", "intel-corrected.log.gz", False, config)
-            for label, config in (("", None), (", close search only", CLOSE_SEARCH_ONLY))
+            for label, config in (("", None), (", no search", NO_SEARCH))
+        ],
+        "warehouse": lambda: [
+            sim_case(f"warehouse {lidar}{label}", LIDAR_PRESETS[lidar], duration, config,
+                     world="warehouse")
+            for lidar in ("sick", "utm30lx")
+            for label, config in (("", None), (", no search", NO_SEARCH))
         ],
         "maps": lambda: [
             log_case("exp1", "exp1.dat", True),

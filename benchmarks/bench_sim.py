@@ -1,11 +1,14 @@
 """Simulator speed and memory: 600 s of the utm30lx preset at 40 Hz (24,000 scans x 1081
 beams) through the maze, on one core. Targets (issue 2): < 60 s, peak memory < 1 GB.
+``--world``, ``--lidar`` and ``--route`` measure the same on another world (the warehouse has
+15 times the maze's walls), sensor or route.
 
 Each phase runs in a fresh child process (one thread) so that its wall time and peak resident
 memory are its own. The baseline, measured in the same run, is brute-force ray casting (every
 beam against every wall, vectorised NumPy) on the same scans, to show what the grid buys.
 
-    python benchmarks/bench_sim.py [--duration 600] [--repeat 1]
+    python benchmarks/bench_sim.py [--duration 600] [--repeat 1] [--world maze] [--lidar utm30lx]
+        [--route tour]
 """
 
 from __future__ import annotations
@@ -29,22 +32,29 @@ ONE_THREAD = {
 BASELINE_SCANS = 200
 
 
-def phase_route(duration: float) -> dict:
-    from bioslam.sim import make_route, maze_world
+def _setup(args: argparse.Namespace, duration: float | None = None):
+    """The world, the route (``duration`` or the run's) and the LiDAR asked for."""
+    from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world
 
-    world = maze_world()
+    world = load_world(args.world)
+    route = ROUTES[args.route](world, duration=duration or args.duration, seed=0)
+    return world, route, LIDAR_PRESETS[args.lidar]
+
+
+def phase_route(args: argparse.Namespace) -> dict:
+    from bioslam.sim import ROUTES, load_world
+
+    world = load_world(args.world)
     t0 = time.perf_counter()
-    route = make_route(world, duration=duration, seed=0)
+    route = ROUTES[args.route](world, duration=args.duration, seed=0)
     return {"route_s": time.perf_counter() - t0, "path_length_m": route.path_length()}
 
 
-def phase_scans(duration: float) -> dict:
-    from bioslam.sim import LIDAR_PRESETS, make_route, maze_world, simulate_scans
+def phase_scans(args: argparse.Namespace) -> dict:
+    from bioslam.sim import simulate_scans
 
-    world = maze_world()
-    route = make_route(world, duration=duration, seed=0)
-    lidar = LIDAR_PRESETS["utm30lx"]
-    next(iter(simulate_scans(world, lidar, make_route(world, duration=1.0))))  # JIT warm-up
+    world, route, lidar = _setup(args)
+    next(iter(simulate_scans(world, lidar, route)))  # JIT warm-up
     t0 = time.perf_counter()
     n = beams = 0
     for scan, _ in simulate_scans(world, lidar, route, seed=0):
@@ -53,7 +63,7 @@ def phase_scans(duration: float) -> dict:
     return {"scans": n, "beams": beams, "simulate_s": time.perf_counter() - t0}
 
 
-def phase_cli(duration: float) -> dict:
+def phase_cli(args: argparse.Namespace) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "sim"
         t0 = time.perf_counter()
@@ -61,24 +71,22 @@ def phase_cli(duration: float) -> dict:
 
         parser = argparse.ArgumentParser()
         sim.register(parser.add_subparsers(dest="command"))
-        args = parser.parse_args(["sim", "--duration", str(duration), "--out", str(out)])
-        summary = args.func(args)
+        cli = parser.parse_args(["sim", "--duration", str(args.duration), "--world", args.world,
+                                 "--lidar", args.lidar, "--route", args.route, "--out", str(out)])
+        summary = cli.func(cli)
         wall = time.perf_counter() - t0
         bag_mb = sum(f.stat().st_size for f in (out / "scans").iterdir()) / 1e6
     return {"cli_s": wall, "bag_mb": bag_mb, "scans": summary["scans"]}
 
 
-def phase_baseline(duration: float) -> dict:
+def phase_baseline(args: argparse.Namespace) -> dict:
     """Grid ray casting vs brute force on the same first BASELINE_SCANS scans."""
     import numpy as np
 
-    from bioslam.sim import LIDAR_PRESETS, make_route, maze_world
     from bioslam.sim.raycast import cast_rays
     from bioslam.sim.simulate import scan_stamps
 
-    world = maze_world()
-    route = make_route(world, duration=min(duration, 60.0), seed=0)
-    lidar = LIDAR_PRESETS["utm30lx"]
+    world, route, lidar = _setup(args, min(args.duration, 60.0))
     stamps = scan_stamps(lidar, route)[:BASELINE_SCANS]
     times = stamps[:, None] + lidar.time_increment * np.arange(lidar.beams)
     poses = route.pose_at(times)
@@ -117,9 +125,10 @@ PHASES = {
 }
 
 
-def run_child(phase: str, duration: float) -> dict:
+def run_child(phase: str, args: argparse.Namespace) -> dict:
     """Run one phase in a fresh interpreter; add its wall time and peak RSS (wait4)."""
-    cmd = [sys.executable, __file__, "--child", phase, "--duration", str(duration)]
+    cmd = [sys.executable, __file__, "--child", phase, "--duration", str(args.duration),
+           "--world", args.world, "--lidar", args.lidar, "--route", args.route]  # fmt: skip
     t0 = time.perf_counter()
     proc = subprocess.Popen(
         cmd, stdout=subprocess.PIPE, env={**os.environ, **ONE_THREAD}, text=True
@@ -141,17 +150,23 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=600.0)
     parser.add_argument("--repeat", type=int, default=1, help="timed runs of the scan phase")
+    parser.add_argument("--world", default="maze", help="built-in world or map YAML")
+    parser.add_argument("--lidar", default="utm30lx", help="LiDAR preset")
+    parser.add_argument("--route", default="tour", help="tour or adversarial")
     parser.add_argument("--child", choices=sorted(PHASES), help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
-        print(json.dumps(PHASES[args.child](args.duration)))
+        print(json.dumps(PHASES[args.child](args)))
         return
-    route = run_child("route", args.duration)
-    scans = [run_child("scans", args.duration) for _ in range(args.repeat)]
-    cli = run_child("cli", args.duration)
-    base = run_child("baseline", args.duration)
+    route = run_child("route", args)
+    scans = [run_child("scans", args) for _ in range(args.repeat)]
+    cli = run_child("cli", args)
+    base = run_child("baseline", args)
     sim_s = statistics.median(r["simulate_s"] for r in scans)
     summary = {
+        "world": args.world,
+        "lidar": args.lidar,
+        "route": args.route,
         "duration_s": args.duration,
         "scans": scans[0]["scans"],
         "route_s": round(route["route_s"], 2),
@@ -169,7 +184,8 @@ def main() -> None:
         "grid_vs_brute_max_diff_m": base["max_abs_diff_m"],
     }
     load = os.getloadavg()[0]
-    print(f"target for 600 s of utm30lx: < 60 s on one core, < 1024 MB; load average {load:.1f}")
+    print(f"target for 600 s of utm30lx in the maze: < 60 s on one core, < 1024 MB; "
+          f"load average {load:.1f}")
     for key, value in summary.items():
         print(f"  {key:28s} {value}")
     print(json.dumps(summary))

@@ -133,17 +133,20 @@ def test_a_pool_batch_writes_rows_outputs_and_markers(pool_batch):
     assert "## Best configuration per metric" in text and "2 failed" in text
 
 
-def test_ray_gives_the_same_rows_as_the_pool(pool_batch, logs, tmp_path):
-    pytest.importorskip("ray", reason="Ray is an optional extra: pip install 'bioslam[ray]'")
-    import ray
+@pytest.fixture
+def ray_shut_down_after():
+    """Ray stays down after the test whatever happens in it (the engine starts its own local
+    instance, 2 CPUs, no dashboard)."""
+    ray = pytest.importorskip("ray", reason="Ray is an optional extra: pip install 'bioslam[ray]'")
+    yield
+    ray.shutdown()
 
+
+def test_ray_gives_the_same_rows_as_the_pool(pool_batch, logs, tmp_path, ray_shut_down_after):
     out, _ = pool_batch
-    try:
-        engine = make_engine("ray", 2)
-        # logs shipped through the object store and outputs sent back as bytes
-        report = run_batch(spec(logs, tmp_path / "ray", ship=True), engine, progress=False)
-    finally:
-        ray.shutdown()
+    engine = make_engine("ray", 2)
+    # logs shipped through the object store and outputs sent back as bytes
+    report = run_batch(spec(logs, tmp_path / "ray", ship=True), engine, progress=False)
     assert report.ok == 4
     expected = without_machine_columns(read_csv(out / "results.csv"))
     assert without_machine_columns(read_csv(tmp_path / "ray" / "results.csv")) == expected

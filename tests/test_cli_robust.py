@@ -72,14 +72,22 @@ def test_a_partial_read_fails_unless_accepted(tmp_path, capsys):
     assert code == 0
 
 
-@pytest.mark.parametrize("content", [os.urandom(3000), b"", b"FLASER 3 1 2\n" * 5])
-def test_a_run_of_zero_scans_fails(tmp_path, capsys, content):
+def test_a_run_of_zero_scans_fails(tmp_path, capsys):
     log = tmp_path / "junk.log"
-    log.write_bytes(content)
+    log.write_bytes(b"FLASER 3 1 2\n" * 5)  # a CARMEN log whose every scan is malformed
     code, out, err = run(capsys, log, "--out", tmp_path / "o", "--accept-partial")
     assert code == 1
     assert "0 scans processed" in err
     assert last_json(out)["scans"] == 0
+
+
+@pytest.mark.parametrize("content", [os.urandom(3000), b""])
+def test_a_file_that_is_no_log_is_an_input_error(tmp_path, capsys, content):
+    log = tmp_path / "junk.log"
+    log.write_bytes(content)
+    code, _, err = run(capsys, log, "--out", tmp_path / "o", "--accept-partial")
+    assert code == 2  # refused before the run: the content is no supported format
+    assert str(log) in err and "Traceback" not in err
 
 
 # --- checks before the run ------------------------------------------------------------------
@@ -225,6 +233,9 @@ def test_full_disk_leaves_no_half_written_file(tmp_path):
         ('{"view_distance": -1}', "view_distance = -1: must not be negative"),
         ('{"loop_closure": {"min_score": NaN}}', "expected a finite number"),
         ('{"odometry": {"deskew": 1}}', "odometry.deskew = 1: expected true or false"),
+        ('{"cognitive_map": {"sweeps_per_update": 1e12}}', "expected an integer"),
+        ('{"cognitive_map": {"sweeps_per_update": 1000000000000}}', "must be at most"),
+        ('{"pose_cells": {"dims": [1000, 1000, 36]}}', "pose_cells.dims asks for a grid"),
     ],
 )
 def test_config_errors_name_the_file_and_the_key(tmp_path, text, message):

@@ -21,15 +21,51 @@ from bioslam.scan import LaserScan
 FLASER = "FLASER 3 1 1 1 0 0 0 0 0 0 {t} host {t}\n"
 
 
-def test_detect_by_extension(tmp_path):
-    for name, fmt in [("a.log", "carmen"), ("a.clf.gz", "carmen"), ("a.bag", "rosbag1"),
-                      ("a.mcap", "rosbag2"), ("a.db3", "rosbag2"), ("a.dat", "breezyslam")]:
-        (tmp_path / name).write_bytes(b"whatever")
-        assert detect_format(tmp_path / name) == fmt, name
+def test_detect_by_content_whatever_the_name(tmp_path):
+    carmen = "PARAM x 1 0 h 0\n" + FLASER.format(t=1.0)
+    breezy = " ".join(["1000"] * 707) + "\n"
+    bag1 = b"#ROSBAG V2.0\n" + b"\x00" * 64
+    for name, content, fmt in [
+        ("a.dat", carmen, "carmen"),  # a CARMEN log named .dat
+        ("a.log", breezy, "breezyslam"),
+        ("a.log", bag1, "rosbag1"),  # a ROS 1 bag named .log
+        ("a.bag", b"SQLite format 3\x00" + b"\x00" * 64, "rosbag2"),
+        ("a.db3", b"\x89MCAP0\r\n" + b"\x00" * 64, "rosbag2"),
+    ]:
+        path = tmp_path / f"{fmt}-{name}"
+        path.write_bytes(content if isinstance(content, bytes) else content.encode())
+        assert detect_format(path) == fmt, name
     bag_dir = tmp_path / "bagdir"
     bag_dir.mkdir()
     (bag_dir / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
     assert detect_format(bag_dir) == "rosbag2"
+
+
+def test_a_misnamed_log_is_read_and_the_name_noted(tmp_path):
+    path = tmp_path / "scans.dat"
+    path.write_text("".join(FLASER.format(t=1.0 + k) for k in range(3)))
+    source = open_log(path)
+    assert source.format == "carmen" and sum(1 for _ in source) == 3
+    assert any("named like a breezyslam log" in note for note in source.notes())
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "message"),
+    [
+        ("random.log", bytes(np.random.default_rng(1).integers(0, 256, 5000, dtype=np.uint8)),
+         "its name suggests carmen"),
+        ("empty.log", b"", "empty"),
+        ("blank.dat", b"\n\n  \n", "empty"),
+        ("prose.bag", b"hello world\nthis is not a bag\n", "its name suggests rosbag1"),
+        ("notes.txt", b"hello world\n", "unknown log format"),
+    ],
+)
+def test_unreadable_content_is_a_clear_error_naming_the_file(tmp_path, name, content, message):
+    path = tmp_path / name
+    path.write_bytes(content)
+    with pytest.raises(ValueError, match=message) as info:
+        open_log(path)
+    assert str(path) in str(info.value)
 
 
 def test_detect_by_content_when_extension_says_nothing(tmp_path):

@@ -171,11 +171,13 @@ def test_truncated_rosbag1_keeps_what_was_read(tmp_path):
 def test_garbage_bag_is_a_clear_error(tmp_path):
     bag = tmp_path / "junk.bag"
     bag.write_bytes(b"not a bag at all\n" * 10)
-    with pytest.raises(ValueError, match=r"junk\.bag: not a ROS 1 v2\.0 bag"):
+    with pytest.raises(ValueError, match=r"junk\.bag: unknown log format.*suggests rosbag1"):
         open_log(bag)
+    with pytest.raises(ValueError, match=r"junk\.bag: not a ROS 1 v2\.0 bag"):
+        open_log(bag, fmt="rosbag1")
     db = tmp_path / "junk.db3"
     db.write_bytes(b"SQLite format 3\x00" + b"\x00" * 100)
-    with pytest.raises(ValueError, match=r"junk\.db3: cannot read the topics table"):
+    with pytest.raises(ValueError, match=r"junk\.db3: cannot open the database"):
         open_log(db)
 
 

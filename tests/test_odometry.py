@@ -169,7 +169,7 @@ def test_a_scan_after_a_gap_is_found_by_the_wide_search(wide):
     went 0.9 m and turned 35 degrees: beyond Gauss-Newton's basin and the close search
     around the start, within the wide search around the last pose."""
     rng = np.random.default_rng(12)
-    cfg = OdometryConfig() if wide else OdometryConfig(wide_recovery_distance=0.0)
+    cfg = OdometryConfig() if wide else OdometryConfig(search_distance=0.0)
     odo = LidarOdometry(cfg, initial_pose=(-2.0, 0.0, 0.0))
     for k in range(8):
         odo.update(make_scan(ROOM, (-2.0 + 0.1 * k, 0.0, 0.0), stamp=0.1 * k, sigma=0.01,
@@ -327,5 +327,33 @@ def test_map_memory_stays_bounded_over_a_long_run():
 def test_config_is_validated():
     with pytest.raises(ValueError, match="max_iterations"):
         OdometryConfig(levels=2)
-    with pytest.raises(ValueError, match="recovery_seeds"):
-        OdometryConfig(recovery_seeds=0)
+    with pytest.raises(ValueError, match="search_level"):
+        OdometryConfig(search_level=3)
+
+
+@pytest.mark.parametrize("guard", [True, False])
+def test_look_alike_places_never_pull_the_pose_after_a_gap(guard):
+    """A corridor lined with identical posts every metre (a warehouse aisle): after a gap
+    the wide search finds a pose a metre behind that fits better than the true one (the map
+    was made there). The odometry keeps the match at its prediction and reports the
+    look-alike; without the jump guard it would jump."""
+    posts = [seg for k in range(-40, 41) for y in (0.8, -1.0)
+             for seg in box(k * 1.0, y, k * 1.0 + 0.1, y + 0.2)]  # fmt: skip
+    world = np.concatenate([CORRIDOR, np.array(posts, float)])
+    rng = np.random.default_rng(21)
+    cfg = OdometryConfig() if guard else OdometryConfig(overwhelming_ratio=1.0)
+    odo = LidarOdometry(cfg, initial_pose=(0.3, 0.0, 0.0))
+    x = 0.3
+    for k in range(20):  # 0.5 m/s at 10 Hz
+        x = 0.3 + 0.05 * k
+        odo.update(make_scan(world, (x, 0.0, 0.0), stamp=0.1 * k, sigma=0.01, rng=rng))
+    # one second without scans at the same speed: the prediction is right, the map cannot
+    # tell it from the places a post further on
+    true = (x + 0.5, 0.0, 0.0)
+    odo.update(make_scan(world, true, stamp=2.9, sigma=0.01, rng=rng))
+    dist, ang = pose_error(true, odo.pose)
+    if guard:
+        assert dist < 0.05 and ang < np.radians(1.0)
+        assert odo.last_report.ambiguous and odo.summary()["odometry_ambiguous"] >= 1
+    else:
+        assert dist > 0.5

@@ -84,7 +84,7 @@ def test_recording_has_every_channel_with_its_schema_and_what_was_sent(recorded,
         assert channel.message_encoding == ("json" if json_channel else "protobuf")
         assert channel.schema_encoding == ("jsonschema" if json_channel else "protobuf")
     # everything handed to the SDK is in the file: it was closed properly
-    assert info.counts() == session.recorders[0].counts
+    assert info.counts() == session.counts()
     assert info.metadata["bioslam"] == {"input": "ring"}
     assert "zstd" in info.compression
     text = format_summary(info)
@@ -223,11 +223,12 @@ def test_recorded_map_has_the_walls_where_the_world_has_them(recorded):
 
 
 def _darkest_near(grid, x: float, y: float) -> np.ndarray:
-    """The darkest cell within one cell of (x, y) (a wall's cell may be its neighbour)."""
+    """The darkest observed cell within one cell of (x, y) (a wall's cell may be its
+    neighbour); unknown cells (transparent) count as white."""
     res = grid.cell_size.x
     steps = (-1, 0, 1)
     cells = [_grid_cell(grid, x + dx * res, y + dy * res) for dx in steps for dy in steps]
-    return min(cells, key=lambda c: int(c[0]))
+    return min(cells, key=lambda c: int(c[0]) if c[3] else 256)
 
 
 def test_interrupted_run_still_closes_the_file(ring_scans, tmp_path):
@@ -244,7 +245,7 @@ def test_interrupted_run_still_closes_the_file(ring_scans, tmp_path):
     assert result.interrupted
     counts = summarize(path).counts()
     assert counts[tp.SCAN] == 150
-    assert counts == session.recorders[0].counts
+    assert counts == session.counts()
 
 
 def test_odometry_only_recording_has_no_neurons(ring_scans, tmp_path):
@@ -387,7 +388,7 @@ def test_live_view_nobody_watches_builds_no_messages(ring_scans):
     with Session(live_port=0, announce=False) as session:
         result = run_slam(ring_scans[:200], options=_quiet(), observer=session.observer)
     assert result.error is None
-    assert session.recorders[0].counts == {}
+    assert session.counts("live") == {}
 
 
 def test_nothing_asked_for_means_no_observer():
@@ -405,3 +406,45 @@ def test_bad_ports_and_paths_are_refused_with_the_flag_named(tmp_path):
     with Session(live_port=0, announce=False) as first, pytest.raises(RuntimeError, match="--live"):
         Session(live_port=first.port, announce=False).__enter__()
     assert Path(tmp_path).is_dir()
+
+
+def test_throttle_waits_longer_for_larger_content():
+    from bioslam.recording.rates import Throttle
+
+    throttle = Throttle(period=2.0, per_second=1000.0)
+    times = np.arange(0.0, 60.0, 0.1)
+    small = [t for t in times if throttle.ready(float(t), size=500)]
+    assert len(small) == 30  # every 2 s
+    throttle = Throttle(period=2.0, per_second=1000.0)
+    large = [t for t in times if throttle.ready(float(t), size=6000)]
+    assert len(large) == 10 and np.allclose(np.diff(large), 6.0)  # every 6 s
+
+
+def test_degenerate_stretches_are_logged_once_at_their_start_and_end():
+    import foxglove
+
+    from bioslam.recording.recorder import Recorder
+
+    recorder = Recorder(foxglove.Context())
+    logged: list[tuple[float, str]] = []
+    recorder._log = lambda ns, level, text, name: logged.append((ns / 1e9, text))
+    flags = [False] * 5 + [True] * 10 + [False] + [True] * 3 + [False] * 20 + [True] * 2
+    for k, degenerate in enumerate(flags):
+        recorder._degeneracy(round(k * 0.1 * 1e9), degenerate, 0.01)
+    texts = [text for _, text in logged]
+    assert len(texts) == 3, texts  # the flicker at 1.5 s continues the first stretch
+    assert texts[0].startswith("odometry: degenerate matches start")
+    assert "ended after 1.3 s" in texts[1]
+    assert logged[1][0] == pytest.approx(2.9)  # 1 s after the last degenerate match
+    assert texts[2].startswith("odometry: degenerate matches start")
+
+
+def test_the_file_is_closed_when_the_run_disappears(ring_scans, tmp_path):
+    path = tmp_path / "orphan.mcap"
+    session = Session(record=path).__enter__()
+    run_slam(ring_scans[:50], options=_quiet(), observer=session.observer)
+    output = session.outputs[0]
+    output.tap.flush()
+    output.process.stdin.close()  # what the writing process sees when the run is killed
+    assert output.process.wait(timeout=120) == 0
+    assert summarize(path).counts()[tp.SCAN] == 50

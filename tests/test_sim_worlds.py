@@ -246,12 +246,16 @@ def test_sim_command_simulates_a_named_world_and_route(tmp_path):
     sim.register(parser.add_subparsers(dest="command"))
     out = tmp_path / "rooms"
     args = parser.parse_args(["sim", "--world", "rooms", "--route", "adversarial", "--lidar",
-                              "sick", "--duration", "3", "--out", str(out)])  # fmt: skip
+                              "sick", "--duration", "3", "--lateral-offset", "0.3",
+                              "--out", str(out)])  # fmt: skip
     summary = args.func(args)
     assert (summary["world"], summary["route"], summary["scans"]) == ("rooms", "adversarial", 30)
     scans = list(open_log(out / "scans"))
     assert len(scans) == 30 and scans[0].num_beams == 181
     assert scans[0].time_increment == pytest.approx(1.0 / 75.0 / 360.0)
+    tour = parser.parse_args(["sim", "--lateral-offset", "0.3", "--out", str(tmp_path / "t")])
+    with pytest.raises(ValueError, match="adversarial"):
+        tour.func(tour)
 
 
 def test_the_command_line_loads_no_heavy_library_until_a_command_needs_it():

@@ -189,8 +189,12 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "loop_closure.registration.hit_level": (0.0, 1.0, True),
     "cognitive_map.correction": (0.0, 1.0, True),
 }
-#: Largest grid (cells) a setting may ask for: 10^8 float64 cells are 800 MB.
-MAX_GRID_CELLS = 10**8
+#: Largest grid (cells) a setting may ask for. The odometry keeps several float64 layers per
+#: cell, so 2.5e7 cells are about a gigabyte; a 48 m window at 1 cm (2.3e7 cells) still fits.
+MAX_GRID_CELLS = 25 * 10**6
+#: Largest count (iterations, sweeps, cells, scans) any integer setting may take: beyond it a
+#: run would loop for hours or allocate without bound, and no setting needs more.
+MAX_COUNT = 10**6
 
 
 def _show(value: Any) -> str:
@@ -218,6 +222,8 @@ def _check_number(value: Any, hint: type, key: str) -> float | int:
     name = key.split("[")[0]
     if value < 0 and name not in SIGNED:
         raise ValueError(f"{key} = {_show(value)}: must not be negative")
+    if hint is int and value > MAX_COUNT and name not in RANGES:
+        raise ValueError(f"{key} = {_show(value)}: must be at most {MAX_COUNT}")
     if name in RANGES:
         lo, hi, inclusive = RANGES[name]
         if not (value >= lo if inclusive else value > lo) or value > hi:
@@ -311,7 +317,7 @@ def check_sizes(config: SLAMConfig, where: str = "config") -> None:
     for what, cells in grids.items():
         if not cells <= MAX_GRID_CELLS:
             raise ValueError(f"{where}: {what} asks for a grid of {cells:.3g} cells, more than "
-                             f"{MAX_GRID_CELLS:.0e} (it would not fit in memory)")
+                             f"{MAX_GRID_CELLS:.1e} (it would not fit in memory)")
 
 
 def config_from_dict(overrides: dict[str, Any], where: str = "config") -> SLAMConfig:

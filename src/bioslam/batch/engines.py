@@ -19,8 +19,8 @@ from typing import Any, Protocol
 from bioslam.batch.task import Files, Outcome, Task, run_task
 
 ENGINES = ("ray", "process")
-#: A pool that breaks (a worker killed, out of memory, a crash in compiled code) is restarted
-#: and its unfinished runs are tried again, each at most this many times in all.
+#: A worker lost (killed, out of memory, a crash in compiled code) costs its run another try,
+#: at most this many in all; a pool that breaks is restarted for its unfinished runs.
 MAX_ATTEMPTS = 2
 
 
@@ -138,7 +138,9 @@ class RayEngine:
             self.workers = workers or int(ray.cluster_resources().get("CPU", 1))
         if self.workers < 1:
             raise ValueError(f"--workers must be at least 1, got {self.workers}")
-        self._remote = ray.remote(num_cpus=1, max_retries=0)(run_task)
+        # run_task turns the run's own errors into outcomes; what Ray retries is a worker lost
+        # (killed by Ray's memory monitor on a crowded node, a crash), like the pool does
+        self._remote = ray.remote(num_cpus=1, max_retries=MAX_ATTEMPTS - 1)(run_task)
         self._pending: dict[Any, Task] = {}
 
     def run(self, tasks: Sequence[Task], shipped: dict[str, Files] | None) -> Iterator[Outcome]:

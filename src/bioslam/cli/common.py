@@ -10,7 +10,6 @@ interrupted, with everything computed so far written.
 from __future__ import annotations
 
 import argparse
-import math
 import signal
 from pathlib import Path
 from typing import Any
@@ -70,6 +69,21 @@ def check_input(path: Path) -> None:
     if path.is_file():
         with path.open("rb") as fh:
             fh.read(1)
+
+
+def check_system(config: Any, odometry_only: bool, where: Path | None) -> None:
+    """Build the system once before the run: settings that pass their own checks but not one
+    another's (or that the modules refuse) fail now, naming the configuration file, rather
+    than after the log was opened and the output directory made."""
+    from bioslam.pipeline import OdometryOnly
+    from bioslam.slam import BioSLAM
+
+    try:
+        OdometryOnly(config) if odometry_only else BioSLAM(config)
+    except Exception as exc:  # any failure here is the settings', reported as such
+        source = f"--config {where}" if where is not None else "the default settings"
+        raise ValueError(f"{source}: cannot build the system: {type(exc).__name__}: {exc}") \
+            from None
 
 
 def read_reference(path: Path) -> Trajectory:
@@ -134,8 +148,8 @@ def read_problem(
 def read_counts(source: Any) -> dict[str, Any]:
     """Summary keys: scan records met and the share read."""
     seen = source.records_seen
-    share = source.scans_read / seen if seen else math.nan
-    return {"scan_records": seen, "read_share": round(share, 4) if seen else None}
+    return {"scan_records": seen,
+            "read_share": round(source.scans_read / seen, 4) if seen else None}
 
 
 def run_status(summary: dict[str, Any], problems: list[str]) -> str:

@@ -15,7 +15,13 @@ from pathlib import Path
 from typing import Any
 
 from bioslam import signals
-from bioslam.cli.common import add_output_options, conclude, open_output, run_status
+from bioslam.cli.common import (
+    add_output_options,
+    check_system,
+    conclude,
+    open_output,
+    run_status,
+)
 from bioslam.io.outdir import expected_output_bytes
 from bioslam.recording import session as recording
 
@@ -88,6 +94,7 @@ def demo_command(args: argparse.Namespace) -> dict[str, Any]:
         raise ValueError(f"--duration must be a positive number of seconds, got {args.duration}")
     session = recording.Session.from_args(args, False, input="simulated maze")
     config = load_config(args.config)
+    check_system(config, False, args.config)
     world = maze_world()
     lidar = LIDAR_PRESETS["utm30lx"]
     route = make_route(world, duration=args.duration, seed=args.seed)

@@ -12,6 +12,7 @@ from bioslam.cli.common import (
     add_output_options,
     add_read_options,
     check_input,
+    check_system,
     conclude,
     open_output,
     read_counts,
@@ -75,6 +76,7 @@ def run_command(args: argparse.Namespace) -> dict[str, Any]:
     # Everything that can be checked is checked before the first scan.
     session = recording.Session.from_args(args, args.odometry_only, input=args.input)
     config = load_config(args.config)
+    check_system(config, args.odometry_only, args.config)
     gt = read_reference(args.gt) if args.gt is not None else None
     check_input(args.input)
     source = open_log(args.input, topic=args.topic)

@@ -62,6 +62,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--fast-turns", action="store_true", help="take corners at 1 rad/s (odometry stress)"
     )
+    p.add_argument(
+        "--lateral-offset",
+        type=float,
+        help="adversarial route: largest offset from the centre-lines, metres (default 0.5)",
+    )
+    p.add_argument(
+        "--turn-back-every",
+        type=float,
+        help="adversarial route: mean distance between turn-backs, metres (default 40)",
+    )
     p.add_argument("--people", type=int, default=0, help="people walking the corridors (default 0)")
     p.add_argument("--storage", choices=STORAGE_NAMES, default="sqlite3", help="bag storage")
     p.add_argument("--out", required=True, type=Path, help="output directory")
@@ -122,6 +132,8 @@ def _make_route(world: World, args: argparse.Namespace) -> Route:
         "fast_turns": args.fast_turns or None,
     }
     if args.route == "tour":
+        if args.lateral_offset is not None or args.turn_back_every is not None:
+            raise ValueError("--lateral-offset and --turn-back-every need --route adversarial")
         return make_route(world, duration=args.duration, seed=args.seed, **limits)
     from dataclasses import replace
 
@@ -129,7 +141,9 @@ def _make_route(world: World, args: argparse.Namespace) -> Route:
 
     adv = AdversarialConfig()
     given = {k: v for k, v in limits.items() if v is not None}
-    adv = replace(adv, route=replace(adv.route, **given))
+    weave = {"lateral_offset": args.lateral_offset, "turn_back_every": args.turn_back_every}
+    adv = replace(adv, route=replace(adv.route, **given),
+                  **{k: v for k, v in weave.items() if v is not None})
     return ROUTES[args.route](world, duration=args.duration, seed=args.seed, config=adv)
 
 

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from bioslam.io.logs import MALFORMED, WRONG_BEAM_COUNT, LogSource, Pose
+from bioslam.io.logs import MALFORMED, ODOMETRY_MALFORMED, WRONG_BEAM_COUNT, LogSource, Pose
 from bioslam.scan import LaserScan
 
 # Preference when a log holds several laser messages and no topic is given: messages carrying
@@ -150,8 +150,10 @@ class CarmenLog(LogSource):
                     self._parse_odom(line.split(None, 8), where)
                     continue
                 record = parse(line.split(), where)
-            except (ValueError, IndexError) as exc:
-                self._skip(MALFORMED, where, f"{word}: {exc}")
+            except (ValueError, IndexError, OverflowError) as exc:
+                # a bad ODOM line is side data: it must not count as a scan record
+                reason = ODOMETRY_MALFORMED if word == "ODOM" else MALFORMED
+                self._skip(reason, where, f"{word}: {exc}")
                 continue
             if record is not None:
                 yield record
@@ -159,7 +161,8 @@ class CarmenLog(LogSource):
 
     def _parse_odom(self, fields: list[str], where: str) -> None:
         if len(fields) < 8:
-            self._skip(MALFORMED, where, f"ODOM needs at least 8 fields, got {len(fields)}")
+            self._skip(ODOMETRY_MALFORMED, where,
+                       f"ODOM needs at least 8 fields, got {len(fields)}")
             return
         x, y, theta = (float(v) for v in fields[1:4])
         self._add_odometry(float(fields[7]), (x, y, theta), where)

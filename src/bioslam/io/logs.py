@@ -19,6 +19,7 @@ import dataclasses
 import gzip
 import heapq
 import lzma
+import re
 import zlib
 from abc import ABC, abstractmethod
 from collections import Counter
@@ -50,7 +51,9 @@ NON_MONOTONIC = "non-monotonic timestamp (not later than the previous scan)"
 EMPTY_SCAN = "empty scan (no beams)"
 NO_VALID_RETURNS = "no valid returns (all beams NaN, inf, zero or out of range)"
 ODOMETRY_NON_MONOTONIC = "odometry record with non-monotonic timestamp"
-TRUNCATED = "truncated or corrupt file (stopped reading there)"
+ODOMETRY_MALFORMED = "malformed odometry record"
+TRUNCATED = "truncated or corrupt part of the file (reading stopped there, or resumed after it)"
+DAMAGED = "scan record lost in a damaged part of the file"
 
 #: Range bytes of a log kept from the planning pass for the first iteration (above: parsed twice).
 REPLAY_BUDGET_BYTES = 256 * 2**20
@@ -82,6 +85,8 @@ class LogSource(ABC):
         self.skip_examples: dict[str, str] = {}
         self._reference: list[tuple[float, Pose]] = []
         self._odometry: list[tuple[float, Pose]] = []
+        #: Remarks made when the log was opened (e.g. its name suggests another format).
+        self.open_notes: list[str] = []
         self._complete = False
         self._iterating = False
         self._order: _Reorder | None = None
@@ -108,15 +113,16 @@ class LogSource(ABC):
         return []
 
     # -- helpers for subclasses -------------------------------------------------------------
-    def _skip(self, reason: str, where: str, detail: str = "") -> None:
-        """Count a skipped record; in strict mode raise instead."""
+    def _skip(self, reason: str, where: str, detail: str = "", count: int = 1) -> None:
+        """Count ``count`` skipped records (one place, one reason); in strict mode raise
+        instead."""
         if self._recording is not None:
-            self._recording.append((_SKIP, reason, where, detail))
+            self._recording.append((_SKIP, reason, where, detail, count))
             return
         message = f"{where}: {reason}" + (f": {detail}" if detail else "")
         if self.strict:
             raise ValueError(f"{self.path}: {message}")
-        self._skipped[reason] += 1
+        self._skipped[reason] += count
         self.skip_examples.setdefault(reason, message)
 
     def _lines(self) -> Iterator[tuple[int, str]]:
@@ -287,7 +293,7 @@ class LogSource(ABC):
         """Scan records met in the file so far: those yielded plus those skipped (side records
         such as odometry, and a truncation, are not scan records). With :attr:`scans_read` it
         gives the share of a log that was read."""
-        side = (ODOMETRY_NON_MONOTONIC, TRUNCATED)
+        side = (ODOMETRY_NON_MONOTONIC, ODOMETRY_MALFORMED, TRUNCATED)
         return self._yielded + sum(n for r, n in self._skipped.items() if r not in side)
 
     @property
@@ -315,7 +321,7 @@ class LogSource(ABC):
     def notes(self) -> list[str]:
         """Remarks about how the log was read: the reader's, a time-stamp repair or fallback,
         scans put back in order."""
-        out = self._format_notes()
+        out = self.open_notes + self._format_notes()
         plan = self._plan
         if plan is not None and plan.repaired:
             out.append(f"time stamps: {plan.describe()}")
@@ -501,12 +507,9 @@ _CARMEN_WORDS = frozenset(
 
 
 def _by_extension(path: Path) -> str | None:
+    """The format a file's name suggests (a hint for messages, never the deciding word)."""
     if path.is_dir():
-        if (path / "metadata.yaml").exists() or any(path.glob("*.db3")) or any(
-            path.glob("*.mcap")
-        ):
-            return "rosbag2"
-        return None
+        return "rosbag2" if _bag_directory(path) else None
     suffixes = [s.lower() for s in path.suffixes]
     if suffixes and suffixes[-1] in (".gz", ".bz2", ".xz"):
         suffixes = suffixes[:-1]
@@ -520,31 +523,58 @@ def _decompressor(path: Path) -> Any:
     return {b"\x1f\x8b": gzip.open, b"BZ": bz2.open, b"\xfd7": lzma.open}.get(magic)
 
 
-def _head(path: Path, size: int = 4096) -> bytes:
-    """The first bytes of a file, decompressed when it is gzip/bzip2/xz."""
+_HEAD_BYTES = 65536
+
+
+def _head(path: Path, size: int = _HEAD_BYTES) -> bytes:
+    """The first bytes of a file, decompressed when it is gzip/bzip2/xz (as much as can be:
+    a truncated or corrupt compressed file gives what precedes the damage)."""
     opener = _decompressor(path) or open
+    chunks: list[bytes] = []
     try:
         with opener(path, "rb") as fh:
-            return fh.read(size)
+            while sum(map(len, chunks)) < size:
+                chunk = fh.read(4096)
+                if not chunk:
+                    break
+                chunks.append(chunk)
     except (OSError, EOFError, lzma.LZMAError, zlib.error):
-        return b""
+        pass
+    return b"".join(chunks)[:size]
 
 
-def _by_content(path: Path) -> str | None:
-    if path.is_dir():
-        return None
-    head = _head(path)
+_IDENTIFIER = re.compile(r"[A-Z][A-Z0-9_-]*")
+
+
+def _by_content(head: bytes, hint: str | None = None) -> str | None:
+    """The format the first bytes of a file show, or None. Text formats are scored by the
+    share of lines that look like theirs: 90 % decides alone; a damaged log of the format its
+    name suggests needs half."""
     if head.startswith(b"#ROSBAG V2"):
         return "rosbag1"
     if head.startswith(b"\x89MCAP") or head.startswith(b"SQLite format 3\x00"):
         return "rosbag2"
-    lines = head.decode("latin-1").splitlines()[:-1] or head.decode("latin-1").splitlines()
-    words = [line.split()[0] for line in lines if line.strip() and not line.startswith("#")]
-    if words and sum(w in _CARMEN_WORDS for w in words) >= max(1, len(words) // 2):
-        return "carmen"
-    if words and all(_numeric_line(line) for line in lines if line.strip()):
-        return "breezyslam"
-    return None
+    if b"\x00" in head:
+        return None  # binary, and none of the binary formats
+    lines = head.decode("latin-1").splitlines()
+    if len(head) == _HEAD_BYTES and len(lines) > 1:
+        lines = lines[:-1]  # the last line may be cut by the head's end
+    lines = [line for line in lines if line.strip() and not line.lstrip().startswith("#")]
+    if not lines:
+        return None
+    words = [line.split()[0] for line in lines]
+    known = any(w in _CARMEN_WORDS for w in words)
+    named = sum(_IDENTIFIER.fullmatch(w) is not None for w in words)
+    shares = {
+        "carmen": named / len(lines) if known else 0.0,
+        "breezyslam": sum(_numeric_line(line) for line in lines) / len(lines),
+    }
+    best = max(shares, key=lambda k: shares[k])
+    if shares[best] >= 0.9:
+        return best
+    if hint in shares and shares[hint] >= 0.5:
+        return hint
+    return best if shares[best] >= 0.5 else None
 
 
 def _numeric_line(line: str) -> bool:
@@ -558,20 +588,39 @@ def _numeric_line(line: str) -> bool:
     return True
 
 
-def detect_format(path: str | Path) -> str:
-    """The format of ``path``: by extension first, then by content.
+def _bag_directory(path: Path) -> bool:
+    return (path / "metadata.yaml").exists() or any(path.glob("*.db3")) or any(
+        path.glob("*.mcap")
+    )
 
-    Raises ``FileNotFoundError`` when it does not exist and ``ValueError`` listing the supported
-    formats when it is none of them.
+
+def detect_format(path: str | Path) -> str:
+    """The format of ``path``, from its content; the extension only names what was expected
+    when the content matches nothing.
+
+    Raises ``FileNotFoundError`` when it does not exist and ``ValueError`` naming the file and
+    listing the supported formats when it is none of them (empty, random bytes, another
+    format).
     """
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file or directory")
-    found = _by_extension(path) or _by_content(path)
-    if found is None:
-        formats = "\n  ".join(f"{k}: {v}" for k, v in SUPPORTED_FORMATS.items())
-        raise ValueError(f"{path}: unknown log format; supported formats:\n  {formats}")
-    return found
+    formats = "\n  ".join(f"{k}: {v}" for k, v in SUPPORTED_FORMATS.items())
+    if path.is_dir():
+        if _bag_directory(path):
+            return "rosbag2"
+        raise ValueError(f"{path}: a directory without metadata.yaml, .db3 or .mcap files is "
+                         f"not a ROS 2 bag; supported formats:\n  {formats}")
+    head = _head(path)
+    hint = _by_extension(path)
+    found = _by_content(head, hint)
+    if found is not None:
+        return found
+    if not head.strip():
+        raise ValueError(f"{path}: the file is empty (or only blank); no scans to read")
+    expected = f"; its name suggests {hint}, but its content is not that" if hint else ""
+    raise ValueError(f"{path}: unknown log format (content matches none of the supported "
+                     f"formats{expected}); supported formats:\n  {formats}")
 
 
 def open_log(
@@ -583,17 +632,26 @@ def open_log(
     message name such as ``ROBOTLASER1``); without it a log with several LaserScan topics is a
     ``ValueError`` that lists them.
     """
+    detected = fmt is None
     fmt = fmt or detect_format(path)
+    source: LogSource
     if fmt == "carmen":
         from bioslam.io.carmen import CarmenLog
 
-        return CarmenLog(path, topic, strict)
-    if fmt in ("rosbag1", "rosbag2"):
+        source = CarmenLog(path, topic, strict)
+    elif fmt in ("rosbag1", "rosbag2"):
         from bioslam.io.rosbag import Rosbag1Log, Rosbag2Log
 
-        return (Rosbag1Log if fmt == "rosbag1" else Rosbag2Log)(path, topic, strict)
-    if fmt == "breezyslam":
+        source = (Rosbag1Log if fmt == "rosbag1" else Rosbag2Log)(path, topic, strict)
+    elif fmt == "breezyslam":
         from bioslam.io.breezyslam import BreezySlamLog
 
-        return BreezySlamLog(path, topic, strict)
-    raise ValueError(f"unknown format {fmt!r}; supported formats: {', '.join(SUPPORTED_FORMATS)}")
+        source = BreezySlamLog(path, topic, strict)
+    else:
+        raise ValueError(
+            f"unknown format {fmt!r}; supported formats: {', '.join(SUPPORTED_FORMATS)}"
+        )
+    hint = _by_extension(Path(path))
+    if detected and hint is not None and hint != fmt:
+        source.open_notes.append(f"named like a {hint} log but holds a {fmt} log: read as {fmt}")
+    return source

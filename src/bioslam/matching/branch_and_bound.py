@@ -23,6 +23,7 @@ API (both the odometry and loop-closure verification use it)::
     found.pose, found.score                      # best lattice pose, mean map value in [0, 1]
     found.rival_pose, found.rival_score          # None / 0.0 when no rival scores at least
     found.ambiguity                              #   min_rival_ratio * score
+    matcher.score_at(points, pose)               # the same score at any other pose
     refined, report = refine(pyramid, found.pose, points)   # Gauss-Newton (Eq. 3) from it
 
 ``set_map(grid, box=...)`` builds only the part of the grid a search can reach (the odometry
@@ -63,8 +64,12 @@ class WideBasinConfig:
         angle: half-width of the window in heading, radians (up to 80° of turn between the
             scans of thinned CARMEN logs; ±45° covers most, a second search the rest).
         angular_step: heading step, radians; ``None`` takes the angle that moves an endpoint
-            at the scan's 90th-percentile range by one cell (Cartographer uses the maximum
-            range; the farthest tenth of a scan then moves by a little more than a cell).
+            at the scan's 90th-percentile range by ``angular_cells`` cells (Cartographer uses
+            one cell at the maximum range).
+        angular_cells: see ``angular_step``.
+        depth: pooling levels above the lattice (a top node spans ``2^depth`` cells a
+            side); ``None`` spans the whole window with one node. Fewer levels cost less to
+            pool and bound more tightly at the top, at the price of more top nodes.
         blur: cells over which a hit cell's value spreads (Gaussian, sigma one cell); 0
             scores only the cells hit.
         rival_distance, rival_angle: a rival must be farther than this from the winner in
@@ -76,6 +81,8 @@ class WideBasinConfig:
     distance: float = 1.5
     angle: float = math.pi / 4
     angular_step: float | None = None
+    angular_cells: float = 1.0
+    depth: int | None = None
     blur: int = 1
     rival_distance: float = 0.5
     rival_angle: float = math.radians(20.0)
@@ -89,6 +96,8 @@ class WideBasinConfig:
             )
         if self.angular_step is not None and not self.angular_step > 0:
             raise ValueError(f"angular_step must be positive, got {self.angular_step}")
+        if self.depth is not None and self.depth < 0:
+            raise ValueError(f"depth must be non-negative, got {self.depth}")
         if not 0.0 <= self.min_rival_ratio <= 1.0:
             raise ValueError(f"min_rival_ratio must be in [0, 1], got {self.min_rival_ratio}")
 
@@ -230,11 +239,13 @@ def _cells_at(pts, j, args, out):
 
 
 @numba.njit(cache=True)
-def _search(levels, pts, args, nt, nx, rows, cols, floor, zone, use_zone):
+def _search(levels, pts, args, nt, nx, rows, cols, floor, zone, use_zone, seed):
     """Branch and bound over headings -nt..nt and translations -nx..nx (cells). Without
     ``use_zone``: the best lattice pose. With it: the best local maximum outside ``zone``.
-    Only poses scoring above ``floor`` count. Returns (score, j, ix, iy, nodes); j is
-    ``nt + 1`` when nothing beat ``floor``."""
+    Only poses scoring above ``floor`` count. ``seed`` (score, j, ix, iy) is a lattice pose
+    already scored (j > nt for none): only poses scoring more replace it, and it prunes
+    from the start. Returns (score, j, ix, iy, nodes); j is ``nt + 1`` when nothing beat
+    ``floor``."""
     depth = levels.shape[0] - 1
     span = 1 << depth
     per_axis = (2 * nx + span) // span
@@ -262,6 +273,11 @@ def _search(levels, pts, args, nt, nx, rows, cols, floor, zone, use_zone):
     best_j = nt + 1
     best_x = 0
     best_y = 0
+    if seed[1] <= nt and seed[0] > floor:
+        best = seed[0]
+        best_j = int(seed[1])
+        best_x = int(seed[2])
+        best_y = int(seed[3])
     # explicit depth-first stack of (h, ix, iy, bound): at most 4 children per level
     stack_h = np.empty(4 * depth + 4, dtype=np.int64)
     stack_x = np.empty(4 * depth + 4, dtype=np.int64)
@@ -343,6 +359,45 @@ def _search(levels, pts, args, nt, nx, rows, cols, floor, zone, use_zone):
 
 
 @numba.njit(cache=True)
+def _climb(levels, pts, args, nt, nx, rows, cols, j, ix, iy):
+    """Hill-climb on the lattice from (j, ix, iy), within the window, to a local maximum:
+    a good pose scored before the search lets it prune from its first node. Returns
+    (score, j, ix, iy)."""
+    cells3 = np.empty((3, pts.shape[0], 2), dtype=np.int64)
+    for d in range(3):
+        _cells_at(pts, j + d - 1, args, cells3[d])
+    best = _bound(levels, 0, cells3[1], ix, iy, rows, cols)
+    for _ in range(4 * (nx + nt) + 4):
+        move_j = 0
+        move_x = 0
+        move_y = 0
+        top = best
+        for dj in range(-1, 2):
+            if abs(j + dj) > nt:
+                continue
+            for dx in range(-1, 2):
+                for dy in range(-1, 2):
+                    if abs(ix + dx) > nx or abs(iy + dy) > nx:
+                        continue
+                    v = _bound(levels, 0, cells3[dj + 1], ix + dx, iy + dy, rows, cols)
+                    if v > top:
+                        top = v
+                        move_j = dj
+                        move_x = dx
+                        move_y = dy
+        if top <= best:
+            break
+        best = top
+        ix += move_x
+        iy += move_y
+        if move_j != 0:
+            j += move_j
+            for d in range(3):
+                _cells_at(pts, j + d - 1, args, cells3[d])
+    return best, j, ix, iy
+
+
+@numba.njit(cache=True)
 def _brute_force(levels, pts, args, nt, nx, rows, cols, pad):
     """Every lattice score, headings -nt-pad..nt+pad, translations -nx-pad..nx+pad."""
     out = np.empty((2 * (nt + pad) + 1, 2 * (nx + pad) + 1, 2 * (nx + pad) + 1))
@@ -384,7 +439,8 @@ class WideBasinMatcher:
     def depth_for(self, resolution: float) -> int:
         """Pooling levels above the finest: the top node spans the whole window."""
         cells = 2 * int(self.config.distance / resolution) + 1
-        return max(math.ceil(math.log2(cells)), 0)
+        full = max(math.ceil(math.log2(cells)), 0)
+        return full if self.config.depth is None else min(self.config.depth, full)
 
     def set_map(
         self, grid: OccupancyGrid, box: tuple[float, float, float, float] | None = None
@@ -425,7 +481,7 @@ class WideBasinMatcher:
             step = c.angular_step
         else:
             reach = float(np.percentile(np.hypot(pts[:, 0], pts[:, 1]), 90)) if len(pts) else 1.0
-            step = res / max(reach, res)
+            step = self.config.angular_cells * res / max(reach, res)
         nt = int(c.angle / step)
         nx = int(c.distance / res)
         args = (float(centre[0]), float(centre[1]), float(centre[2]), float(step),
@@ -443,9 +499,14 @@ class WideBasinMatcher:
         x, y, th, step, _, _, res = args
         return np.array([x + ix * res, y + iy * res, th + j * step])
 
-    def search(self, points: ArrayLike, centre: ArrayLike) -> WideMatch:
+    def search(
+        self, points: ArrayLike, centre: ArrayLike, hint: ArrayLike | None = None
+    ) -> WideMatch:
         """The best lattice pose of sensor-frame ``points`` (N, 2) within the window around
-        ``centre`` (x, y, theta; map frame), and its best distinct rival."""
+        ``centre`` (x, y, theta; map frame), and its best distinct rival. A ``hint`` (a pose
+        believed good, e.g. a match from the prediction) only speeds the search up: the
+        lattice's local maximum next to it is scored first, and nodes that cannot beat it
+        are cut at once; the result is the same."""
         pts, centre = self._prepare(points, centre)
         nt, nx, args = self._lattice(pts, centre)
         lattice = (2 * nt + 1, 2 * nx + 1)
@@ -455,15 +516,17 @@ class WideBasinMatcher:
         levels = self._levels[: self._depth + 1, : self._shape[0], : self._shape[1]]
         rows, cols = self._shape
         zone = np.zeros(5, dtype=np.int64)
+        seed = self._seed(levels, pts, args, nt, nx, hint)
         best, j, ix, iy, nodes = _search(
-            levels, pts, args, nt, nx, rows, cols, -1.0, zone, False
+            levels, pts, args, nt, nx, rows, cols, -1.0, zone, False, seed
         )
         c = self.config
         zone[:] = (j, ix, iy, int(c.rival_distance / args[6]), int(c.rival_angle / args[3]))
         floor = max(c.min_rival_ratio * best, 0.0)
         floor = np.nextafter(floor, -np.inf) if floor > 0 else -1.0
+        none = np.array([0.0, nt + 1, 0, 0])
         rival, rj, rx, ry, more = _search(
-            levels, pts, args, nt, nx, rows, cols, floor, zone, True
+            levels, pts, args, nt, nx, rows, cols, floor, zone, True, none
         )
         found = rj <= nt
         return WideMatch(
@@ -474,6 +537,36 @@ class WideBasinMatcher:
             nodes=int(nodes + more),
             lattice=lattice,
         )
+
+    def _seed(self, levels, pts, args, nt, nx, hint) -> FloatArray:
+        """(score, j, ix, iy) of the local maximum climbed to from the lattice pose nearest
+        ``hint``; j = nt + 1 (none) without a hint inside the window."""
+        none = np.array([0.0, nt + 1, 0, 0])
+        if hint is None:
+            return none
+        x, y, th, step, _, _, res = args
+        h = np.asarray(hint, dtype=np.float64).reshape(3)
+        j = round(math.remainder(h[2] - th, 2 * math.pi) / step)
+        ix, iy = round((h[0] - x) / res), round((h[1] - y) / res)
+        if abs(j) > nt or abs(ix) > nx or abs(iy) > nx:
+            return none
+        score, j, ix, iy = _climb(levels, pts, args, nt, nx, *self._shape, j, ix, iy)
+        # just below its score, so that the search still returns the first pose it meets
+        # that scores as much (the same as without a hint)
+        return np.array([np.nextafter(score, -np.inf), j, ix, iy])
+
+    def score_at(self, points: ArrayLike, pose: ArrayLike) -> float:
+        """The mean map value of sensor-frame ``points`` placed by ``pose`` (any pose, not
+        only the lattice's): the score :meth:`search` maximises, to compare other poses
+        with its winner on the same scale."""
+        pts, pose = self._prepare(points, pose)
+        if len(pts) == 0:
+            return 0.0
+        levels = self._levels[: self._depth + 1, : self._shape[0], : self._shape[1]]
+        cells = np.empty((len(pts), 2), dtype=np.int64)
+        ox, oy = self._origin
+        _discretize(pts, pose[2], pose[0], pose[1], ox, oy, self._resolution, cells)
+        return _bound(levels, 0, cells, 0, 0, *self._shape) / len(pts)
 
     def brute_force_scores(self, points: ArrayLike, centre: ArrayLike, pad: int = 0):
         """Every lattice pose's mean map value, as (headings, x, y) with ``pad`` extra

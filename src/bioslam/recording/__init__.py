@@ -6,11 +6,12 @@ boundary-cell, view-cell and pose-cell activity and log messages into one MCAP f
 log's clock; ``--live [PORT]`` serves the same channels over the Foxglove WebSocket protocol
 while the run goes. The Foxglove layout ``docs/foxglove/bioslam_layout.json`` shows them all.
 
-Modules: :mod:`.topics` (topic names, frames and schemas, no dependencies),
-:mod:`.messages` (bioslam state to Foxglove messages), :mod:`.recorder` (what is published
-when), :mod:`.session` (opening a file or server for a command), :mod:`.layout` (the layout
-file), :mod:`.reading` (summary and decoding of a recorded file) and :mod:`.render` (a PNG of
-a recorded map). Only :mod:`.topics` may be imported without the optional ``foxglove`` extra
-(``pip install "bioslam[foxglove]"``); the run command imports the rest only when asked to
-record or serve.
+Modules: :mod:`.topics` (topic names, frames and schemas), :mod:`.rates` (what goes out how
+often), :mod:`.tap` (the run's observer: copies out what the channels need), :mod:`.session`
+(the command's flags; one writing process per output), :mod:`.worker` (that process),
+:mod:`.recorder` and :mod:`.messages` (items to Foxglove messages), :mod:`.layout` (the layout
+file), :mod:`.reading` (summary and decoding of a recorded file) and :mod:`.render` (a picture
+of a recorded map). The run's side (:mod:`.topics`, :mod:`.rates`, :mod:`.tap`,
+:mod:`.session`) needs none of the optional ``foxglove`` extra (``pip install
+"bioslam[foxglove]"``); the writing process and the readers do.
 """

@@ -50,13 +50,6 @@ SCENE_Z = 0.05
 _IDENTITY = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
 
 
-def log_time(stamp: float) -> int:
-    """A scan stamp (seconds) as an MCAP log time (integer nanoseconds, never negative)."""
-    if not stamp >= 0.0:  # also rejects NaN
-        raise ValueError(f"scan stamp {stamp} s cannot be a log time (needs >= 0)")
-    return round(stamp * 1e9)
-
-
 def timestamp(ns: int) -> Timestamp:
     return Timestamp(ns // 1_000_000_000, ns % 1_000_000_000)
 
@@ -350,15 +343,18 @@ def _blocks(values: FloatArray, rows: int, cols: int) -> FloatArray:
     return np.repeat(np.repeat(values, rows, axis=0), cols, axis=1)
 
 
-def pose_cell_images(ns: int, activity: FloatArray, scale: int = 3) -> tuple[RawImage, RawImage]:
-    """The pose-cell activity ``PC[x', y', θ']`` (Sec. III-C) as two pictures: the maximum
-    over heading (x' to the right, y' up), and the sum over x' and y' as one column per
-    heading cell. Each cell is ``scale`` pixels wide."""
-    xy = activity.max(axis=2).T[::-1]  # rows: y' from the top down
-    theta = activity.sum(axis=(0, 1))[None, :]
+def pose_cell_images(
+    ns: int, xy: FloatArray, theta: FloatArray, scale: int = 3
+) -> tuple[RawImage, RawImage]:
+    """The pose-cell activity ``PC[x', y', θ']`` (Sec. III-C) as two pictures: ``xy``, its
+    maximum over heading (``(n_x', n_y')``; drawn x' to the right, y' up), and ``theta``, its
+    sum over x' and y' (``(n_θ',)``; one column per heading cell). Each cell is ``scale``
+    pixels wide."""
+    top_down = np.asarray(xy).T[::-1]
+    strip = np.asarray(theta)[None, :]
     return (
-        false_colour(ns, _blocks(xy, scale, scale)),
-        false_colour(ns, _blocks(theta, 4 * scale, scale)),
+        false_colour(ns, _blocks(top_down, scale, scale)),
+        false_colour(ns, _blocks(strip, 4 * scale, scale)),
     )
 
 
@@ -375,6 +371,54 @@ def json_schema(name: str, properties: dict[str, str]) -> foxglove.Schema:
         "properties": {key: {"type": kind} for key, kind in properties.items()},
     }
     return foxglove.Schema(name=name, encoding="jsonschema", data=json.dumps(schema).encode())
+
+
+def active_view_json(
+    view_id: int, is_new: bool, activity: float, event: str, experience: int, views: int,
+    experiences: int, loop_closures: int,
+) -> str:
+    """A ``bioslam.ActiveView`` message (:data:`ACTIVE_VIEW_FIELDS`), formatted directly: it
+    goes out at every look of the view cells."""
+    return (
+        f'{{"view_id":{int(view_id)},"is_new":{"true" if is_new else "false"},'
+        f'"activity":{_number(activity)},"event":"{event}","experience":{int(experience)},'
+        f'"views":{int(views)},"experiences":{int(experiences)},'
+        f'"loop_closures":{int(loop_closures)}}}'
+    )  # fmt: skip
+
+
+def _flag(value: bool) -> str:
+    return "true" if value else "false"
+
+
+def odometry_match_json(
+    score: float, iterations: int, points: int, condition: float, degenerate: bool,
+    recovered: bool, predicted_only: bool,
+) -> str:
+    """A ``bioslam.OdometryMatch`` message (:data:`ODOMETRY_MATCH_FIELDS`): the fields of the
+    odometry's :class:`~bioslam.odometry.MatchReport`."""
+    return (
+        f'{{"score":{_number(score)},"iterations":{int(iterations)},'
+        f'"points":{int(points)},"condition":{_number(condition)},'
+        f'"degenerate":{_flag(degenerate)},"recovered":{_flag(recovered)},'
+        f'"predicted_only":{_flag(predicted_only)}}}'
+    )  # fmt: skip
+
+
+def pose_cell_json(centre: Sequence[float], active_cells: int, collapses: int) -> str:
+    """A ``bioslam.PoseCellState`` message (:data:`POSE_CELL_FIELDS`): the packet centre in
+    cells, the active cells, the collapses so far."""
+    x, y, theta = (_number(v) for v in centre[:3])
+    return (
+        f'{{"x":{x},"y":{y},"theta":{theta},"active_cells":{int(active_cells)},'
+        f'"collapses":{int(collapses)}}}'
+    )
+
+
+def _number(value: float) -> str:
+    """A JSON number; NaN and infinities (which JSON lacks) become null."""
+    value = float(value)
+    return repr(value) if math.isfinite(value) else "null"
 
 
 ACTIVE_VIEW_FIELDS = {

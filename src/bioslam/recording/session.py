@@ -1,19 +1,29 @@
 """``--record OUT.mcap`` and ``--live [PORT]`` for a command: the arguments, and a session that
-opens the file and the server, feeds the run to them and always closes them.
+starts the recording process(es), feeds the run to them and always closes them.
 
-Importing this module costs nothing: the Foxglove SDK is imported only when a session opens
-with something to do, so a run without these flags never loads it.
+Each output (the file, the server) has its own process (:mod:`.worker`) that builds and writes
+the messages; the run only copies out what they need (:class:`~.tap.Tap`) and sends it down a
+pipe, so recording costs the run little, and the file is closed properly whatever happens to
+the run (an interrupted run, a failed one, even a killed one: the worker sees its input end).
+Importing this module costs nothing (building a command's parser imports it): the system's
+modules are imported when an output is asked for, the Foxglove SDK only by the workers.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import os
+import pickle
+import subprocess
 import sys
 from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+import bioslam
 from bioslam.geometry import Pose2D
+from bioslam.recording.rates import LIVE_CONFIG, RECORD_CONFIG
 from bioslam.scan import LaserScan
 
 DEFAULT_PORT = 8765
@@ -41,13 +51,104 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
+class Output:
+    """One output (an MCAP file or a live server) in its own process, fed by a :class:`Tap`."""
+
+    #: seconds to wait for the worker to open its output, and to close it
+    TIMEOUT = 300.0
+
+    def __init__(self, spec: dict[str, Any], live: bool) -> None:
+        from bioslam.recording.tap import Tap  # the SLAM system's modules: only when used
+
+        self.spec = spec
+        self.kind = "live" if live else "recording"
+        self.tap = Tap(self._send, LIVE_CONFIG if live else RECORD_CONFIG,
+                       "wall" if live else "log")  # fmt: skip
+        self.process: subprocess.Popen | None = None
+        self.port: int | None = None
+        self.counts: dict[str, int] = {}
+        self.error: str | None = None
+        self.worker_cpu_seconds = 0.0
+
+    def open(self) -> None:
+        env = dict(os.environ)
+        # the worker imports this very bioslam, installed or not
+        package_root = str(Path(bioslam.__file__).resolve().parents[1])
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [package_root, env.get("PYTHONPATH")]))
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "bioslam.recording.worker"],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env, start_new_session=True,
+        )  # fmt: skip
+        self._write(self.spec)
+        reply = self._read()
+        if reply is None or reply[0] != "ready":
+            self._reap()
+            text = reply[1] if reply else "the recording process ended before it started"
+            if "No module named 'foxglove'" in text or "No module named 'mcap'" in text:
+                text = MISSING_SDK
+            raise RuntimeError(text)
+        self.port = reply[1]
+
+    def _write(self, message: Any) -> None:
+        assert self.process is not None and self.process.stdin is not None
+        pickle.dump(message, self.process.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+        self.process.stdin.flush()
+
+    def _read(self) -> Any:
+        assert self.process is not None and self.process.stdout is not None
+        try:
+            return pickle.load(self.process.stdout)
+        except (EOFError, pickle.UnpicklingError):
+            return None
+
+    def _send(self, batch: list) -> None:
+        if self.process is None or self.error is not None:
+            return
+        try:
+            self._write(batch)
+        except (BrokenPipeError, OSError) as exc:
+            self.error = f"the {self.kind} process stopped ({exc}); the run goes on without it"
+            print(f"bioslam: {self.error}", file=sys.stderr)
+
+    def close(self) -> None:
+        """Tell the worker to close its output and wait for it; safe to call again."""
+        if self.process is None:
+            return
+        self.tap.flush()
+        self._send("close")  # type: ignore[arg-type]
+        if self.process.stdin is not None:
+            with contextlib.suppress(OSError):
+                self.process.stdin.close()
+        reply = self._read()
+        if reply is not None and reply[0] == "closed":
+            _, self.counts, error, self.worker_cpu_seconds = reply
+            self.error = self.error or error
+        elif self.error is None:
+            self.error = f"the {self.kind} process ended without closing its output"
+        self._reap()
+
+    def _reap(self) -> None:
+        process, self.process = self.process, None
+        if process is None:
+            return
+        try:
+            process.wait(timeout=self.TIMEOUT)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+        for stream in (process.stdin, process.stdout):
+            if stream is not None:
+                with contextlib.suppress(OSError):
+                    stream.close()
+
+
 class Session:
     """The recording and the live view a command asked for, used as ``with Session(...) as s``.
 
     ``observer`` is the pipeline's per-scan observer (None when nothing was asked for, so the
-    run does not even call it); :meth:`finish` publishes the final state; leaving the ``with``
-    block closes the MCAP file (it is complete and readable even after an interrupted or failed
-    run) and stops the server.
+    run does not even call it); :meth:`finish` sends the final state; leaving the ``with``
+    block closes the MCAP file (complete and readable even after an interrupted or failed run)
+    and stops the server.
     """
 
     def __init__(
@@ -66,14 +167,14 @@ class Session:
         self.record = record
         self.live_port = live_port
         self.live_host = live_host
-        self.odometry_only = odometry_only
-        self.metadata = metadata or {}
         self.announce = announce
-        self.recorders: list[Any] = []
-        self.writer: Any = None
-        self.server: Any = None
-        self.port: int | None = None
-        self.error: str | None = None
+        self.outputs: list[Output] = []
+        common = {"odometry_only": odometry_only, "metadata": dict(metadata or {})}
+        if record is not None:
+            self.outputs.append(Output({**common, "record": str(record)}, live=False))
+        if live_port is not None:
+            spec = {**common, "live_port": live_port, "live_host": live_host}
+            self.outputs.append(Output(spec, live=True))
 
     @classmethod
     def from_args(cls, args: argparse.Namespace, odometry_only: bool, **metadata: Any) -> Session:
@@ -86,88 +187,57 @@ class Session:
 
     @property
     def active(self) -> bool:
-        return self.record is not None or self.live_port is not None
+        return bool(self.outputs)
 
     @property
     def observer(self) -> Session | None:
         return self if self.active else None
 
-    def __enter__(self) -> Session:
-        if not self.active:
-            return self
-        try:
-            self._open()
-        except BaseException:
-            self.close()
-            raise
-        return self
-
-    def _open(self) -> None:
-        try:
-            import foxglove
-
-            from bioslam.recording import recorder as rec
-        except ImportError as exc:
-            raise RuntimeError(MISSING_SDK) from exc
-        if self.record is not None:
-            context = foxglove.Context()
-            self.record.parent.mkdir(parents=True, exist_ok=True)
-            # zstd chunks, compressed on the SDK's own threads (as many as physical cores)
-            self.writer = foxglove.open_mcap(self.record, allow_overwrite=True, context=context)
-            self.writer.write_metadata("bioslam", self.metadata)
-            self.recorders.append(rec.Recorder(context, self.odometry_only, rec.RECORD_CONFIG))
-        if self.live_port is not None:
-            context = foxglove.Context()
-            try:
-                self.server = foxglove.start_server(
-                    name="bioslam", host=self.live_host, port=self.live_port, context=context,
-                    capabilities=[foxglove.Capability.Time],
-                )  # fmt: skip
-            except Exception as exc:  # the SDK raises its own error types
-                raise RuntimeError(
-                    f"--live: cannot serve on {self.live_host}:{self.live_port} ({exc})"
-                ) from exc
-            self.port = self.server.port
-            self.recorders.append(
-                rec.Recorder(context, self.odometry_only, rec.LIVE_CONFIG, clock="wall",
-                             on_time=self.server.broadcast_time)
-            )  # fmt: skip
-            if self.announce:
-                print(f"live view: connect Foxglove to {self.url} "
-                      "(Open connection > Foxglove WebSocket)", file=sys.stderr, flush=True)
+    @property
+    def port(self) -> int | None:
+        """The live server's port, once it runs."""
+        return next((o.port for o in self.outputs if o.kind == "live"), None)
 
     @property
     def url(self) -> str | None:
         """The live server's WebSocket address, once it runs."""
-        if self.port is None:
-            return None
-        return f"ws://{self.live_host}:{self.port}"
+        return None if self.port is None else f"ws://{self.live_host}:{self.port}"
+
+    def counts(self, kind: str = "recording") -> dict[str, int]:
+        """Messages per topic that the recording (or live view) published, once closed."""
+        return next((o.counts for o in self.outputs if o.kind == kind), {})
+
+    def __enter__(self) -> Session:
+        try:
+            for output in self.outputs:
+                output.open()
+        except BaseException:
+            self.close()
+            raise
+        if self.url and self.announce:
+            print(f"live view: connect Foxglove to {self.url} "
+                  "(Open connection > Foxglove WebSocket)", file=sys.stderr, flush=True)
+        return self
 
     def __call__(self, scan: LaserScan, pose: Pose2D, system: Any) -> None:
-        for recorder in self.recorders:
-            recorder(scan, pose, system)
+        for output in self.outputs:
+            output.tap(scan, pose, system)
 
     def finish(self, system: Any) -> None:
-        """Publish the final map, cognitive map and trajectory (after the system settled).
-        A failure here is reported in :meth:`summary`, never raised: the run's own results
-        come first."""
-        for recorder in self.recorders:
+        """Send the final map, cognitive map and trajectory (after the system settled). A
+        failure here is reported in :meth:`summary`, never raised: the run's results come
+        first."""
+        for output in self.outputs:
             try:
-                recorder.finish(system)
+                output.tap.finish(system)
             except Exception as exc:
-                self.error = f"{type(exc).__name__}: {exc}"
-                print(f"bioslam: recording: {self.error}", file=sys.stderr)
+                output.error = f"{type(exc).__name__}: {exc}"
+                print(f"bioslam: {output.kind}: {output.error}", file=sys.stderr)
 
     def close(self) -> None:
-        """Close the file and stop the server; safe to call more than once."""
-        writer, self.writer = self.writer, None
-        server, self.server = self.server, None
-        try:
-            if writer is not None:
-                writer.close()
-        finally:
-            if server is not None:
-                server.stop()
+        """Close the file and stop the server (waiting for the workers); safe to repeat."""
+        for output in self.outputs:
+            output.close()
 
     def __exit__(
         self,
@@ -178,18 +248,22 @@ class Session:
         self.close()
 
     def summary(self) -> dict[str, Any]:
-        """What was recorded or served, for the run's summary."""
+        """What was recorded or served, for the run's summary: messages, the run's seconds
+        in the tap (wall and CPU) and the worker's CPU seconds."""
         out: dict[str, Any] = {}
-        for recorder in self.recorders:
-            key = "recording" if recorder.clock == "log" else "live"
-            out[key] = {"messages": sum(recorder.counts.values()),
-                        "seconds": round(recorder.seconds, 3),
-                        "cpu_seconds": round(recorder.cpu_seconds, 3)}  # fmt: skip
-        if "recording" in out and self.record is not None and self.record.exists():
-            out["recording"]["path"] = str(self.record)
-            out["recording"]["bytes"] = self.record.stat().st_size
-        if "live" in out:
-            out["live"]["url"] = self.url
-        if self.error and out:
-            next(iter(out.values()))["error"] = self.error
+        for output in self.outputs:
+            part: dict[str, Any] = {
+                "messages": sum(output.counts.values()),
+                "run_seconds": round(output.tap.seconds, 3),
+                "run_cpu_seconds": round(output.tap.cpu_seconds, 3),
+                "worker_cpu_seconds": round(output.worker_cpu_seconds, 3),
+            }
+            if output.kind == "recording" and self.record is not None and self.record.exists():
+                part["path"] = str(self.record)
+                part["bytes"] = self.record.stat().st_size
+            if output.kind == "live":
+                part["url"] = self.url
+            if output.error:
+                part["error"] = output.error
+            out[output.kind] = part
         return out
