@@ -408,8 +408,8 @@ class ViewCells:
         cover = self._coverage(coverage)
         h = self.coarse_feature(b, cover)
         # Eq. 6's sum does not survive a turn of a scanner that sees part of each ring (what
-        # leaves the field of view differs): such scans are compared with every view, the
-        # shifts within the heading window and the bounded Eq. 8 keeping that cheap.
+        # leaves the field of view differs): such scans are compared with the views nearest
+        # in mean activity per ring instead.
         ids = self._candidates(h) if cover.all() else self._nearest_keys(b, cover)
         shifts = np.zeros(ids.size)
         if self.cells_per_ring is None:
