@@ -31,6 +31,7 @@ def test_copy_outlives_later_appends_and_scalars_keep_dtype() -> None:
 
 def test_keyframe_scans_give_back_each_scan_exactly() -> None:
     rng = np.random.default_rng(1)
+    assert KeyframeScans().points() == []
     scans = [rng.uniform(-30, 30, size=(n, 2)) for n in (5, 0, 70000, 3)]
     store = KeyframeScans()
     for k, pts in enumerate(scans):

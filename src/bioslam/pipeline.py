@@ -133,8 +133,9 @@ class KeyframeScans:
 
     def points(self) -> list[NDArray[np.float32]]:
         """Each keyframe's endpoints (views into the store, valid until the next add)."""
-        everything = self._points.view()
-        return np.split(everything, self._starts.view()[1:])
+        if not len(self):
+            return []
+        return np.split(self._points.view(), self._starts.view()[1:])
 
     @property
     def nbytes(self) -> int:
