@@ -332,13 +332,6 @@ def test_empty_and_random_files_are_clear_errors(tmp_path):
             assert str(path) in str(info.value)
 
 
-def test_corpus_size():
-    """Runs last in this module: the number of mutated files read (printed with ``-s``)."""
-    total = sum(CORPUS.values())
-    print(f"\nreader fuzz corpus: {total} files: {dict(CORPUS)}")
-    assert total == 0 or total >= 100
-
-
 def _bag_records(data: bytes) -> list[tuple[int, int, int, int]]:
     """``(offset, op, header length, data length)`` of a clean ROS 1 bag's top-level records."""
     from bioslam.io.rosbag import parse_record_header
@@ -387,3 +380,10 @@ def test_ros1_damaged_chunk_is_located_and_its_scans_counted(tmp_path, compressi
     assert chunk <= first < chunk + 3000, source.skip_examples
     with pytest.raises(ValueError, match=r"damaged\.bag: .*byte"):
         list(open_log(path, strict=True))
+
+
+def test_corpus_size():
+    """Runs last in this module: the number of mutated files read (printed with ``-s``)."""
+    total = sum(CORPUS.values())
+    print(f"\nreader fuzz corpus: {total} files: {dict(CORPUS)}")
+    assert total == 0 or total >= 100
