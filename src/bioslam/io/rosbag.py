@@ -123,6 +123,8 @@ def choose_scan_topic(path: Path, topics: list[TopicEntry], wanted: str | None) 
 class _BagLog(LogSource):
     """What ROS 1 and ROS 2 bags share: topic choice, message conversion, info."""
 
+    alternative_stamps = "bag record time"
+
     ros1 = False
 
     def __init__(self, path: str | Path, topic: str | None = None, strict: bool = False) -> None:
@@ -167,6 +169,7 @@ class _BagLog(LogSource):
                 continue
             scan = convert(msg, time_ns, where)
             if scan is not None:
+                self._alternative_stamp(time_ns * 1e-9)
                 yield scan, where, None
 
 

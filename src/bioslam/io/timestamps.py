@@ -62,6 +62,8 @@ class TimePlan:
         repaired: records whose stamp was replaced (log stamps) or all records (record order).
         period_s: the record-order period, or the median interval of the kept stamps.
         reason: why the stamps were repaired or not used; "" for a clean log.
+        alternative: the name of the record's second stamps when those were used because the
+            main ones were unusable (e.g. CARMEN's ``logger_timestamp``), else "".
     """
 
     stamps: NDArray[np.float64]
@@ -69,12 +71,15 @@ class TimePlan:
     repaired: int
     period_s: float
     reason: str = ""
+    alternative: str = ""
 
     def describe(self) -> str:
         """One line for notes and summaries: ``log stamps``, ``log stamps (3 repaired: ...)``
         or ``record order at 10 Hz (reason)``."""
         if self.source == RECORD_ORDER:
             return f"{RECORD_ORDER} at {1.0 / self.period_s:.4g} Hz ({self.reason})"
+        if self.alternative:
+            return f"{LOG_STAMPS}: {self.alternative} ({self.reason})"
         if self.repaired:
             return f"{LOG_STAMPS} ({self.repaired} repaired from their neighbours: {self.reason})"
         return LOG_STAMPS
