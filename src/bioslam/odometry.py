@@ -342,7 +342,7 @@ class LidarOdometry:
             level_pts = points_per_level(pts, c.point_spacing, c.levels, keep)
             start = self._best_start(level_pts[-1], previous, predicted)
             self.pose, self.last_report = self._match(
-                level_pts, start, previous, matched_normals(level_pts), dt
+                level_pts, start, previous, matched_normals(level_pts), dt, predicted
             )
             self.num_recovered += self.last_report.recovered
             self.num_degenerate += self.last_report.degenerate
@@ -372,7 +372,7 @@ class LidarOdometry:
 
     def _match(
         self, level_pts: list[FloatArray], start: FloatArray, previous: FloatArray,
-        normals: FloatArray, dt: float,
+        normals: FloatArray, dt: float, predicted: FloatArray,
     ) -> tuple[FloatArray, MatchReport]:
         """Eq. 3 from ``start`` (the motion model's prior, :meth:`_best_start`); when that
         cannot be trusted (:meth:`_untrusted`), also from the wide-basin search's winner and
@@ -388,7 +388,8 @@ class LidarOdometry:
                 second, second_report = self._match_from(level_pts, seed, normals)
                 options.append((second, second_report, self._failed(second_report)))
         reach = (c.jump_distance + c.max_speed * dt, c.jump_angle + c.max_turn_rate * dt)
-        pose, report = self._choose(options, start, previous, reach)
+        motion = (start, predicted, compose(previous, self._last_delta))
+        pose, report = self._choose(options, motion, previous, reach)
 
         report.iterations = sum(option[1].iterations for option in options)
         self._remember_score(report.score)
@@ -429,14 +430,17 @@ class LidarOdometry:
         return seeds
 
     def _choose(
-        self, options: list[tuple[FloatArray, MatchReport, bool]], prior: FloatArray,
-        previous: FloatArray, reach: tuple[float, float],
+        self, options: list[tuple[FloatArray, MatchReport, bool]],
+        motion: tuple[FloatArray, ...], previous: FloatArray, reach: tuple[float, float],
     ) -> tuple[FloatArray, MatchReport]:
-        """The plausible match nearest the motion model's ``prior`` (``plausible_ratio``), then
-        the best of those in its basin; a jump from the prediction's own match (the first
-        option) must be overwhelming (``overwhelming_ratio``). Flags the report ambiguous
+        """The plausible match nearest the motion model's prior (``plausible_ratio``; the
+        first of ``motion``, the start Gauss-Newton ran from), then the best of those in its
+        basin; a jump (far from every motion hypothesis: the start, the constant-velocity
+        prediction, the last step repeated) from the prediction's own match (the first option)
+        must be overwhelming (``overwhelming_ratio``). Flags the report ambiguous
         when a plausible match lies elsewhere, recovered when it is not the first match."""
         c = self.config
+        prior = motion[0]
         first = options[0]
         if len(options) == 1:
             return first[0], first[1]
@@ -449,7 +453,7 @@ class LidarOdometry:
         basin = [o for o in plausible if not self._distinct(o[0], nearest[0])]
         chosen = max(basin, key=lambda o: quality[id(o)])
         ambiguous = len(basin) < len(plausible)
-        if chosen is not first and self._is_jump(chosen[0], prior):
+        if chosen is not first and all(self._is_jump(chosen[0], m) for m in motion):
             q_first = quality[id(first)]
             if not first[2] and q_first > c.overwhelming_ratio * quality[id(chosen)]:
                 chosen, ambiguous = first, True  # a look-alike, not overwhelming evidence
@@ -476,7 +480,7 @@ class LidarOdometry:
         return math.hypot(d[0], d[1]) > reach[0] or abs(d[2]) > reach[1]
 
     def _is_jump(self, pose: FloatArray, prior: FloatArray) -> bool:
-        """Farther from the motion model's ``prior`` than ``jump_distance`` or ``jump_angle``."""
+        """Farther from a motion hypothesis ``prior`` than ``jump_distance`` or ``jump_angle``."""
         d = between(prior, pose)
         c = self.config
         return math.hypot(d[0], d[1]) > c.jump_distance or abs(d[2]) > c.jump_angle
