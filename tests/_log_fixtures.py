@@ -66,8 +66,10 @@ def laser_scans(scans: int = SCANS, seed: int = 0, beams: int = 120) -> list[Las
 
 
 def write_ros1_bag(path: Path, scans: list[LaserScan], compression: str = "none",
-                   chunk_bytes: int = 2000, topic: str = "/scan") -> None:
-    """A ROS 1 bag with ``scans`` on ``topic`` and a second, non-scan topic between them."""
+                   chunk_bytes: int = 2000, topic: str = "/scan",
+                   stamps: list[float] | None = None) -> None:
+    """A ROS 1 bag with ``scans`` on ``topic`` and a second, non-scan topic between them;
+    ``stamps`` replace the scans' stamps in the message headers (not the record times)."""
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -81,7 +83,8 @@ def write_ros1_bag(path: Path, scans: list[LaserScan], compression: str = "none"
         scan_conn = writer.add_connection(topic, "sensor_msgs/msg/LaserScan", typestore=store)
         text_conn = writer.add_connection("/note", "std_msgs/msg/String", typestore=store)
         for k, scan in enumerate(scans):
-            sec, nsec = divmod(round(scan.stamp * 1e9), 1_000_000_000)
+            header_stamp = scan.stamp if stamps is None else stamps[k]
+            sec, nsec = divmod(round(header_stamp * 1e9), 1_000_000_000)
             stamp = types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec)
             msg = types["sensor_msgs/msg/LaserScan"](
                 header=types["std_msgs/msg/Header"](seq=k, stamp=stamp, frame_id="laser"),

@@ -72,6 +72,25 @@ def test_a_partial_read_fails_unless_accepted(tmp_path, capsys):
     assert code == 0
 
 
+def test_a_log_with_unusable_stamps_runs_whole_and_says_where_its_time_came_from(
+    tmp_path, capsys
+):
+    clean = write_carmen(tmp_path / "clean.log", scans=30)
+    zeroed = tmp_path / "zeroed.log"
+    zeroed.write_text("".join(
+        " ".join([*line.split()[:-3], "0.000000", "host", "0.000000"]) + "\n"
+        for line in clean.read_text().splitlines()
+    ))
+    code, out, err = run(capsys, zeroed, "--out", tmp_path / "z", "--odometry-only")
+    assert code == 0, err
+    summary = last_json(out)
+    assert summary["scans"] == 30 and summary["read_share"] == 1.0
+    assert summary["time_source"].startswith("record order"), summary["time_source"]
+    assert "record order" in err
+    code, out, _ = run(capsys, clean, "--out", tmp_path / "c", "--odometry-only")
+    assert code == 0 and last_json(out)["time_source"] == "log stamps"
+
+
 def test_a_run_of_zero_scans_fails(tmp_path, capsys):
     log = tmp_path / "junk.log"
     log.write_bytes(b"FLASER 3 1 2\n" * 5)  # a CARMEN log whose every scan is malformed

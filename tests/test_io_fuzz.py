@@ -17,8 +17,10 @@ The corpus size is printed by ``test_corpus_size`` (run with ``-s``).
 from __future__ import annotations
 
 import hashlib
+import re
 import shutil
 import sqlite3
+import struct
 import tempfile
 from collections import Counter
 from pathlib import Path
@@ -328,6 +330,56 @@ def test_empty_and_random_files_are_clear_errors(tmp_path):
             with pytest.raises(ValueError) as info:
                 list(open_log(path))
             assert str(path) in str(info.value)
+
+
+def _bag_records(data: bytes) -> list[tuple[int, int, int, int]]:
+    """``(offset, op, header length, data length)`` of a clean ROS 1 bag's top-level records."""
+    from bioslam.io.rosbag import parse_record_header
+
+    pos, out = data.index(b"\n") + 1, []
+    while pos < len(data):
+        (header_len,) = struct.unpack_from("<I", data, pos)
+        header = parse_record_header(data[pos + 4 : pos + 4 + header_len])
+        (data_len,) = struct.unpack_from("<I", data, pos + 4 + header_len)
+        out.append((pos, header["op"][0], header_len, data_len))
+        pos += 8 + header_len + data_len
+    return out
+
+
+def _damage(data: bytes, how: str) -> tuple[bytes, int]:
+    """The bag with its second chunk damaged ``how``; and that chunk's offset."""
+    pos, _, header_len, data_len = [r for r in _bag_records(data) if r[1] == 5][1]
+    out = bytearray(data)
+    if how == "flipped data":
+        middle = pos + 8 + header_len + data_len // 2
+        out[middle : middle + 8] = bytes(b ^ 0x5A for b in out[middle : middle + 8])
+    elif how == "length too long":
+        struct.pack_into("<I", out, pos + 4 + header_len, data_len + 500)
+    elif how == "length too short":
+        struct.pack_into("<I", out, pos + 4 + header_len, data_len - 100)
+    else:  # a header field length that overruns the header
+        out[pos + 4 : pos + 8] = b"\xff\xff\xff\x00"
+    return bytes(out), pos
+
+
+@pytest.mark.parametrize("compression", ["none", "bz2", "lz4"])
+@pytest.mark.parametrize("how", ["flipped data", "length too long", "length too short",
+                                 "bad header"])
+def test_ros1_damaged_chunk_is_located_and_its_scans_counted(tmp_path, compression, how):
+    data, chunk = _damage(fixture(f"scans-{compression}.bag").read_bytes(), how)
+    path = tmp_path / "damaged.bag"
+    path.write_bytes(data)
+    source = open_log(path)
+    scans = list(source)
+    # every scan is read or counted: the bag's index says how many the damaged chunk held
+    assert source.records_seen == SCANS, source.skipped
+    assert len(scans) >= SCANS - 5  # one chunk of a few scans at most, the rest read
+    assert TRUNCATED in source.skipped
+    # located: the first problem is at the damaged chunk (or where its wrong length led)
+    first = int(re.search(r"byte (\d+)", source.skip_examples[TRUNCATED]).group(1))
+    assert chunk <= first < chunk + 3000, source.skip_examples
+    with pytest.raises(ValueError, match=r"damaged\.bag: .*byte"):
+        list(open_log(path, strict=True))
 
 
 def test_corpus_size():

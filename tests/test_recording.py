@@ -445,6 +445,8 @@ def test_the_file_is_closed_when_the_run_disappears(ring_scans, tmp_path):
     run_slam(ring_scans[:50], options=_quiet(), observer=session.observer)
     output = session.outputs[0]
     output.tap.flush()
+    output._enqueue(None, wait=True)  # let the pipe take what is queued, then
+    output._pump.join()
     output.process.stdin.close()  # what the writing process sees when the run is killed
     assert output.process.wait(timeout=120) == 0
     assert summarize(path).counts()[tp.SCAN] == 50

@@ -98,7 +98,9 @@ class BioSLAM:
         self._odometry_poses: list[FloatArray] = []
         self.records: list[StepRecord] = []
         self._travelled = 0.0
-        self._travelled_at_experience: list[float] = []
+        # odometry distance at which each experience was made, by id (a doubling buffer:
+        # the closure cues search it at every look)
+        self._made_at = np.empty(1024)
         self._last_registration = -np.inf
         self._travelled_at_entry = 0.0
         self._pending = np.zeros(3)
@@ -160,12 +162,17 @@ class BioSLAM:
             self.cognitive_map.relax()
         self._travelled += float(np.hypot(dp[0], dp[1]))
         if event.kind == "new":
-            self._travelled_at_experience.append(self._travelled)
+            self._note_made(event.experience)
         if event.kind != "none":
             self._travelled_at_entry = self._travelled
         self.records.append(
             StepRecord(scan.stamp, match.view_id, match.is_new, event.kind, event.experience)
         )
+
+    def _note_made(self, experience_id: int) -> None:
+        if experience_id >= self._made_at.size:
+            self._made_at = np.concatenate([self._made_at, np.empty_like(self._made_at)])
+        self._made_at[experience_id] = self._travelled
 
     def _nearby(self) -> int | None:
         """The path-integration cue: the experience nearest the robot's map pose, made long
@@ -177,7 +184,7 @@ class BioSLAM:
             return None
         if self._travelled - self._last_registration < cfg.registration_interval:
             return None
-        travelled = np.asarray(self._travelled_at_experience)
+        travelled = self._made_at[: len(cmap)]
         drift, _ = self._drift_bound(self._travelled, False)
         found = nearest_experience(
             cmap.experience_poses_view, travelled, cmap.pose(), self._travelled,
@@ -228,7 +235,7 @@ class BioSLAM:
         cfg = self.config.loop_closure
         cmap = self.cognitive_map
         members = pass_neighbours(
-            np.asarray(self._travelled_at_experience), anchor, cfg.submap_reach,
+            self._made_at[: len(cmap)], anchor, cfg.submap_reach,
             cfg.submap_step, self._travelled - cfg.submap_reach,
         )  # fmt: skip
         return fuse_submap(
@@ -249,7 +256,7 @@ class BioSLAM:
         )
         if chain is not None:
             return True, since_entry + chain
-        return False, self._travelled - self._travelled_at_experience[experience_id]
+        return False, self._travelled - float(self._made_at[experience_id])
 
     def _drift_bound(self, travelled: float, linked: bool) -> tuple[float, float]:
         """How far (m, rad) the map's prediction may be off after ``travelled`` metres of
@@ -305,6 +312,17 @@ class BioSLAM:
             return Trajectory.empty()
         return Trajectory(np.asarray(self._stamps), np.asarray(self._odometry_poses))
 
+    def _check_counts(self) -> dict[str, int]:
+        """Loop-closure verifications by cue, and refusals by reason (``closure.verify``)."""
+        out = {"closure_checks_view": 0, "closure_checks_proximity": 0}
+        for reason in ("score", "degenerate", "ambiguous", "slid", "beyond_drift"):
+            out[f"closure_refused_{reason}"] = 0
+        for check in self.checks:
+            out[f"closure_checks_{check.cue}"] += 1
+            if check.verdict.reason:
+                out[f"closure_refused_{check.verdict.reason.replace(' ', '_')}"] += 1
+        return out
+
     def summary(self) -> dict[str, int]:
         cmap = self.cognitive_map
         return {
@@ -312,5 +330,6 @@ class BioSLAM:
             "experiences": len(cmap),
             "loop_closures": cmap.loop_closures,
             "loop_closures_rejected": cmap.rejected_closures,
+            **self._check_counts(),
             **self.odometry.summary(),
         }

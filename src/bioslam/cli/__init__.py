@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 
@@ -70,8 +71,11 @@ def _main(argv: Sequence[str] | None) -> int:
         print(f"bioslam {args.command}: error: {_message(exc)}", file=sys.stderr)
         return EXIT_INVALID
     with signals.protected():
-        if summary is not None:
-            print_summary(summary)
+        try:
+            if summary is not None:
+                print_summary(summary)
+        except BrokenPipeError:  # `bioslam run ... | head`: the reader left, the files stay
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         if message:
             print(f"bioslam {args.command}: error: {message}", file=sys.stderr)
     return code

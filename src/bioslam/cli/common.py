@@ -146,10 +146,12 @@ def read_problem(
 
 
 def read_counts(source: Any) -> dict[str, Any]:
-    """Summary keys: scan records met and the share read."""
+    """Summary keys: scan records met, the share read, and where the scans' stamps came from
+    (the log's own, repaired, or record order when the log's were unusable)."""
     seen = source.records_seen
     return {"scan_records": seen,
-            "read_share": round(source.scans_read / seen, 4) if seen else None}
+            "read_share": round(source.scans_read / seen, 4) if seen else None,
+            "time_source": source.time_source}
 
 
 def run_status(summary: dict[str, Any], problems: list[str]) -> str:

@@ -65,10 +65,19 @@ class CarmenConfig:
     head_lines: int = 5000
 
 
+def _last_float(line: str) -> float:
+    """The last field of a line (the logger_timestamp of every timed message), NaN if none."""
+    try:
+        return float(line.rsplit(None, 1)[-1])
+    except (ValueError, IndexError):
+        return float("nan")
+
+
 class CarmenLog(LogSource):
     """A CARMEN log; ``topic`` is the laser message name (e.g. ``FLASER``, ``ROBOTLASER1``)."""
 
     format = "carmen"
+    alternative_stamps = "logger_timestamp"
 
     def __init__(
         self,
@@ -156,6 +165,7 @@ class CarmenLog(LogSource):
                 self._skip(reason, where, f"{word}: {exc}")
                 continue
             if record is not None:
+                self._alternative_stamp(_last_float(line))
                 yield record
         self._message_counts = counts
 

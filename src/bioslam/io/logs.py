@@ -72,6 +72,9 @@ class LogSource(ABC):
     """
 
     format: ClassVar[str] = ""
+    #: The second stamp a record carries, if any (CARMEN's logger_timestamp, a bag's record
+    #: time): used when the main stamps are unusable.
+    alternative_stamps: ClassVar[str] = ""
     #: Seconds a record may arrive late and still be put back in order (see ``_Reorder``).
     reorder_window_s: float = 2.0
 
@@ -97,6 +100,7 @@ class LogSource(ABC):
         self._produced = 0  # scan records produced by ``_records`` in the current pass
         self._odometry_slots: list[int] = []  # while planning: scan records before each
         self._recording: list[tuple[Any, ...]] | None = None  # what the planning pass reports
+        self._alternatives: list[float] = []  # second stamps, collected while planning
         self._replay: list[tuple[Any, ...]] | None = None
         self._odometry_calls = 0
         self._odometry_stamps: NDArray[np.float64] | None = None  # record-order odometry stamps
@@ -200,13 +204,36 @@ class LogSource(ABC):
                 if budget >= 0:
                     self._recording.append((_SCAN, *record))
             plan = plan_stamps(stamps, self._declared_period, self.reorder_window_s)
-            if plan.source == RECORD_ORDER and self._odometry_slots:
+            plan = self._try_alternative(plan, len(stamps))
+            if (plan.source == RECORD_ORDER or plan.alternative) and self._odometry_slots:
                 self._odometry_stamps = _slot_stamps(plan, self._odometry_slots)
             self._replay = self._recording if budget >= 0 else None
         finally:
             self._recording = None
             self._odometry_slots = []
+            self._alternatives = []
         return plan
+
+    def _alternative_stamp(self, stamp: float) -> None:
+        """Readers call this once per scan record they yield, with the record's second stamp
+        (see :attr:`alternative_stamps`), used when its main stamps are unusable."""
+        if self._recording is not None:
+            self._alternatives.append(stamp)
+
+    def _try_alternative(self, plan: TimePlan, records: int) -> TimePlan:
+        """The plan of the log's second stamps when its main ones fall back to record order
+        and the second ones are usable as they are (or with isolated repairs)."""
+        alternative = self._alternatives
+        if plan.source != RECORD_ORDER or len(alternative) != records or not records:
+            return plan
+        other = plan_stamps(alternative, self._declared_period, self.reorder_window_s)
+        if other.source == RECORD_ORDER:
+            return plan
+        main_reason = plan.reason.split(";")[0]
+        why = f"the main stamps are unusable: {main_reason}" + (
+            f"; {other.repaired} repaired: {other.reason}" if other.repaired else "")
+        return dataclasses.replace(other, alternative=self.alternative_stamps, reason=why,
+                                   repaired=records)
 
     def _replayed(
         self, events: list[tuple[Any, ...]]

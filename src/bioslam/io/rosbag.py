@@ -17,7 +17,7 @@ import bz2
 import mmap
 import struct
 from collections import Counter
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -123,6 +123,8 @@ def choose_scan_topic(path: Path, topics: list[TopicEntry], wanted: str | None) 
 class _BagLog(LogSource):
     """What ROS 1 and ROS 2 bags share: topic choice, message conversion, info."""
 
+    alternative_stamps = "bag record time"
+
     ros1 = False
 
     def __init__(self, path: str | Path, topic: str | None = None, strict: bool = False) -> None:
@@ -167,6 +169,7 @@ class _BagLog(LogSource):
                 continue
             scan = convert(msg, time_ns, where)
             if scan is not None:
+                self._alternative_stamp(time_ns * 1e-9)
                 yield scan, where, None
 
 
@@ -225,16 +228,23 @@ def _op(header: dict[str, bytes]) -> int:
     return op[0]
 
 
-def _decompressor(name: str) -> Callable[[bytes], bytes]:
+def _decompress(name: str, data: bytes) -> tuple[bytes, int]:
+    """A chunk's records and the bytes after its compressed stream (a declared chunk length
+    that is too long shows as such trailing bytes)."""
     if name == "none":
-        return bytes
+        return bytes(data), 0
     if name == "bz2":
-        return bz2.decompress
-    if name == "lz4":
-        from lz4.frame import decompress  # rosbags depends on lz4
+        decompressor: Any = bz2.BZ2Decompressor()
+    elif name == "lz4":
+        from lz4.frame import LZ4FrameDecompressor  # rosbags depends on lz4
 
-        return decompress  # type: ignore[no-any-return]
-    raise BagFormatError(f"unsupported chunk compression {name!r}")
+        decompressor = LZ4FrameDecompressor()
+    else:
+        raise BagFormatError(f"unsupported chunk compression {name!r}")
+    inner = decompressor.decompress(data)
+    if not decompressor.eof:
+        raise BagFormatError("compressed data ended before its end-of-stream marker")
+    return inner, len(decompressor.unused_data or b"")
 
 
 @dataclass
@@ -407,6 +417,10 @@ class Bag1RecordReader:
                 self._problem(f"{where} {pos}: a chunk declares a wrong length")
                 self._escape = pos
                 return
+            if not top_level:
+                yield from self._dispatch(record, data[record.start : end], pos, top_level)
+                pos = end
+                continue
             self._resume = None
             yield from self._dispatch(record, data[record.start : end], pos, top_level)
             pos = end if self._resume is None else self._resume
@@ -465,7 +479,7 @@ class Bag1RecordReader:
         if cut and compression != "none":
             return  # a cut compressed chunk cannot be decompressed
         try:
-            inner = _decompressor(compression)(data)
+            inner, extra = _decompress(compression, data)
         except Exception as exc:  # bz2/lz4 raise various types on bad data
             # its length may be what is wrong: go on at the next record after its header
             self._resume = self._resync(self._file, record.start)
@@ -474,6 +488,10 @@ class Bag1RecordReader:
             if self._resume is None:
                 self._resume = len(self._file)
             return
+        if extra and not cut:
+            self._resume = record.start + record.size - extra
+            self._problem(f"chunk at byte {offset} declares {extra} bytes more than its "
+                          f"compressed data; resumed at byte {self._resume}")
         problems = len(self.problems)
         self._escape = None
         self._in_chunk = True

@@ -13,10 +13,12 @@ log's scan records (file order) and decides, once, which stamp each record gets:
   kept neighbours. Used when at least :data:`MIN_USABLE_SHARE` of the records keep their stamps,
   the bad ones are isolated (no run longer than :data:`MAX_BAD_RUN_SHARE` of the log) and the
   median interval of the kept stamps is one a scanner can have.
-* **record order**: otherwise the stamps say nothing usable about time, and record ``k`` is
+* **record order**: otherwise the stamps cannot be used as they are, and record ``k`` is
   stamped ``t0 + k * period``, with the period the log declares (a sensor's scan time) or, failing
   that, the one its stamps imply (the span of the ordered records over their count, or the
-  median step between consecutive stamps).
+  median step between consecutive stamps). Where the steps between stamps still measure time
+  (stamps counting down, a log concatenated with itself) those steps are kept instead of the
+  period (:func:`record_order_steps`).
 
 A clean log keeps every stamp bit for bit.
 """
@@ -40,6 +42,8 @@ STRAY_JUMP_PERIODS = 100.0
 MAX_STRAY_SHARE = 0.01
 #: Scan periods a 2D LiDAR can have (s): outside, the stamps are in another unit or meaningless.
 PLAUSIBLE_PERIOD_S = (1e-3, 60.0)
+#: A step between stamps kept in record order lies within this factor of the period.
+STEP_BAND = 20.0
 #: Period assumed when neither the log nor its stamps give one (10 Hz, the commonest rate).
 DEFAULT_PERIOD_S = 0.1
 
@@ -58,6 +62,8 @@ class TimePlan:
         repaired: records whose stamp was replaced (log stamps) or all records (record order).
         period_s: the record-order period, or the median interval of the kept stamps.
         reason: why the stamps were repaired or not used; "" for a clean log.
+        alternative: the name of the record's second stamps when those were used because the
+            main ones were unusable (e.g. CARMEN's ``logger_timestamp``), else "".
     """
 
     stamps: NDArray[np.float64]
@@ -65,12 +71,15 @@ class TimePlan:
     repaired: int
     period_s: float
     reason: str = ""
+    alternative: str = ""
 
     def describe(self) -> str:
         """One line for notes and summaries: ``log stamps``, ``log stamps (3 repaired: ...)``
         or ``record order at 10 Hz (reason)``."""
         if self.source == RECORD_ORDER:
             return f"{RECORD_ORDER} at {1.0 / self.period_s:.4g} Hz ({self.reason})"
+        if self.alternative:
+            return f"{LOG_STAMPS}: {self.alternative} ({self.reason})"
         if self.repaired:
             return f"{LOG_STAMPS} ({self.repaired} repaired from their neighbours: {self.reason})"
         return LOG_STAMPS
@@ -264,8 +273,34 @@ def plan_stamps(
     rec_period, origin = _record_order_period(raw, anchors, declared_period_s)
     finite = raw[np.isfinite(raw)]
     t0 = float(finite[0]) if finite.size and finite[0] >= 0 and _plausible(period) else 0.0
-    planned = t0 + rec_period * np.arange(n, dtype=np.float64)
+    steps, kept = record_order_steps(raw, rec_period)
+    planned = t0 + np.concatenate(([0.0], np.cumsum(steps)))
+    if kept:
+        origin += f"; the log's own intervals kept where they fit ({kept} of {n - 1})"
     return TimePlan(planned, RECORD_ORDER, n, rec_period, f"{why}; {origin}")
+
+
+def record_order_steps(raw: NDArray[np.float64], period: float) -> tuple[NDArray[np.float64], int]:
+    """The intervals between consecutive records in record order, and how many are the log's.
+
+    Stamps that count down, or restart once (a log concatenated with itself), still measure
+    the time between most records: the steps of the commoner sign are kept where they lie
+    within :data:`STEP_BAND` of the period, the others (the restart, a jump, a zero step)
+    become the period. When fewer than half fit (quantised or jumping stamps) all steps are
+    the period.
+    """
+    steps = np.diff(raw)
+    uniform = np.full(steps.size, period)
+    moving = steps[np.isfinite(steps) & (steps != 0)]
+    if moving.size == 0:
+        return uniform, 0
+    sign = 1.0 if np.count_nonzero(moving > 0) >= np.count_nonzero(moving < 0) else -1.0
+    with np.errstate(invalid="ignore"):
+        size = sign * steps
+        fits = np.isfinite(size) & (size >= period / STEP_BAND) & (size <= period * STEP_BAND)
+    if np.count_nonzero(fits) < 0.5 * steps.size:
+        return uniform, 0
+    return np.where(fits, size, period), int(np.count_nonzero(fits))
 
 
 def _repair_reason(raw: NDArray[np.float64], bad: NDArray[np.bool_]) -> str:

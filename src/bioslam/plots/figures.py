@@ -106,15 +106,16 @@ def _draw_map(
     ends, loops = _split_links(links, len(nodes_xy))
     segments = nodes_xy[ends] if len(ends) else np.zeros((0, 2, 2))
     ax.add_collection(LineCollection(segments[~loops], colors=cfg.link_colour, linewidths=0.8))
+    ax.scatter(*nodes_xy.T, s=3, color=cfg.node_colour, alpha=0.5, lw=0, zorder=3,
+               label=f"{len(nodes_xy)} nodes")  # fmt: skip
+    # A verified loop link joins two places a few centimetres apart: drawn as a line it would
+    # hide under the nodes, so its ends are marked as well, on top of everything.
     ax.add_collection(
-        LineCollection(
-            segments[loops],
-            colors=cfg.loop_colour,
-            linewidths=1.6,
-            label=f"loop links ({int(loops.sum())})",
-        )
+        LineCollection(segments[loops], colors=cfg.loop_colour, linewidths=1.6, zorder=4)
     )
-    ax.scatter(*nodes_xy.T, s=6, color=cfg.node_colour, zorder=3, label=f"{len(nodes_xy)} nodes")
+    loop_ends = segments[loops].reshape(-1, 2)
+    ax.scatter(*loop_ends.T, s=14, facecolors="none", edgecolors=cfg.loop_colour, lw=0.9,
+               zorder=5, label=f"loop links ({int(loops.sum())})")  # fmt: skip
     _finish_map_axes(ax)
 
 

@@ -15,8 +15,10 @@ import argparse
 import contextlib
 import os
 import pickle
+import queue
 import subprocess
 import sys
+import threading
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -52,10 +54,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 class Output:
-    """One output (an MCAP file or a live server) in its own process, fed by a :class:`Tap`."""
+    """One output (an MCAP file or a live server) in its own process, fed by a :class:`Tap`.
+
+    A thread of the run's process writes the tap's batches down the pipe, so that the run
+    never waits on the worker while fewer than :data:`QUEUE` batches are pending. Then a
+    recording waits (it keeps every scan); a live view drops the batch and counts it (a
+    viewer wants the present, and the run must not slow down for it).
+    """
 
     #: seconds to wait for the worker to open its output, and to close it
     TIMEOUT = 300.0
+    #: batches that may wait for the worker
+    QUEUE = 256
 
     def __init__(self, spec: dict[str, Any], live: bool) -> None:
         from bioslam.recording.tap import Tap  # the SLAM system's modules: only when used
@@ -69,6 +79,11 @@ class Output:
         self.counts: dict[str, int] = {}
         self.error: str | None = None
         self.worker_cpu_seconds = 0.0
+        self.live = live
+        #: items a live view dropped because its worker was behind
+        self.dropped = 0
+        self._queue: queue.Queue[Any] = queue.Queue(maxsize=self.QUEUE)
+        self._pump: threading.Thread | None = None
 
     def open(self) -> None:
         env = dict(os.environ)
@@ -88,6 +103,34 @@ class Output:
                 text = MISSING_SDK
             raise RuntimeError(text)
         self.port = reply[1]
+        self._pump = threading.Thread(target=self._pumping, name=f"bioslam-{self.kind}",
+                                      daemon=True)  # fmt: skip
+        self._pump.start()
+
+    def _pumping(self) -> None:
+        """The writing thread: batches down the pipe until the ``None`` that ends them."""
+        while (batch := self._queue.get()) is not None:
+            try:
+                self._write(batch)
+            except (BrokenPipeError, OSError) as exc:
+                self.error = f"the {self.kind} process stopped ({exc}); the run goes on without it"
+                print(f"bioslam: {self.error}", file=sys.stderr)
+                return
+
+    def _enqueue(self, item: Any, wait: bool) -> bool:
+        """Queue ``item`` for the writing thread; without ``wait`` give up at once when the
+        queue is full. False when it was not queued."""
+        while self.error is None and self._pump is not None and self._pump.is_alive():
+            try:
+                if wait:
+                    self._queue.put(item, timeout=1.0)
+                else:
+                    self._queue.put_nowait(item)
+                return True
+            except queue.Full:
+                if not wait:
+                    return False
+        return False
 
     def _write(self, message: Any) -> None:
         assert self.process is not None and self.process.stdin is not None
@@ -104,18 +147,23 @@ class Output:
     def _send(self, batch: list) -> None:
         if self.process is None or self.error is not None:
             return
-        try:
-            self._write(batch)
-        except (BrokenPipeError, OSError) as exc:
-            self.error = f"the {self.kind} process stopped ({exc}); the run goes on without it"
-            print(f"bioslam: {self.error}", file=sys.stderr)
+        if not self._enqueue(batch, wait=not self.live) and self.live:
+            self.dropped += len(batch)
 
     def close(self) -> None:
         """Tell the worker to close its output and wait for it; safe to call again."""
         if self.process is None:
             return
         self.tap.flush()
-        self._send("close")  # type: ignore[arg-type]
+        if self._pump is not None:
+            self._enqueue(None, wait=True)
+            self._pump.join()
+            self._pump = None
+        if self.error is None:
+            try:
+                self._write("close")
+            except (BrokenPipeError, OSError) as exc:
+                self.error = f"the {self.kind} process stopped ({exc})"
         if self.process.stdin is not None:
             with contextlib.suppress(OSError):
                 self.process.stdin.close()
@@ -263,6 +311,7 @@ class Session:
                 part["bytes"] = self.record.stat().st_size
             if output.kind == "live":
                 part["url"] = self.url
+                part["dropped"] = output.dropped
             if output.error:
                 part["error"] = output.error
             out[output.kind] = part
