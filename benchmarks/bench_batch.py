@@ -101,12 +101,19 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=60.0, help="seconds per drive")
     parser.add_argument("--noops", type=int, default=200)
     parser.add_argument("--engines", default="process,ray")
+    parser.add_argument("--save", type=Path, help="also write the report to this file")
     args = parser.parse_args()
+    report: list[str] = []
+
+    def say(line: str = "") -> None:
+        print(line, flush=True)
+        report.append(line)
+
     engines = [e for e in args.engines.split(",") if e != "ray" or ray_available()]
     WORK.mkdir(parents=True, exist_ok=True)
     logs = simulated_logs(args.duration)
-    print(f"load before: {os.getloadavg()[0]:.2f}; {len(logs)} logs x 2 configs, "
-          f"{args.duration:g} s drives, {args.repeat} repeats", flush=True)
+    say(f"load before: {os.getloadavg()[0]:.2f}; {len(logs)} logs x 2 configs, "
+        f"{args.duration:g} s drives, {args.repeat} repeats")
     timed_batch(engines[0], 2, logs)  # untimed: fills Numba's cache and the page cache
     results: dict[tuple[str, int], list[dict[str, float]]] = {}
     for k in range(args.repeat):
@@ -114,11 +121,12 @@ def main() -> None:
             for workers in (1, 2):
                 res = timed_batch(name, workers, logs)
                 results.setdefault((name, workers), []).append(res)
-                print(f"  repeat {k + 1} {name} x{workers}: {res['wall']:.1f} s "
-                      f"(runs {res['task_s']:.1f} s)", flush=True)
-    print(f"load after: {os.getloadavg()[0]:.2f}")
-    print("\nengine | workers | wall s (median) | speed-up (ratio of medians / median of "
-          "ratios) | start s | overhead per run s | round trip ms")
+                say(f"  repeat {k + 1} {name} x{workers}: {res['wall']:.1f} s "
+                    f"(runs {res['task_s']:.1f} s), load {os.getloadavg()[0]:.1f}")
+    say(f"load after: {os.getloadavg()[0]:.2f}")
+    say()
+    say("engine | workers | wall s (median) | speed-up (ratio of medians / median of "
+        "ratios) | start s | overhead per run s | round trip ms")
     for name in engines:
         one, two = results[(name, 1)], results[(name, 2)]
         med1 = statistics.median(r["wall"] for r in one)
@@ -131,10 +139,12 @@ def main() -> None:
         runs1 = statistics.median(r["wall"] - r["engine_s"] for r in one)
         runs2 = statistics.median(r["wall"] - r["engine_s"] for r in two)
         trip = round_trip_ms(name, args.noops)
-        print(f"{name} | 1 | {med1:.1f} | | {start:.2f} | {per_run:.2f} | {trip:.2f}")
-        print(f"{name} | 2 | {med2:.1f} | {med1 / med2:.2f} / {pair:.2f} | | |")
-        print(f"{name}: without the engine's start {runs1:.1f} s / {runs2:.1f} s, "
-              f"speed-up {runs1 / runs2:.2f}")
+        say(f"{name} | 1 | {med1:.1f} | | {start:.2f} | {per_run:.2f} | {trip:.2f}")
+        say(f"{name} | 2 | {med2:.1f} | {med1 / med2:.2f} / {pair:.2f} | | |")
+        say(f"{name}: without the engine's start {runs1:.1f} s / {runs2:.1f} s, "
+            f"speed-up {runs1 / runs2:.2f}")
+    if args.save:
+        args.save.write_text("\n".join(report) + "\n")
 
 
 if __name__ == "__main__":
