@@ -9,7 +9,8 @@ subset of the queries: it is slow), how often the winner is within 10 cm / 2° o
 (and within 2 cm after Gauss-Newton), the median ambiguity, and whether the two searches
 agreed on the best score (they must, always).
 
-Usage: ``python benchmarks/bench_matcher.py [--queries 60] [--world maze|warehouse]``
+Usage: ``python benchmarks/bench_matcher.py [--queries 60] [--world maze|warehouse]
+[--depth 4] [--angular-cells 2]`` (the odometry's settings: depth 4, two cells).
 """
 
 from __future__ import annotations
@@ -23,18 +24,21 @@ import numpy as np
 from bioslam.geometry import between, compose
 from bioslam.matching.branch_and_bound import WideBasinConfig, WideBasinMatcher, refine
 from bioslam.occupancy_grid import MapPyramid, subsample_by_spacing
-from bioslam.sim import LIDAR_PRESETS, LidarModel, make_route, maze_world, simulate_scans
+from bioslam.sim import (
+    LIDAR_PRESETS,
+    LidarModel,
+    load_world,
+    make_route,
+    maze_world,
+    simulate_scans,
+)
 
 # SICK LMS 200/291 (most public 2D datasets): 180°, 181 beams, 80 m, 10 Hz
 SICK = LidarModel("sick", math.pi, 181, 0.05, 80.0, 10.0, 0.01)
 
 
 def _world(name: str):
-    if name == "maze":
-        return maze_world()
-    import bioslam.sim as sim
-
-    return getattr(sim, f"{name}_world")()
+    return maze_world() if name == "maze" else load_world(name)
 
 
 def _sensors() -> dict[str, LidarModel]:
@@ -44,12 +48,13 @@ def _sensors() -> dict[str, LidarModel]:
     }
 
 
-def run(world_name: str, queries: int, brute_every: int, offset: float, turn: float) -> None:
+def run(world_name: str, queries: int, brute_every: int, offset: float, turn: float,
+        cfg: WideBasinConfig) -> None:  # fmt: skip
     world = _world(world_name)
     route = make_route(world, duration=max(queries * 1.2, 30.0), seed=3)
-    cfg = WideBasinConfig()
     print(f"world {world_name}, window ±{cfg.distance} m ±{math.degrees(cfg.angle):.0f}°, "
-          f"start offset up to {offset} m / {turn}°, lattice at 0.1 m")  # fmt: skip
+          f"start offset up to {offset} m / {turn}°, lattice at 0.1 m, depth {cfg.depth}, "
+          f"heading step {cfg.angular_cells} cell(s)")  # fmt: skip
     header = ("sensor", "points", "B&B ms", "p90", "grids ms", "brute ms", "ratio",
               "within 10cm/2°", "GN within 2cm", "ambiguity", "same score")  # fmt: skip
     print(" | ".join(header))
@@ -108,8 +113,11 @@ def main() -> None:
     parser.add_argument("--world", default="maze")
     parser.add_argument("--offset", type=float, default=1.0, help="start offset, metres")
     parser.add_argument("--turn", type=float, default=30.0, help="start heading offset, deg")
+    parser.add_argument("--depth", type=int, default=None, help="pooling levels (default: all)")
+    parser.add_argument("--angular-cells", type=float, default=1.0)
     a = parser.parse_args()
-    run(a.world, a.queries, a.brute_every, a.offset, a.turn)
+    cfg = WideBasinConfig(depth=a.depth, angular_cells=a.angular_cells)
+    run(a.world, a.queries, a.brute_every, a.offset, a.turn, cfg)
 
 
 if __name__ == "__main__":

@@ -51,6 +51,7 @@ def test_branch_and_bound_equals_brute_force_on_random_maps_and_windows():
             distance=rng.uniform(0.1, 1.0), angle=rng.uniform(0.02, 0.6),
             rival_distance=rng.uniform(0.1, 0.6), rival_angle=rng.uniform(0.02, 0.3),
             min_rival_ratio=rng.uniform(0.0, 0.9), blur=int(rng.integers(0, 3)),
+            depth=[None, 0, 1, 2, 4][int(rng.integers(0, 5))],
         )  # fmt: skip
         matcher = WideBasinMatcher(cfg)
         matcher.set_map(grid)
@@ -59,6 +60,11 @@ def test_branch_and_bound_equals_brute_force_on_random_maps_and_windows():
         assert found.score == best
         assert found.rival_score == rival
         assert (found.rival_pose is None) == (rival == 0.0)
+        # a hint (a pose believed good) only speeds the search: the same answer
+        hint = centre + np.array([*rng.uniform(-0.3, 0.3, 2), rng.uniform(-0.1, 0.1)])
+        hinted = matcher.search(points, centre, hint)
+        assert hinted.score == found.score and np.array_equal(hinted.pose, found.pose)
+        assert hinted.rival_score == found.rival_score
 
 
 def _mapped(world, poses, beams=361, fov=1.5 * np.pi, size=24.0):

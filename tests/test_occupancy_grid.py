@@ -161,3 +161,22 @@ def test_fraction_not_above_near_places_sensor_points_by_the_pose():
     assert expected == 0.5
     assert grid.fraction_not_above_near(pose, sensor, 1.0) == pytest.approx(expected)
     assert grid.fraction_not_above_near(pose, np.zeros((0, 2)), 1.0) == 0.0
+
+
+def test_display_grid_has_the_same_logodds_in_less_memory() -> None:
+    """A grid kept only for drawing (subcell=False) fuses scans to the very same log-odds."""
+    rng = np.random.default_rng(3)
+    full = OccupancyGrid.from_extent(0.05, (-12.0, -9.0, 14.0, 11.0))
+    light = OccupancyGrid.from_extent(0.05, (-12.0, -9.0, 14.0, 11.0), subcell=False)
+    for _ in range(25):
+        pose = np.array([rng.uniform(-3, 3), rng.uniform(-3, 3), rng.uniform(-np.pi, np.pi)])
+        angles = np.linspace(-2.3, 2.3, 400)
+        ranges = rng.uniform(0.5, 20.0, size=angles.size)  # some beyond the grid
+        pts = np.column_stack([ranges * np.cos(angles), ranges * np.sin(angles)])
+        full.insert_scan(pose, pts, max_range=15.0)
+        light.insert_scan(pose, pts, max_range=15.0)
+    np.testing.assert_array_equal(light.logodds, full.logodds)
+    np.testing.assert_array_equal(light.known_mask(), full.known_mask())
+    assert light.nbytes * 3 < full.nbytes
+    with pytest.raises(ValueError, match="subcell"):
+        light.value_and_gradient(np.zeros((1, 2)))

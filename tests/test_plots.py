@@ -80,6 +80,26 @@ def test_occupancy_map_is_drawn_with_row_zero_at_the_bottom(tmp_path):
     assert unknown.size and np.mean(unknown[:, 0]) > h / 2 and np.mean(unknown[:, 1]) > w / 2
 
 
+def test_a_large_map_is_reduced_keeping_thin_walls_and_its_place(tmp_path, monkeypatch):
+    """A map wider than the figure is drawn block by block: a one-cell wall survives, the
+    whole-unknown region stays unknown, and the picture covers the same metres."""
+    prob = np.zeros((301, 250), dtype=np.float64)
+    prob[:, 123] = 1.0  # a one-cell wall, not on a block boundary
+    prob[150:, 200:] = np.nan
+    shown, block = figures._display_cells(prob.astype(np.float32), 100)
+    assert block == 4 and shown.shape == (76, 63)
+    assert np.all(shown[:75, 30] == 1.0) and np.all(shown[:, :30] == 0.0)
+    assert np.all(np.isnan(shown[38:75, 50:62])) and not np.isnan(shown[36, 50])
+    monkeypatch.setattr(figures.CONFIG, "max_map_pixels", 100)
+    reduced = _pixels(plot_occupancy(tmp_path / "reduced.png", (prob, 0.1, (0.0, 0.0))))
+    monkeypatch.setattr(figures.CONFIG, "max_map_pixels", 10_000)
+    full = _pixels(plot_occupancy(tmp_path / "full.png", (prob, 0.1, (0.0, 0.0))))
+    # the same picture but for the wall's width: the wall's columns agree within a block
+    dark_reduced = np.argwhere(reduced.sum(axis=-1) < 0.3)[:, 1]
+    dark_full = np.argwhere(full.sum(axis=-1) < 0.3)[:, 1]
+    assert abs(np.median(dark_reduced) - np.median(dark_full)) <= 4
+
+
 def test_occupancy_accepts_a_plain_tuple_and_draws_the_trajectory(tmp_path):
     prob = np.zeros((50, 50))
     route = _square_route() * 0.5 + 1.0

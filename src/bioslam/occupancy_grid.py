@@ -100,7 +100,7 @@ def _add_clamped(grid, r, c, delta, lo, hi) -> None:
 @numba.njit(cache=True)
 def _insert_scan_kernel(
     logodds, stamps, means, hits, weights, stamp, ox, oy, res, sx, sy, world_pts, normals,
-    l_hit, l_miss, l_min, l_max, memory,
+    l_hit, l_miss, l_min, l_max, memory, subcell,
 ) -> None:  # fmt: skip
     rows, cols = logodds.shape
     n = world_pts.shape[0]
@@ -115,7 +115,10 @@ def _insert_scan_kernel(
         if stamps[r, c] != stamp:
             stamps[r, c] = stamp
             _add_clamped(logodds, r, c, l_hit, l_min, l_max)
-            weights[r, c] = _prob(logodds[r, c])
+            if subcell:
+                weights[r, c] = _prob(logodds[r, c])
+        if not subcell:
+            continue
         if hits[r, c] < memory:
             hits[r, c] += 1
         w = 1.0 / hits[r, c]
@@ -138,7 +141,7 @@ def _insert_scan_kernel(
                 if stamps[r, c] != stamp:
                     stamps[r, c] = stamp
                     _add_clamped(logodds, r, c, l_miss, l_min, l_max)
-                    if hits[r, c] > 0:
+                    if subcell and hits[r, c] > 0:
                         weights[r, c] = _prob(logodds[r, c])
             elif (r < 0 and sr < 0) or (r >= rows and sr > 0) or (c < 0 and sc < 0) or (
                 c >= cols and sc > 0
@@ -416,6 +419,9 @@ class OccupancyGrid:
         update: the log-odds increments and clamps.
         auto_grow: grow the grid (by whole blocks) when a scan reaches beyond it, for global maps
             of unknown extent; a local map leaves it off and scrolls with :meth:`recenter`.
+        subcell: keep what the map function M* reads besides the log-odds (sub-cell means,
+            normals, hit counts, probabilities: 22 of the 30 bytes a cell); a grid only drawn
+            (the output map) leaves it off and gets the same log-odds.
     """
 
     _LAYERS = ("logodds", "_stamps", "means", "hits", "weights")
@@ -427,6 +433,7 @@ class OccupancyGrid:
         origin: ArrayLike | None = None,
         update: LogOddsConfig | None = None,
         auto_grow: bool = False,
+        subcell: bool = True,
     ) -> None:
         if not resolution > 0:
             raise ValueError(f"grid resolution must be positive, got {resolution}")
@@ -443,13 +450,19 @@ class OccupancyGrid:
         self._stamps = np.zeros((rows, cols), dtype=np.int32)
         # Sub-cell mean endpoint of each cell, relative to its lower-left corner, the mean
         # surface normal there, and the number of hits averaged (see subcell_point).
-        self.means = np.zeros((rows, cols, 4), dtype=np.float32)
-        self.hits = np.zeros((rows, cols), dtype=np.uint16)
+        self.subcell = subcell
+        layer_shape = (rows, cols) if subcell else (1, 1)
+        self.means = np.zeros((*layer_shape, 4), dtype=np.float32)
+        self.hits = np.zeros(layer_shape, dtype=np.uint16)
         # The occupancy probability of every cell ever hit (0 elsewhere), kept up to date by
         # the updates: the matcher reads it at four cells per point and iteration, where
         # converting log-odds each time would cost a third of its time.
-        self.weights = np.zeros((rows, cols), dtype=np.float32)
+        self.weights = np.zeros(layer_shape, dtype=np.float32)
         self._stamp = 0
+
+    @property
+    def _layers(self) -> tuple[str, ...]:
+        return self._LAYERS if self.subcell else self._LAYERS[:2]
 
     @classmethod
     def from_extent(
@@ -458,12 +471,15 @@ class OccupancyGrid:
         extent: tuple[float, float, float, float],
         update: LogOddsConfig | None = None,
         auto_grow: bool = False,
+        subcell: bool = True,
     ) -> OccupancyGrid:
         """A grid covering ``(xmin, ymin, xmax, ymax)``."""
         xmin, ymin, xmax, ymax = extent
         if not (xmax > xmin and ymax > ymin):
             raise ValueError(f"empty grid extent {extent}")
-        return cls(resolution, (xmax - xmin, ymax - ymin), (xmin, ymin), update, auto_grow)
+        return cls(
+            resolution, (xmax - xmin, ymax - ymin), (xmin, ymin), update, auto_grow, subcell
+        )
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -478,7 +494,7 @@ class OccupancyGrid:
 
     @property
     def nbytes(self) -> int:
-        return int(sum(getattr(self, n).nbytes for n in self._LAYERS))
+        return int(sum(getattr(self, n).nbytes for n in self._layers))
 
     def probability(self, unknown: float = 0.5) -> FloatArray:
         """Occupancy probabilities ``(H, W)`` in [0, 1]; never-observed cells get ``unknown``."""
@@ -550,7 +566,7 @@ class OccupancyGrid:
         _insert_scan_kernel(
             self.logodds, self._stamps, self.means, self.hits, self.weights, self._stamp,
             self.origin[0], self.origin[1], self.resolution, pose[0], pose[1], world,
-            world_normals, u.l_hit, u.l_miss, u.l_min, u.l_max, u.mean_memory,
+            world_normals, u.l_hit, u.l_miss, u.l_min, u.l_max, u.mean_memory, self.subcell,
         )  # fmt: skip
 
     def value_and_gradient(
@@ -559,6 +575,8 @@ class OccupancyGrid:
         """M* at world points ``(N, 2)`` and its gradient ``(N, 2)``: Hector's bilinear M*
         of Eq. 3 by default, the sub-cell variant (:func:`subcell_point`) with kernel width
         ``subcell_sigma`` when given."""
+        if not self.subcell:
+            raise ValueError("a grid made with subcell=False has no map function")
         pts = _as_points(points)
         kind = 0 if subcell_sigma is None else 1
         out = _map_many(
@@ -572,7 +590,7 @@ class OccupancyGrid:
         what falls outside is forgotten, so memory stays constant."""
         if drow == 0 and dcol == 0:
             return
-        for name in self._LAYERS:
+        for name in self._layers:
             old = getattr(self, name)
             new = np.zeros_like(old)
             rows, cols = old.shape[:2]
@@ -610,7 +628,7 @@ class OccupancyGrid:
         if left == right == below == above == 0:
             return
         pad = ((below, above), (left, right))
-        for name in self._LAYERS:
+        for name in self._layers:
             layer = getattr(self, name)
             setattr(self, name, np.pad(layer, pad + ((0, 0),) * (layer.ndim - 2)))
         self.origin = self.origin - res * np.array([left, below], dtype=np.float64)

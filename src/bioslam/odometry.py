@@ -159,7 +159,12 @@ class OdometryConfig:
             motion model's prediction (metres, radians) is a jump; it is accepted only if the
             prediction's own match failed or scores below ``overwhelming_ratio`` of it (intel:
             RPE 62 cm with this guard, 78 cm with a limit grown by 2 m/s and 2 rad/s of
-            motion between the scans).
+            motion between the scans instead).
+        max_speed, max_turn_rate: ... and never if it lies farther from the previous pose
+            than ``jump_distance + max_speed * dt`` metres or ``jump_angle + max_turn_rate *
+            dt`` radians, more than a robot moves between two scans ``dt`` seconds apart
+            (freiburg-079: a failed match in clutter 0.14 s after the last scan was
+            replaced by a look-alike 0.95 m away).
         log_odds: hit/miss increments of the map cells.
     """
 
@@ -198,6 +203,8 @@ class OdometryConfig:
     rival_ratio: float = 0.8
     jump_distance: float = 0.5
     jump_angle: float = 0.35
+    max_speed: float = 2.0
+    max_turn_rate: float = 3.0
     overwhelming_ratio: float = 0.7
     score_window: int = 100
     log_odds: LogOddsConfig = field(default_factory=LogOddsConfig)
@@ -335,7 +342,7 @@ class LidarOdometry:
             level_pts = points_per_level(pts, c.point_spacing, c.levels, keep)
             start = self._best_start(level_pts[-1], previous, predicted)
             self.pose, self.last_report = self._match(
-                level_pts, start, previous, matched_normals(level_pts), dt
+                level_pts, start, previous, matched_normals(level_pts), dt, predicted
             )
             self.num_recovered += self.last_report.recovered
             self.num_degenerate += self.last_report.degenerate
@@ -365,7 +372,7 @@ class LidarOdometry:
 
     def _match(
         self, level_pts: list[FloatArray], start: FloatArray, previous: FloatArray,
-        normals: FloatArray, dt: float,
+        normals: FloatArray, dt: float, predicted: FloatArray,
     ) -> tuple[FloatArray, MatchReport]:
         """Eq. 3 from ``start`` (the motion model's prior, :meth:`_best_start`); when that
         cannot be trusted (:meth:`_untrusted`), also from the wide-basin search's winner and
@@ -380,7 +387,9 @@ class LidarOdometry:
             for seed in self._search_seeds(points, start, previous, pose):
                 second, second_report = self._match_from(level_pts, seed, normals)
                 options.append((second, second_report, self._failed(second_report)))
-        pose, report = self._choose(options, start)
+        reach = (c.jump_distance + c.max_speed * dt, c.jump_angle + c.max_turn_rate * dt)
+        motion = (start, predicted, compose(previous, self._last_delta))
+        pose, report = self._choose(options, motion, previous, reach)
 
         report.iterations = sum(option[1].iterations for option in options)
         self._remember_score(report.score)
@@ -421,13 +430,17 @@ class LidarOdometry:
         return seeds
 
     def _choose(
-        self, options: list[tuple[FloatArray, MatchReport, bool]], prior: FloatArray
+        self, options: list[tuple[FloatArray, MatchReport, bool]],
+        motion: tuple[FloatArray, ...], previous: FloatArray, reach: tuple[float, float],
     ) -> tuple[FloatArray, MatchReport]:
-        """The plausible match nearest the motion model's ``prior`` (``plausible_ratio``), then
-        the best of those in its basin; a jump from the prediction's own match (the first
-        option) must be overwhelming (``overwhelming_ratio``). Flags the report ambiguous
+        """The plausible match nearest the motion model's prior (``plausible_ratio``; the
+        first of ``motion``, the start Gauss-Newton ran from), then the best of those in its
+        basin; a jump (far from every motion hypothesis: the start, the constant-velocity
+        prediction, the last step repeated) from the prediction's own match (the first option)
+        must be overwhelming (``overwhelming_ratio``). Flags the report ambiguous
         when a plausible match lies elsewhere, recovered when it is not the first match."""
         c = self.config
+        prior = motion[0]
         first = options[0]
         if len(options) == 1:
             return first[0], first[1]
@@ -440,10 +453,12 @@ class LidarOdometry:
         basin = [o for o in plausible if not self._distinct(o[0], nearest[0])]
         chosen = max(basin, key=lambda o: quality[id(o)])
         ambiguous = len(basin) < len(plausible)
-        if chosen is not first and self._is_jump(chosen[0], prior):
+        if chosen is not first and all(self._is_jump(chosen[0], m) for m in motion):
             q_first = quality[id(first)]
             if not first[2] and q_first > c.overwhelming_ratio * quality[id(chosen)]:
                 chosen, ambiguous = first, True  # a look-alike, not overwhelming evidence
+            elif self._beyond(chosen[0], previous, reach):
+                chosen = first  # farther than the robot can have moved since the last scan
         pose, report = chosen[0], chosen[1]
         report.recovered = chosen is not first
         report.ambiguous = ambiguous
@@ -459,8 +474,13 @@ class LidarOdometry:
         cfg = self._searcher.config
         return math.hypot(d[0], d[1]) > cfg.rival_distance or abs(d[2]) > cfg.rival_angle
 
+    @staticmethod
+    def _beyond(pose: FloatArray, previous: FloatArray, reach: tuple[float, float]) -> bool:
+        d = between(previous, pose)
+        return math.hypot(d[0], d[1]) > reach[0] or abs(d[2]) > reach[1]
+
     def _is_jump(self, pose: FloatArray, prior: FloatArray) -> bool:
-        """Farther from the motion model's ``prior`` than ``jump_distance`` or ``jump_angle``."""
+        """Farther from a motion hypothesis ``prior`` than ``jump_distance`` or ``jump_angle``."""
         d = between(prior, pose)
         c = self.config
         return math.hypot(d[0], d[1]) > c.jump_distance or abs(d[2]) > c.jump_angle

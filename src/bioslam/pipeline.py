@@ -24,13 +24,13 @@ from bioslam.cognitive_map import CognitiveMap
 from bioslam.config import SLAMConfig
 from bioslam.evaluation import evaluate, position_errors
 from bioslam.geometry import Pose2D, compose, inverse
+from bioslam.growing import GrowingArray
 from bioslam.io.jsonio import write_json
 from bioslam.io.mapfile import OccupancyImage, write_map
 from bioslam.io.outdir import OutputDir
 from bioslam.io.tum import write_tum
 from bioslam.occupancy_grid import OccupancyGrid
 from bioslam.odometry import LidarOdometry, register_scans
-from bioslam.plots import figures
 from bioslam.scan import LaserScan
 from bioslam.slam import BioSLAM, SelfMotion, StepRecord, thin_points
 from bioslam.trajectory import Trajectory
@@ -81,8 +81,8 @@ class OdometryOnly:
 
     def __init__(self, config: SLAMConfig) -> None:
         self.self_motion = SelfMotion(config)
-        self._stamps: list[float] = []
-        self._poses: list[FloatArray] = []
+        self._stamps = GrowingArray(np.float64)
+        self._poses = GrowingArray(np.float64, 3)
         self.records: list[StepRecord] = []
 
     @property
@@ -100,9 +100,9 @@ class OdometryOnly:
         return len(self._stamps)
 
     def trajectory(self) -> Trajectory:
-        if not self._stamps:
+        if not len(self._stamps):
             return Trajectory.empty()
-        return Trajectory(np.asarray(self._stamps), np.asarray(self._poses))
+        return Trajectory(self._stamps.array(), self._poses.array())
 
     odometry_trajectory = trajectory
 
@@ -111,6 +111,35 @@ class OdometryOnly:
 
     def summary(self) -> dict[str, int]:
         return {"views": 0, "experiences": 0, "loop_closures": 0, **self.odometry.summary()}
+
+
+class KeyframeScans:
+    """The scans kept for the output map: their scan numbers and thinned sensor-frame
+    endpoints (float32), all endpoints in one growing array rather than one array per
+    keyframe (which would cost about 100 bytes of bookkeeping each on top of the points)."""
+
+    def __init__(self) -> None:
+        self.index = GrowingArray(np.int64)
+        self._starts = GrowingArray(np.int64)
+        self._points = GrowingArray(np.float32, 2, capacity=1 << 16)
+
+    def add(self, scan_index: int, points: FloatArray) -> None:
+        self.index.append(scan_index)
+        self._starts.append(len(self._points))
+        self._points.extend(points)
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def points(self) -> list[NDArray[np.float32]]:
+        """Each keyframe's endpoints (views into the store, valid until the next add)."""
+        if not len(self):
+            return []
+        return np.split(self._points.view(), self._starts.view()[1:])
+
+    @property
+    def nbytes(self) -> int:
+        return self.index.nbytes + self._starts.nbytes + self._points.nbytes
 
 
 @dataclass
@@ -130,12 +159,11 @@ class RunResult:
     # CPU seconds of this thread per ``process`` call: on a shared machine wall time also
     # counts the time other processes hold the core (measured: a wall mean 1.3-2.1 ms per
     # scan against a steady 1.2-1.3 ms CPU on the same demo run)
-    scan_seconds: list[float] = field(default_factory=list)
+    scan_seconds: GrowingArray = field(default_factory=lambda: GrowingArray(np.float64))
     wall_s: float = 0.0
     startup_s: float = 0.0
     snapshots: list[Snapshot] = field(default_factory=list)
-    keyframe_index: list[int] = field(default_factory=list)
-    keyframe_points: list[NDArray[np.float32]] = field(default_factory=list)
+    keyframes: KeyframeScans = field(default_factory=KeyframeScans)
     map_max_range: float = 30.0
     interrupted: bool = False
     error: str | None = None
@@ -269,9 +297,8 @@ def _feed(
         odo_pose = system.self_motion.pose
         if _is_keyframe(odo_pose, last_key, options):
             last_key = odo_pose.copy()
-            result.keyframe_index.append(system.num_scans - 1)
-            result.keyframe_points.append(
-                thin_points(scan.endpoints(), options.map_point_spacing)
+            result.keyframes.add(
+                system.num_scans - 1, thin_points(scan.endpoints(), options.map_point_spacing)
             )
         while pending_snapshots and scan.stamp - result.first_stamp >= pending_snapshots[0]:
             if isinstance(system, BioSLAM):
@@ -290,14 +317,16 @@ def render_map(
     The cell size grows beyond ``resolution`` when the map would be wider than ``max_cells``
     cells, so that a huge or diverged trajectory cannot exhaust memory.
     """
-    poses = trajectory.poses[result.keyframe_index]
-    reach = np.array([np.max(np.abs(p), initial=0.0) for p in result.keyframe_points])
+    poses = trajectory.poses[result.keyframes.index.view()]
+    keyframe_points = result.keyframes.points()
+    reach = np.array([np.max(np.abs(p), initial=0.0) for p in keyframe_points])
     reach = np.minimum(reach, result.map_max_range)
     lo = np.min(poses[:, :2] - reach[:, None], axis=0) - 1.0
     hi = np.max(poses[:, :2] + reach[:, None], axis=0) + 1.0
     cell = max(resolution, float(np.max(hi - lo)) / max_cells)
-    grid = OccupancyGrid.from_extent(cell, (lo[0], lo[1], hi[0], hi[1]))
-    for pose, points in zip(poses, result.keyframe_points, strict=True):
+    # drawn only: log-odds and observation stamps, 8 bytes a cell instead of 30
+    grid = OccupancyGrid.from_extent(cell, (lo[0], lo[1], hi[0], hi[1]), subcell=False)
+    for pose, points in zip(poses, keyframe_points, strict=True):
         grid.insert_scan(pose, points.astype(np.float64), result.map_max_range)
     probability = grid.probability(unknown=np.nan)
     return OccupancyImage(probability, grid.resolution, (*map(float, grid.origin), 0.0))
@@ -306,7 +335,7 @@ def render_map(
 def timing_summary(result: RunResult, trajectory: Trajectory) -> dict[str, float]:
     ms = np.asarray(result.scan_seconds) * 1e3
     duration = float(trajectory.stamps[-1] - trajectory.stamps[0]) if len(trajectory) > 1 else 0.0
-    compute_s = float(np.sum(result.scan_seconds))
+    compute_s = float(np.sum(np.asarray(result.scan_seconds)))
     return {
         "wall_s": round(result.wall_s, 3),
         "startup_s": round(result.startup_s, 3),
@@ -407,6 +436,9 @@ def _write_figures(
     gt: Trajectory | None,
     image: OccupancyImage,
 ) -> None:
+    # matplotlib costs ~50 MB and a second to import: only once the run is over
+    from bioslam.plots import figures
+
     system = result.system
 
     def draw(name: str, plot: Any, *args: Any) -> None:

@@ -30,6 +30,7 @@ from bioslam.closure import (
 from bioslam.cognitive_map import CognitiveMap, Experience
 from bioslam.config import SLAMConfig
 from bioslam.geometry import Pose2D, between, compose
+from bioslam.growing import GrowingArray
 from bioslam.occupancy_grid import subsample_by_spacing
 from bioslam.odometry import LidarOdometry
 from bioslam.pose_cells import PoseCellNetwork
@@ -92,10 +93,11 @@ class BioSLAM:
         self.view_cells = ViewCells(cfg.views, cells_per_ring=cfg.boundary.cells_per_ring)
         self.pose_cells = PoseCellNetwork(cfg.pose_cells)
         self.cognitive_map = CognitiveMap.from_pose_cells(cfg.cognitive_map, cfg.pose_cells)
-        self._stamps: list[float] = []
-        self._anchor_ids: list[int] = []
-        self._anchor_offsets: list[FloatArray] = []
-        self._odometry_poses: list[FloatArray] = []
+        # one row per scan for the whole run, so kept as arrays (bioslam.growing)
+        self._stamps = GrowingArray(np.float64)
+        self._anchor_ids = GrowingArray(np.int64)
+        self._anchor_offsets = GrowingArray(np.float64, 3)
+        self._odometry_poses = GrowingArray(np.float64, 3)
         self.records: list[StepRecord] = []
         self._travelled = 0.0
         # odometry distance at which each experience was made, by id (a doubling buffer:
@@ -275,7 +277,7 @@ class BioSLAM:
     def _record(self, stamp: float) -> None:
         exp_id, offset = self.cognitive_map.anchor()
         self._stamps.append(stamp)
-        self._anchor_ids.append(int(exp_id))
+        self._anchor_ids.append(exp_id)
         self._anchor_offsets.append(compose(offset, self._pending))
         self._odometry_poses.append(self.self_motion.pose)
 
@@ -299,18 +301,16 @@ class BioSLAM:
     def trajectory(self) -> Trajectory:
         """Every scan's pose: its experience's relaxed pose composed with the odometry since,
         so that the whole trajectory follows each correction of the map."""
-        if not self._stamps:
+        if not len(self._stamps):
             return Trajectory.empty()
-        poses = self.cognitive_map.poses_of(
-            np.asarray(self._anchor_ids), np.asarray(self._anchor_offsets)
-        )
-        return Trajectory(np.asarray(self._stamps), poses)
+        poses = self.cognitive_map.poses_of(self._anchor_ids.view(), self._anchor_offsets.view())
+        return Trajectory(self._stamps.array(), poses)
 
     def odometry_trajectory(self) -> Trajectory:
         """The self-motion cue alone (as the pose cells received it), one pose per scan."""
-        if not self._stamps:
+        if not len(self._stamps):
             return Trajectory.empty()
-        return Trajectory(np.asarray(self._stamps), np.asarray(self._odometry_poses))
+        return Trajectory(self._stamps.array(), self._odometry_poses.array())
 
     def _check_counts(self) -> dict[str, int]:
         """Loop-closure verifications by cue, and refusals by reason (``closure.verify``)."""

@@ -436,7 +436,7 @@ def match_scan_to_map(
             if prior_weight is not None:
                 weight = prior_weight * (1.0 - cond / degeneracy_ratio)
     prior = (hold, pose.copy(), weight)
-    if weight > 0.0:
+    if prior_weight is not None:
         hold = np.zeros(3)
     iters = max_iterations[::-1]
     for k in range(len(pyramid.grids) - 1, -1, -1):
