@@ -167,7 +167,7 @@ def peer_realtime(input_path: Path, work: Path) -> float:
 
 def measure(name: str, input_path: Path, args: argparse.Namespace) -> dict:
     out = WORK / "runs" / name
-    cmd = [*bioslam_cli(), "run", str(input_path), "--out", str(out)]
+    cmd = [*bioslam_cli(), "run", str(input_path), "--out", str(out), "--overwrite"]
     if args.odometry_only:
         cmd.append("--odometry-only")
     r = watch(cmd, args.interval)
