@@ -19,16 +19,16 @@ from scipy.ndimage import minimum_filter1d
 
 from bioslam.geometry import wrap_angle
 from bioslam.sim.route import (
+    CoverageWalker,
     Route,
     RouteConfig,
-    _drop_straight_vertices,
-    _rounded_polyline,
-    _smoothed,
-    _timed,
-    _turn,
-    _Walker,
     check_clearance,
+    drop_straight_vertices,
     make_route,
+    rounded_polyline,
+    smoothed_path,
+    timed_path,
+    turn_angle,
 )
 from bioslam.sim.world import Roadmap, World
 
@@ -109,7 +109,7 @@ def adversarial_walk(
 ) -> _Waypoints:
     """The coverage walk (every corridor, then again, both ways) with turn-backs part way
     along edges and corners taken on the spot, at least ``min_length`` metres long."""
-    walker = _Walker(roadmap, rng, max_turn=1.75)
+    walker = CoverageWalker(roadmap, rng, max_turn=1.75)
     nodes = roadmap.nodes
     cur, prev, length = walker.start(), -1, 0.0
     way = _Waypoints(tour=[cur])
@@ -117,7 +117,7 @@ def adversarial_walk(
     while length < min_length:
         nxt = walker.choose(prev, cur)
         if prev >= 0 and prev != cur:
-            turn = _turn(nodes, prev, cur, nxt)
+            turn = turn_angle(nodes, prev, cur, nxt)
             sharp = turn > _SHARPEST_ARC or (turn > _CORNER and rng.random() < cfg.spin_prob)
             way.stop[-1] = way.stop[-1] or sharp
         edge = float(np.hypot(*(nodes[nxt] - nodes[cur])))
@@ -231,16 +231,16 @@ def _drive_leg(
 ) -> tuple[NDArray, NDArray]:
     """Times and poses of one stretch between spins, from rest to rest."""
     slack = world.distance_to_walls(points) - cfg.clearance - cfg.corner_margin
-    points, slack = _drop_straight_vertices(points, slack)
-    dense = _rounded_polyline(points, slack, cfg.effective_turn_radius, cfg.step)
+    points, slack = drop_straight_vertices(points, slack)
+    dense = rounded_polyline(points, slack, cfg.effective_turn_radius, cfg.step)
     dense = dense[np.concatenate([[True], np.hypot(*np.diff(dense, axis=0).T) > 1e-9])]
     if adv.lateral_offset > 0.0 and len(dense) > 2:
         dense = _offset_path(dense, lateral_offsets(world, dense, adv, rng))
-    xy = _smoothed(dense, cfg)
+    xy = smoothed_path(dense, cfg)
     if len(xy) < 2:
         xy = dense[[0, -1]]
     xy = _pinned(xy, points[0], points[-1])
-    times, poses, _ = _timed(xy, cfg, stop_at_end=True)
+    times, poses, _ = timed_path(xy, cfg, stop_at_end=True)
     return times, poses
 
 

@@ -146,13 +146,13 @@ class Route:
         return float(np.sum(np.hypot(*np.diff(self.poses[keep, :2], axis=0).T)))
 
 
-def _turn(nodes: NDArray, a: int, b: int, c: int) -> float:
+def turn_angle(nodes: NDArray, a: int, b: int, c: int) -> float:
     """Absolute heading change at ``b`` on the way ``a -> b -> c``, radians."""
     u, v = nodes[b] - nodes[a], nodes[c] - nodes[b]
     return abs(float(np.arctan2(u[0] * v[1] - u[1] * v[0], u @ v)))
 
 
-class _Walker:
+class CoverageWalker:
     """Chooses exits on a roadmap the way a coverage walk does: the exit driven least often in
     that direction (ties broken at random), avoiding turns sharper than ``max_turn`` radians
     where it can, never turning back unless a node is a dead end."""
@@ -174,11 +174,11 @@ class _Walker:
         options = [n for n in self.adj[cur] if n != prev] or self.adj[cur]
         keys = [
             (
-                prev >= 0 and _turn(self.nodes, prev, cur, n) > self.max_turn,
+                prev >= 0 and turn_angle(self.nodes, prev, cur, n) > self.max_turn,
                 self.driven.get((cur, n), 0),
                 self.driven.get((n, cur), 0),
                 # Straight on first among equals: a driver does not zig-zag down a corridor.
-                prev >= 0 and _turn(self.nodes, prev, cur, n) > 0.2,
+                prev >= 0 and turn_angle(self.nodes, prev, cur, n) > 0.2,
                 self.rng.random(),
             )
             for n in options
@@ -198,7 +198,7 @@ def coverage_walk(
     driven least often in that direction (ties broken at random), avoiding turns sharper than
     ``max_turn`` radians (100 degrees) where it can, never turning back unless a node is a
     dead end."""
-    walker = _Walker(roadmap, rng, max_turn)
+    walker = CoverageWalker(roadmap, rng, max_turn)
     tour, prev, length = [walker.start()], -1, 0.0
     while length < min_length:
         cur = tour[-1]
@@ -209,7 +209,9 @@ def coverage_walk(
     return tour
 
 
-def _drop_straight_vertices(points: NDArray, slack: NDArray) -> tuple[NDArray, NDArray]:
+def drop_straight_vertices(points: NDArray, slack: NDArray) -> tuple[NDArray, NDArray]:
+    """The polyline without its vertices where it goes straight on (nothing to round there),
+    with the matching ``slack``; turn-backs are kept."""
     d = np.diff(points, axis=0)
     cross = d[:-1, 0] * d[1:, 1] - d[:-1, 1] * d[1:, 0]
     dot = np.einsum("ij,ij->i", d[:-1], d[1:])
@@ -223,7 +225,7 @@ def _line(p: NDArray, q: NDArray, step: float) -> NDArray:
     return p + (q - p) * (np.arange(n)[:, None] / n)
 
 
-def _rounded_polyline(points: NDArray, slack: NDArray, radius: float, step: float) -> NDArray:
+def rounded_polyline(points: NDArray, slack: NDArray, radius: float, step: float) -> NDArray:
     """Dense samples of the polyline with each corner replaced by a tangent circular arc whose
     radius is ``radius`` at most, small enough that neighbouring arcs do not overlap and that
     the arc stays within ``slack[i]`` of corner ``i``."""
@@ -281,7 +283,7 @@ def _speed_profile(
     return v
 
 
-def _smoothed(dense: NDArray, cfg: RouteConfig) -> NDArray:
+def smoothed_path(dense: NDArray, cfg: RouteConfig) -> NDArray:
     """The path low-pass filtered (continuous curvature), repeated samples dropped."""
     xy = gaussian_filter1d(dense, cfg.smoothing / cfg.step, axis=0, mode="nearest")
     seg = np.hypot(*np.diff(xy, axis=0).T)
@@ -289,7 +291,7 @@ def _smoothed(dense: NDArray, cfg: RouteConfig) -> NDArray:
     return xy[keep]
 
 
-def _timed(
+def timed_path(
     xy: NDArray, cfg: RouteConfig, stop_at_end: bool = False
 ) -> tuple[NDArray, NDArray, NDArray]:
     """Times, poses (heading along the path, unwrapped) and speeds of the fastest drive along
@@ -303,8 +305,8 @@ def _timed(
     return times, np.column_stack([xy, heading]), v
 
 
-def _timed_path(dense: NDArray, cfg: RouteConfig) -> tuple[NDArray, NDArray, NDArray]:
-    return _timed(_smoothed(dense, cfg), cfg)
+def _smoothed_timed_path(dense: NDArray, cfg: RouteConfig) -> tuple[NDArray, NDArray, NDArray]:
+    return timed_path(smoothed_path(dense, cfg), cfg)
 
 
 def check_clearance(world: World, poses: NDArray, clearance: float) -> None:
@@ -352,9 +354,9 @@ def make_route(
     tour = coverage_walk(roadmap, rng, 1.2 * duration * cfg.max_speed + 5.0)
     points = roadmap.nodes[tour]
     slack = roadmap.clearance[tour] - cfg.clearance - cfg.corner_margin
-    points, slack = _drop_straight_vertices(points, slack)
-    dense = _rounded_polyline(points, slack, cfg.effective_turn_radius, cfg.step)
-    times, poses, speeds = _timed_path(dense, cfg)
+    points, slack = drop_straight_vertices(points, slack)
+    dense = rounded_polyline(points, slack, cfg.effective_turn_radius, cfg.step)
+    times, poses, speeds = _smoothed_timed_path(dense, cfg)
     if times[-1] < duration:
         raise ValueError(f"route too short: {times[-1]:.1f} s of {duration:.1f} s")
     cut = int(np.searchsorted(times, duration)) + 1
