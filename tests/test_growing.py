@@ -29,15 +29,27 @@ def test_copy_outlives_later_appends_and_scalars_keep_dtype() -> None:
     assert ids.view().dtype == np.int64 and ids[-1] == 7 and len(ids) == 13
 
 
-def test_keyframe_scans_give_back_each_scan_exactly() -> None:
+def test_keyframe_scans_keep_points_to_a_millimetre_and_the_reach_exactly() -> None:
     rng = np.random.default_rng(1)
-    assert KeyframeScans().points() == []
-    scans = [rng.uniform(-30, 30, size=(n, 2)) for n in (5, 0, 70000, 3)]
-    store = KeyframeScans()
+    scans = [rng.uniform(-40, 40, size=(n, 2)).astype(np.float32) for n in (5, 0, 70000, 3)]
+    store = KeyframeScans(max_range=30.0)
     for k, pts in enumerate(scans):
         store.add(10 * k, pts)
     assert store.index.view().tolist() == [0, 10, 20, 30]
-    back = store.points()
-    assert [len(p) for p in back] == [5, 0, 70000, 3]
-    for got, want in zip(back, scans, strict=True):
-        np.testing.assert_array_equal(got, want.astype(np.float32))
+    assert store.nbytes < 70008 * 5  # 4 bytes a point and little else
+    for k, pts in enumerate(scans):
+        assert store.reach[k] == np.max(np.abs(pts), initial=0.0)
+        within = pts[np.hypot(pts[:, 0], pts[:, 1]) <= 30.0]
+        back = store.points(k)
+        assert back.shape == within.shape
+        # half a millimetre, plus float32 resolution at 30 m (4 µm) in the division
+        np.testing.assert_allclose(back, within, atol=0.0005 + 4e-6, rtol=0)
+
+
+def test_keyframe_scans_of_a_long_range_sensor_keep_their_far_points() -> None:
+    store = KeyframeScans(max_range=80.0)
+    store.add(0, np.array([[79.0, -1.0], [0.5, 0.25]], dtype=np.float32))
+    np.testing.assert_allclose(store.points(0), [[79.0, -1.0], [0.5, 0.25]], atol=0.0013)
+    unbounded = KeyframeScans(max_range=np.inf)
+    unbounded.add(0, np.array([[1e3, 0.125]], dtype=np.float32))
+    np.testing.assert_array_equal(unbounded.points(0), [[1e3, 0.125]])
