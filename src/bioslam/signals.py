@@ -15,6 +15,7 @@ Without installed handlers (library use) the sections change nothing: Ctrl-C rai
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 import threading
 from collections.abc import Iterator
@@ -42,11 +43,46 @@ class _State:
     pending = False
 
 
+#: Packages whose Python code runs inside ctypes callbacks from native code (Numba's LLVM
+#: binding while it compiles or loads cached kernels): an exception raised there is printed as
+#: "Exception ignored" and lost, so a signal arriving in it is delivered again a moment later.
+_CALLBACK_PACKAGES = frozenset({"llvmlite"})
+REDELIVERY_DELAY_S = 0.05
+
+
+def _in_native_callback(frame: FrameType | None) -> bool:
+    while frame is not None:
+        if frame.f_globals.get("__name__", "").partition(".")[0] in _CALLBACK_PACKAGES:
+            return True
+        frame = frame.f_back
+    return False
+
+
+#: Held while handlers are swapped and while a deferred signal is sent again, so that it is
+#: never sent once the default handlers are back (it would kill the process with no summary).
+_swap = threading.Lock()
+
+
+def _send_again(signum: int) -> None:
+    with _swap:
+        if _State.installed and signal.getsignal(signum) is _handler:
+            os.kill(os.getpid(), signum)
+
+
+def _redeliver(signum: int) -> None:
+    timer = threading.Timer(REDELIVERY_DELAY_S, _send_again, (signum,))
+    timer.daemon = True
+    timer.start()
+
+
 def _handler(signum: int, frame: FrameType | None) -> None:
     if _State.received is None:
         _State.received = signum
     if _State.protected:
         _State.pending = True
+        return
+    if _in_native_callback(frame):
+        _redeliver(signum)
         return
     raise Interrupted(signum)
 
@@ -62,12 +98,19 @@ def exit_code() -> int | None:
 
 
 @contextlib.contextmanager
-def installed() -> Iterator[None]:
-    """Handle SIGINT and SIGTERM inside the block (main thread only; elsewhere a no-op)."""
+def installed(ignore_after: bool = False) -> Iterator[None]:
+    """Handle SIGINT and SIGTERM inside the block (main thread only; elsewhere a no-op).
+
+    ``ignore_after``: when the block ends, ignore both signals instead of restoring the
+    previous handlers. A program whose work is done and written only has to exit; a signal
+    during the interpreter's shutdown would otherwise kill it and lose its exit code.
+    """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     previous = {sig: signal.getsignal(sig) for sig in HANDLED}
+    if ignore_after:
+        previous = dict.fromkeys(HANDLED, signal.SIG_IGN)
     _State.installed += 1
     _State.received, _State.pending, _State.protected = None, False, 0
     for sig in HANDLED:
@@ -75,9 +118,10 @@ def installed() -> Iterator[None]:
     try:
         yield
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-        _State.installed -= 1
+        with _swap:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+            _State.installed -= 1
 
 
 @contextlib.contextmanager

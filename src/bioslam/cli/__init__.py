@@ -38,13 +38,14 @@ def print_summary(summary: dict) -> None:
     print(dumps_json(summary, indent=None), flush=True)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def main(argv: Sequence[str] | None = None, *, exiting: bool = False) -> int:
     """Run a subcommand; the exit code is described in :mod:`bioslam.cli.common`.
 
     SIGINT and SIGTERM are handled for the whole command: never a traceback, and a command
-    that has started writing results finishes them with ``"interrupted": true``.
+    that has started writing results finishes them with ``"interrupted": true``. ``exiting``
+    (the ``bioslam`` program) ignores them once the command is done, while the process exits.
     """
-    with signals.installed():
+    with signals.installed(ignore_after=exiting):
         try:
             return _main(argv)
         except signals.Interrupted as exc:
@@ -89,5 +90,10 @@ def _message(exc: BaseException) -> str:
     return str(exc)
 
 
+def console_main() -> None:
+    """The ``bioslam`` program."""
+    sys.exit(main(exiting=True))
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    console_main()

@@ -1,5 +1,3 @@
-import sys
+from bioslam.cli import console_main
 
-from bioslam.cli import main
-
-sys.exit(main())
+console_main()
