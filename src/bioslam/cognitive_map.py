@@ -40,7 +40,7 @@ from __future__ import annotations
 import heapq
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
@@ -50,6 +50,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.sparse.linalg import splu
 
 from bioslam.geometry import compose, inverse, wrap_angle
+from bioslam.growing import GrowingArray
 from bioslam.pose_cells import PoseCellConfig, wrapped_cell_distance
 
 FloatArray = NDArray[np.float64]
@@ -131,27 +132,6 @@ class MapEvent:
     matched: int | None = None
 
 
-@dataclass
-class _Growable:
-    """A row-growable float array (amortised O(1) append)."""
-
-    width: int
-    data: FloatArray = field(default_factory=lambda: np.zeros((0, 0)))
-    n: int = 0
-
-    def __post_init__(self) -> None:
-        self.data = np.zeros((64, self.width))
-
-    def append(self, row: ArrayLike) -> int:
-        if self.n == self.data.shape[0]:
-            self.data = np.concatenate([self.data, np.zeros_like(self.data)])
-        self.data[self.n] = row
-        self.n += 1
-        return self.n - 1
-
-    @property
-    def view(self) -> FloatArray:
-        return self.data[: self.n]
 
 
 @njit(cache=True)
@@ -257,14 +237,14 @@ class CognitiveMap:
         pc_default = PoseCellConfig()
         self.cell_size = tuple(cell_size) if cell_size is not None else pc_default.cell_size
         self.dims: tuple[int, int, int] = tuple(int(d) for d in (dims or pc_default.dims))  # type: ignore[assignment]
-        self._poses = _Growable(3)
-        self._centres = _Growable(3)
+        self._poses = GrowingArray(np.float64, 3, capacity=64)
+        self._centres = GrowingArray(np.float64, 3, capacity=64)
         self._stamps: list[float] = []
         self._view_ids: list[int] = []
         self._payloads: list[Any] = []
         self._by_view: dict[int, list[int]] = {}
-        self._link_ends = _Growable(2)
-        self._link_dp = _Growable(3)
+        self._link_ends = GrowingArray(np.float64, 2, capacity=64)
+        self._link_dp = GrowingArray(np.float64, 3, capacity=64)
         self._link_dt: list[float] = []
         self._link_stamp: list[float] = []
         self._link_kind: list[LinkKind] = []
@@ -291,7 +271,7 @@ class CognitiveMap:
     # --- accessors -------------------------------------------------------------------------
 
     def __len__(self) -> int:
-        return self._poses.n
+        return len(self._poses)
 
     @property
     def current(self) -> int:
@@ -300,17 +280,17 @@ class CognitiveMap:
 
     @property
     def num_links(self) -> int:
-        return self._link_ends.n
+        return len(self._link_ends)
 
     @property
     def experience_poses(self) -> FloatArray:
         """(N, 3) relaxed experience poses (a copy)."""
-        return self._poses.view.copy()
+        return self._poses.view().copy()
 
     @property
     def experience_poses_view(self) -> FloatArray:
         """(N, 3) relaxed experience poses, read-only and without a copy (per-look queries)."""
-        view = self._poses.view
+        view = self._poses.view()
         view.flags.writeable = False
         return view
 
@@ -344,9 +324,9 @@ class CognitiveMap:
         return Experience(
             id=eid,
             stamp=self._stamps[eid],
-            pose=self._poses.data[eid].copy(),
+            pose=self._poses.view()[eid].copy(),
             view_id=self._view_ids[eid],
-            pc_centre=self._centres.data[eid].copy(),
+            pc_centre=self._centres.view()[eid].copy(),
             payload=self._payloads[eid],
         )
 
@@ -356,11 +336,11 @@ class CognitiveMap:
         return [self.experience(i) for i in range(len(self))]
 
     def link(self, index: int) -> Link:
-        s, t = self._link_ends.data[index]
+        s, t = self._link_ends.view()[index]
         return Link(
             source=int(s),
             target=int(t),
-            dp=self._link_dp.data[index].copy(),
+            dp=self._link_dp.view()[index].copy(),
             dt=self._link_dt[index],
             stamp=self._link_stamp[index],
             kind=self._link_kind[index],
@@ -396,14 +376,14 @@ class CognitiveMap:
         off = np.asarray(offsets, dtype=np.float64).reshape(-1, 3)
         base = np.zeros((ids.shape[0], 3))
         known = ids >= 0
-        base[known] = self._poses.data[ids[known]]
+        base[known] = self._poses.view()[ids[known]]
         return compose(base, off)
 
     def pose(self) -> FloatArray:
         """The robot's current map pose."""
         if self._current < 0:
             return self._offset.copy()
-        return compose(self._poses.data[self._current], self._offset)
+        return compose(self._poses.view()[self._current], self._offset)
 
     # --- topology (Eq. 12-13) --------------------------------------------------------------
 
@@ -430,7 +410,7 @@ class CognitiveMap:
             return self._new_experience(vid, centre, stamp, payload)
         candidates = self._by_view.get(vid)
         if not is_new and candidates:
-            dist = wrapped_cell_distance(self._centres.data[candidates], centre, self.dims)
+            dist = wrapped_cell_distance(self._centres.view()[candidates], centre, self.dims)
             best = int(np.argmin(dist))
             if dist[best] <= self.config.match_threshold:
                 return self._move_to(candidates[best], stamp, refine)
@@ -444,7 +424,8 @@ class CognitiveMap:
         self, pose: FloatArray, vid: int, centre: FloatArray, stamp: float, payload: Any
     ) -> int:
         """Eq. 12: e_j = <PC^j, V^j, p^j>."""
-        eid = self._poses.append(pose)
+        eid = len(self._poses)
+        self._poses.append(pose)
         self._centres.append(centre)
         self._stamps.append(stamp)
         self._view_ids.append(vid)
@@ -510,7 +491,7 @@ class CognitiveMap:
     def _agrees(self, source: int, target: int, dp: FloatArray) -> bool:
         """Whether the map already satisfies a new link exactly (a closure that confirms the
         map's own prediction): relaxing would then move nothing."""
-        poses = self._poses.data
+        poses = self._poses.view()
         residual = compose(inverse(poses[target]), compose(poses[source], dp))
         return bool(np.hypot(residual[0], residual[1]) < 1e-9 and abs(residual[2]) < 1e-9)
 
@@ -528,7 +509,7 @@ class CognitiveMap:
     def _adjacency(self) -> tuple[NDArray[np.int64], ...]:
         if self._csr is None:
             n = len(self)
-            ends = self._link_ends.view.astype(np.int64)
+            ends = self._link_ends.view().astype(np.int64)
             src, dst = np.ascontiguousarray(ends[:, 0]), np.ascontiguousarray(ends[:, 1])
             out_e = np.argsort(src, kind="stable")
             in_e = np.argsort(dst, kind="stable")
@@ -556,8 +537,8 @@ class CognitiveMap:
         self._needs_solve = False
         n_sweeps = self.config.sweeps_per_update if iterations is None else int(iterations)
         src, dst, out_ptr, out_e, in_ptr, in_e = self._adjacency()
-        poses = self._poses.view
-        dps = self._link_dp.view
+        poses = self._poses.view()
+        dps = self._link_dp.view()
         for k in range(n_sweeps):
             move, turn = _relax_sweep(
                 poses, src, dst, dps, out_ptr, out_e, in_ptr, in_e, self.config.correction
@@ -589,8 +570,8 @@ class CognitiveMap:
         ls = np.where(s >= lo, s - lo, free)
         lt = np.where(t >= lo, t - lo, free)
         lu = _laplacian_lu(ls, lt, free + 1)
-        poses = self._poses.view
-        dps = self._link_dp.view[keep]
+        poses = self._poses.view()
+        dps = self._link_dp.view()[keep]
         for _ in range(2):  # a second pass settles residuals that wrapped around ±π
             r = wrap_angle(poses[s, 2] + dps[:, 2] - poses[t, 2])
             step = lu.solve(_incidence_t(ls, lt, r, free + 1)[:free])
@@ -608,7 +589,7 @@ class CognitiveMap:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready map: nodes (id, creation time, relaxed pose, view id) and links (from,
         to, Δp, Δt, creation time, kind)."""
-        poses = self._poses.view
+        poses = self._poses.view()
         nodes = [
             {
                 "id": i,
@@ -618,8 +599,8 @@ class CognitiveMap:
             }
             for i in range(len(self))
         ]
-        ends = self._link_ends.view
-        dps = self._link_dp.view
+        ends = self._link_ends.view()
+        dps = self._link_dp.view()
         links = [
             {
                 "from": int(ends[k, 0]),
