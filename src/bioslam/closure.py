@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from bioslam.config import LoopClosureConfig
 from bioslam.geometry import between, transform_points
 from bioslam.matching.branch_and_bound import WideBasinConfig, WideBasinMatcher, refine
-from bioslam.matching.registration import RegistrationConfig, densify_scan
+from bioslam.matching.registration import RegistrationConfig, densify_scan, map_hits
 from bioslam.occupancy_grid import NORMAL_MAX_GAP, LogOddsConfig, MapPyramid, OccupancyGrid
 
 FloatArray = NDArray[np.float64]
@@ -212,12 +212,9 @@ def _submap_pyramid(reference: FloatArray, reg: RegistrationConfig) -> MapPyrami
 def _hit_fraction(grid: OccupancyGrid, pose: FloatArray, query: FloatArray, level: float) -> float:
     """Share of the query's points inside the submap's grid that land within about a cell of
     its walls (the map function at least ``level``), as ``register_scans`` scores."""
-    world = transform_points(pose, query)
-    values, _ = grid.value_and_gradient(world, subcell_sigma=1.0)
-    lo = grid.origin + grid.resolution
-    hi = grid.origin + grid.resolution * (np.array(grid.shape[::-1]) - 1)
-    inside = np.all((world >= lo) & (world < hi), axis=1)
-    return float(np.mean(values[inside] >= level)) if inside.any() else 0.0
+    far = grid.origin + grid.resolution * np.array(grid.shape[::-1])
+    extent = (grid.origin[0], grid.origin[1], far[0], far[1])
+    return map_hits(grid, transform_points(pose, query), extent, level)[0]
 
 
 def within(correction: FloatArray, distance: float, angle: float) -> bool:

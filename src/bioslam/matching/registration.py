@@ -21,6 +21,7 @@ from bioslam.occupancy_grid import (
     NORMAL_MAX_GAP,
     LogOddsConfig,
     MapPyramid,
+    OccupancyGrid,
     subsample_by_spacing,
 )
 
@@ -165,15 +166,14 @@ def register_scans(
         pyramid, level_pts, seed, c.max_iterations, c.step_tolerance, c.length_scale,
         c.degeneracy_ratio, c.subcell_sigma, matched_normals(level_pts),
     )  # fmt: skip
-    judge = pyramid.grids[c.score_level]
-    world = transform_points(rel, qry)
-    values, _ = judge.value_and_gradient(world, subcell_sigma=1.0)
     reach = float(np.max(np.abs(ref))) + 1.0
-    inside = _inside((-reach, -reach, reach, reach), judge.resolution, world)
-    n_in = int(inside.sum())
+    score, mean_value, n_in = map_hits(
+        pyramid.grids[c.score_level], transform_points(rel, qry), (-reach, -reach, reach, reach),
+        c.hit_level,
+    )
     quality = RegistrationQuality(
-        score=float(np.mean(values[inside] >= c.hit_level)) if n_in else 0.0,
-        mean_value=float(np.mean(values[inside])) if n_in else 0.0,
+        score=score,
+        mean_value=mean_value,
         overlap=n_in / qry.shape[0],
         converged=report.converged,
         degenerate=report.degenerate,
@@ -181,6 +181,22 @@ def register_scans(
         iterations=report.iterations,
     )
     return rel, quality
+
+
+def map_hits(
+    judge: OccupancyGrid, world: FloatArray, extent: tuple[float, float, float, float],
+    level: float,
+) -> tuple[float, float, int]:
+    """The registration score of points already placed in the map's frame: of those at least
+    a cell inside ``extent`` (xmin, ymin, xmax, ymax), the share whose map function on
+    ``judge`` is at least ``level`` (within about a cell of a wall), their mean map value, and
+    how many were inside."""
+    values, _ = judge.value_and_gradient(world, subcell_sigma=1.0)
+    inside = _inside(extent, judge.resolution, world)
+    n_in = int(inside.sum())
+    if not n_in:
+        return 0.0, 0.0, 0
+    return float(np.mean(values[inside] >= level)), float(np.mean(values[inside])), n_in
 
 
 def _inside(
