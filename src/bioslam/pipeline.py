@@ -199,12 +199,11 @@ def cognitive_map_snapshot(system: BioSLAM, elapsed: float) -> Snapshot:
 def warm_up(config: SLAMConfig, odometry_only: bool = False) -> float:
     """Run every compiled kernel once: the system on a second of the simulated maze, then
     what a loop closure adds; returns the seconds it took."""
-    from bioslam.sim import LIDAR_PRESETS, make_route, maze_world, simulate_scans
+    from bioslam.sim import LIDAR_PRESETS, maze_world, simulate_scans
 
     started = time.perf_counter()
     world = maze_world()
-    route = make_route(world, duration=1.0, seed=0)
-    scans = [scan for scan, _ in simulate_scans(world, LIDAR_PRESETS["utm30lx"], route)]
+    scans = [scan for scan, _ in simulate_scans(world, LIDAR_PRESETS["utm30lx"], _drive(world))]
     system = OdometryOnly(config) if odometry_only else BioSLAM(config)
     try:
         for scan in scans:
@@ -218,6 +217,20 @@ def warm_up(config: SLAMConfig, odometry_only: bool = False) -> float:
     except Exception:
         pass  # a configuration the maze does not suit: the run then compiles as it goes
     return time.perf_counter() - started
+
+
+def _drive(world: Any, seconds: float = 1.0, speed: float = 0.5) -> Any:
+    """A straight drive along the first corridor of ``world``'s roadmap (a hand-made route:
+    the route planner would import SciPy, which a run without loop closures never needs)."""
+    from bioslam.sim import Route
+
+    nodes = world.roadmap.nodes
+    a, b = world.roadmap.edges[0]
+    along = nodes[b] - nodes[a]
+    heading = math.atan2(along[1], along[0])
+    end = nodes[a] + along * min(1.0, speed * seconds / float(np.hypot(*along)))
+    poses = np.array([[*nodes[a], heading], [*end, heading]])
+    return Route(np.array([0.0, seconds]), poses)
 
 
 def _close_a_square(config: SLAMConfig) -> None:
