@@ -32,6 +32,16 @@ def test_neighbourhood_max_is_scipys_maximum_filter(shape):
     )
 
 
+def test_neighbourhood_max_of_booleans_is_a_binary_dilation():
+    rng = np.random.default_rng(3)
+    for shape in [(1, 1), (5, 1), (12, 17)]:
+        mask = rng.random(shape) < 0.1
+        expected = ndimage.binary_dilation(mask, np.ones((3, 3), dtype=bool))
+        got = neighbourhood_max(mask)
+        assert got.dtype == bool
+        np.testing.assert_array_equal(got, expected)
+
+
 def test_a_run_without_loop_closures_imports_neither_scipy_nor_matplotlib():
     """The odometry's warm-up and scan loop, then what a loop closure adds: SciPy arrives
     only with the map's first solve (20-25 MB that a run never closing a loop does not pay)."""

@@ -19,7 +19,8 @@ from bioslam.occupancy_grid import OccupancyGrid
 def neighbourhood_max(values: FloatArray) -> FloatArray:
     """The largest value of each element's 3 x 3 (x 3 ...) neighbourhood, edges repeated
     outwards: SciPy's ``maximum_filter(size=3, mode="nearest")``, one axis at a time (a
-    maximum is exact in any order), without importing SciPy for it."""
+    maximum is exact in any order), without importing SciPy for it. On booleans it is a
+    dilation by one cell (SciPy's ``binary_dilation`` with a 3 x 3 structure)."""
     out = values
     for axis in range(values.ndim):
         n = values.shape[axis]
