@@ -158,11 +158,15 @@ def _fill_levels(weights, r0, c0, rows, cols, blur, levels):
         kernel[d + blur] = math.exp(-0.5 * d * d)
     levels[0, :rows, :cols] = 0.0
     # scattered from the hit cells (few in a map): each raises its neighbours
+    first = max(c0 - blur, 0)
+    width = max(min(c0 + cols + blur, gcols) - first, 0)
     for r in range(max(r0 - blur, 0), min(r0 + rows + blur, grows)):
-        for c in range(max(c0 - blur, 0), min(c0 + cols + blur, gcols)):
-            w = weights[r, c]
+        line = weights[r, first : first + width]
+        for i in range(width):
+            w = line[i]
             if w == 0.0:
                 continue
+            c = first + i
             for dr in range(-blur, blur + 1):
                 rr = r - r0 + dr
                 if rr < 0 or rr >= rows:
@@ -176,16 +180,23 @@ def _fill_levels(weights, r0, c0, rows, cols, blur, levels):
                         levels[0, rr, cc] = v
     for h in range(1, levels.shape[0]):
         s = 1 << (h - 1)
+        # Row r's maximum with the cell s to its right, then row r - s's with row r (still
+        # only that row's): one sweep whose rows are still in cache. The loops index slices
+        # from 0 (no index arithmetic, which Numba checks for negatives), so they run on
+        # vector registers; a maximum of float32 is exact.
+        inside = max(cols - s, 0)
         for r in range(rows):
-            for c in range(cols):
-                a = levels[h - 1, r, c]
-                if c + s < cols and levels[h - 1, r, c + s] > a:
-                    a = levels[h - 1, r, c + s]
-                levels[h, r, c] = a
-        for r in range(rows - s):
-            for c in range(cols):
-                if levels[h, r + s, c] > levels[h, r, c]:
-                    levels[h, r, c] = levels[h, r + s, c]
+            here = levels[h - 1, r, :inside]
+            right = levels[h - 1, r, s : s + inside]
+            out = levels[h, r, :inside]
+            for c in range(inside):
+                out[c] = max(here[c], right[c])
+            levels[h, r, inside:cols] = levels[h - 1, r, inside:cols]
+            if r >= s:
+                done = levels[h, r - s, :cols]
+                row = levels[h, r, :cols]
+                for c in range(cols):
+                    done[c] = max(done[c], row[c])
 
 
 @numba.njit(cache=True)
@@ -697,8 +708,9 @@ class WideBasinMatcher:
             self._levels = np.zeros(
                 (need[0], max(have[1], rows), max(have[2], cols)), dtype=np.float32
             )
-        levels = self._levels[: depth + 1, :rows, :cols]
-        _fill_levels(grid.weights, r0, c0, rows, cols, self.config.blur, levels)
+        # the whole (C-contiguous) buffer: its rows are contiguous, so the kernel's loops
+        # over them run on vector registers
+        _fill_levels(grid.weights, r0, c0, rows, cols, self.config.blur, self._levels[: depth + 1])
         self._shape = (rows, cols)
         self._origin = grid.origin + res * np.array([c0, r0], dtype=np.float64)
         self._resolution = res
