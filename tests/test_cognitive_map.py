@@ -34,6 +34,16 @@ def errors(poses: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     return float(np.max(np.hypot(d[:, 0], d[:, 1]))), float(np.max(np.abs(wrap_angle(d[:, 2]))))
 
 
+def drifting(**settings) -> CognitiveMapConfig:
+    """A map told the truth about the tests' odometry, which drifts by a gyro-like heading
+    bias of up to 0.02 rad per metre (about a metre over a 16 m loop), and about their
+    closures, which are exact registrations (1 mm, 0.006 deg)."""
+    return CognitiveMapConfig(
+        odometry_var_per_m=0.05, odometry_heading_var_per_m=0.01,
+        closure_sigma_m=1e-3, closure_sigma_rad=1e-4, **settings,
+    )  # fmt: skip
+
+
 def loop_map(heading_bias: float, config: CognitiveMapConfig | None = None):
     """One lap of a 4 m square, an experience every 0.2 m, then a loop closure back onto the
     first experience refined with the true relative pose (a precise scan registration)."""
@@ -49,7 +59,8 @@ def loop_map(heading_bias: float, config: CognitiveMapConfig | None = None):
     event = cm.update(
         0, False, PC, stamp=len(steps), refine=lambda e: between(truth[e.id], true_end)
     )
-    return cm, truth, event
+    # the robot's pose at the closure is an experience too, the source of the loop link
+    return cm, np.vstack([truth, true_end]), event
 
 
 def test_new_views_create_linked_experiences():
@@ -90,7 +101,7 @@ def test_known_view_matches_near_packet_and_not_far_from_it():
     assert ev.kind == "new" and len(cm) == 3
 
 
-def test_refine_sets_arrival_offset_or_rejects_closure():
+def test_refine_measures_a_loop_link_or_rejects_closure():
     cm = CognitiveMap()
     cm.update(1, True, PC, stamp=0.0)
     cm.integrate_odometry((2.0, 0.0, 0.0))
@@ -98,15 +109,28 @@ def test_refine_sets_arrival_offset_or_rejects_closure():
     cm.integrate_odometry((-1.9, 0.05, 0.0))
     ev = cm.update(1, False, PC, stamp=2.0, refine=lambda e: None)
     assert ev.kind == "none" and ev.rejected and cm.loop_closures == 0
-    ev = cm.update(1, False, PC, stamp=2.0, refine=lambda e: (0.12, 0.03, 0.01))
-    assert ev.kind == "loop"
-    eid, offset = cm.anchor()
-    assert eid == 0
-    np.testing.assert_allclose(offset, (0.12, 0.03, 0.01))
+    measured = np.array([0.12, 0.03, 0.0])
+    ev = cm.update(1, False, PC, stamp=2.0, refine=lambda e: measured)
+    assert ev.kind == "loop" and cm.current == 0
+    # The robot's pose became an experience, linked by the odometry; the registration is
+    # the loop link from it, and the robot stays where the odometry put it ...
+    assert len(cm) == 3 and [lk.kind for lk in cm.links] == ["odometry", "odometry", "loop"]
+    np.testing.assert_allclose(cm.experience(2).pose, (0.1, 0.05, 0.0), atol=1e-12)
+    np.testing.assert_allclose(compose(cm.links[-1].dp, measured), 0.0, atol=1e-12)
+    np.testing.assert_allclose(cm.pose(), (0.1, 0.05, 0.0), atol=1e-12)
+    # ... until the relaxation moves it towards the measurement by the links' weights: a
+    # registration (2 cm) against 3.9 m of odometry (1 cm per metre), about half way (equal
+    # weights would move it two thirds of the way).
+    cm.relax()
+    moved = between((0.1, 0.05, 0.0), cm.pose())
+    wanted = between((0.1, 0.05, 0.0), measured)
+    share = np.dot(moved[:2], wanted[:2]) / np.dot(wanted[:2], wanted[:2])
+    odometry_var = 3.9 * 1e-4
+    assert share == pytest.approx(odometry_var / (odometry_var + 0.02**2), abs=0.03)
 
 
 def test_relaxation_shrinks_a_known_loop_error():
-    cm_odo, truth, _ = loop_map(heading_bias=0.004, config=CognitiveMapConfig())
+    cm_odo, truth, _ = loop_map(heading_bias=0.004, config=drifting())
     before = errors(cm_odo.experience_poses, truth)
     cm_odo.relax()
     after = errors(cm_odo.experience_poses, truth)
@@ -119,15 +143,18 @@ def test_relaxation_shrinks_a_known_loop_error():
 def test_relaxation_sweeps_converge_monotonically_to_the_fixed_point():
     # Converged here means a sweep moves nothing by more than 1e-10 m: a loose per-sweep
     # tolerance would stop a slowly diffusing correction early.
-    sweeps_only = CognitiveMapConfig(
-        solve_on_loop=False, sweeps_per_update=1, tolerance_m=1e-10, tolerance_rad=1e-11
-    )
+    sweeps_only = drifting(
+        solve_on_loop=False, sweeps_per_update=1, tolerance_m=1e-10, tolerance_rad=1e-11,
+        robust_sigmas=0.0,
+    )  # fmt: skip
     cm, _, _ = loop_map(heading_bias=0.004, config=sweeps_only)
     ends = np.array([(lk.source, lk.target) for lk in cm.links])
     dps = np.array([lk.dp for lk in cm.links])
+    weights = cm.link_weights()
 
     def imbalance(poses):
-        return float(np.linalg.norm(relaxation_correction(poses, ends[:, 0], ends[:, 1], dps)[1:]))
+        correction = relaxation_correction(poses, ends[:, 0], ends[:, 1], dps, weights=weights)
+        return float(np.linalg.norm(correction[1:] / weights.max(axis=0)[[0, 0, 1]]))
 
     history = [imbalance(cm.experience_poses)]
     for _ in range(60):
@@ -136,7 +163,7 @@ def test_relaxation_sweeps_converge_monotonically_to_the_fixed_point():
     assert history[-1] < 0.1 * history[0]
     cm.relax(200_000)
     assert cm.converged
-    direct, _, _ = loop_map(heading_bias=0.004)
+    direct, _, _ = loop_map(heading_bias=0.004, config=drifting(robust_sigmas=0.0))
     direct.relax()
     np.testing.assert_allclose(cm.experience_poses, direct.experience_poses, atol=1e-6)
     assert imbalance(cm.experience_poses) < 1e-8
@@ -187,7 +214,7 @@ def run_closed_loop(heading_bias: float, with_truth: bool):
     truth = integrate(steps)
     pc_cfg = PoseCellConfig()
     pc = PoseCellNetwork(pc_cfg)
-    cm = CognitiveMap.from_pose_cells(CognitiveMapConfig(), pc_cfg)
+    cm = CognitiveMap.from_pose_cells(drifting(), pc_cfg)
     seen: set[int] = set()
     anchors, offsets, odo = [], [], [np.zeros(3)]
     lap = len(steps) // 2
@@ -244,7 +271,7 @@ def test_relax_is_free_between_loop_closures():
 
 
 def test_solve_window_moves_only_recent_experiences_to_their_fixed_point():
-    cm, _, _ = loop_map(heading_bias=0.004, config=CognitiveMapConfig(solve_window=30))
+    cm, _, _ = loop_map(heading_bias=0.004, config=drifting(solve_window=30))
     before = cm.experience_poses
     cm.relax()
     after = cm.experience_poses
@@ -252,10 +279,14 @@ def test_solve_window_moves_only_recent_experiences_to_their_fixed_point():
     np.testing.assert_array_equal(after[: n - 30], before[: n - 30])
     ends = np.array([(lk.source, lk.target) for lk in cm.links])
     dps = np.array([lk.dp for lk in cm.links])
-    correction = relaxation_correction(after, ends[:, 0], ends[:, 1], dps)
-    # Eq. 14's correction vanishes on every freed experience; it did not before.
-    np.testing.assert_allclose(correction[n - 30 :], 0.0, atol=1e-9)
-    assert np.abs(relaxation_correction(before, ends[:, 0], ends[:, 1], dps)[n - 30 :]).max() > 0.01
+    unit = cm.link_weights() / cm.link_weights().max(axis=0)
+
+    def correction(poses):
+        return relaxation_correction(poses, ends[:, 0], ends[:, 1], dps, weights=unit)
+
+    # The weighted Eq. 14's correction vanishes on every freed experience; it did not before.
+    np.testing.assert_allclose(correction(after)[n - 30 :], 0.0, atol=1e-9)
+    assert np.abs(correction(before)[n - 30 :]).max() > 0.01
 
 
 def test_link_distance_follows_the_shortest_chain_within_the_limit():
@@ -265,7 +296,10 @@ def test_link_distance_follows_the_shortest_chain_within_the_limit():
     # 0.2 m per link along the square; the loop link joins the last experience to the first.
     assert cm.link_distance(0, 3, within=1.0) == pytest.approx(0.6)
     assert cm.link_distance(3, 0, within=1.0) == pytest.approx(0.6)  # links work both ways
-    assert cm.link_distance(last, 1, within=1.0) == pytest.approx(0.2 + 0.2, abs=1e-6)
+    # The robot's pose at the closure (the last experience) is 0.2 m on from the one before,
+    # and measured exactly on the first experience.
+    assert cm.link_distance(last, 1, within=1.0) == pytest.approx(0.2, abs=1e-6)
+    assert cm.link_distance(last - 1, 1, within=1.0) == pytest.approx(0.2 + 0.2, abs=1e-6)
     assert cm.link_distance(0, 10, within=1.0) is None  # 2 m along the chain
     assert cm.link_distance(5, 5, within=0.0) == 0.0
 

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.ndimage import binary_dilation
 
 from bioslam.config import LoopClosureConfig
 from bioslam.geometry import between, transform_points
@@ -86,6 +87,56 @@ def fuse_submap(
     return thin_points(np.concatenate(parts), spacing)
 
 
+class SeenArea:
+    """The cells the beams of a submap's member scans crossed or ended in (and the cells next
+    to them), in the anchor's frame: where the submap can vouch for what is there.
+
+    Off the centre-line or turned, the robot sees walls, room corners and doorways the old
+    pass never saw; a point of the current scan there is neither a hit nor a miss, since the
+    submap knows nothing of that place. Points in cells the old pass saw free still count
+    as misses, so a wrong alignment (points in open space) still fails."""
+
+    def __init__(
+        self,
+        poses: FloatArray,
+        payloads: Sequence[FloatArray | None],
+        anchor: int,
+        members: Sequence[int],
+        resolution: float,
+    ) -> None:
+        scans = []
+        for m in members:
+            scan = payloads[m]
+            if scan is not None and len(scan):
+                rel = between(poses[anchor], poses[m])
+                # a ray per cell width along the scan is enough to mark the cells it crosses
+                pts = thin_points(np.asarray(scan, dtype=np.float64), 0.5 * resolution)
+                scans.append((rel, pts.astype(np.float64)))
+        self.resolution = float(resolution)
+        if not scans:
+            self.origin = np.zeros(2)
+            self.mask = np.zeros((1, 1), dtype=bool)
+            return
+        corners = np.concatenate(
+            [np.vstack([transform_points(rel, pts), rel[None, :2]]) for rel, pts in scans]
+        )
+        lo, hi = corners.min(axis=0) - resolution, corners.max(axis=0) + resolution
+        grid = OccupancyGrid.from_extent(resolution, (*lo, *hi), subcell=False)
+        for rel, pts in scans:
+            grid.insert_scan(rel, pts)
+        self.origin = grid.origin
+        self.mask = binary_dilation(grid.known_mask(), np.ones((3, 3), dtype=bool))
+
+    def covers(self, world: FloatArray) -> NDArray[np.bool_]:
+        """Whether each anchor-frame point lies in a seen cell (or next to one)."""
+        cells = np.floor((world - self.origin) / self.resolution).astype(np.int64)
+        rows, cols = self.mask.shape
+        ok = (cells[:, 0] >= 0) & (cells[:, 0] < cols) & (cells[:, 1] >= 0) & (cells[:, 1] < rows)
+        out = np.zeros(world.shape[0], dtype=bool)
+        out[ok] = self.mask[cells[ok, 1], cells[ok, 0]]
+        return out
+
+
 def nearest_experience(
     poses: FloatArray,
     travelled: FloatArray,
@@ -122,13 +173,15 @@ class Verdict:
     """The outcome of verifying one candidate: ``pose`` is the robot in the candidate
     experience's frame; ``score`` the share of its points on the submap; ``ambiguity`` the
     best distinct rival's search score over the best's; ``reason`` says why a candidate was
-    refused ('' when accepted)."""
+    refused ('' when accepted); ``prior_score`` the score of the map's prediction refined
+    where it stands."""
 
     accepted: bool
     pose: FloatArray
     score: float
     ambiguity: float
     reason: str = ""
+    prior_score: float = float("nan")
 
 
 def verify(
@@ -137,6 +190,7 @@ def verify(
     predicted: FloatArray,
     window: tuple[float, float],
     config: LoopClosureConfig,
+    seen: SeenArea | None = None,
 ) -> Verdict:
     """Register ``query`` (the current scan, robot frame) against ``reference`` (a submap in
     a candidate experience's frame) within ``window`` (m, rad) of ``predicted``, and judge it.
@@ -148,7 +202,12 @@ def verify(
     distinct pose in the window fits nearly as well (``rival / best < max_ambiguity``): in a
     corridor or among identical rooms the scan alone cannot say where it is, and a false
     closure bends the whole map. Likewise the map's own prediction, refined where it stands,
-    is a rival: a best pose away from it must score more than ``prior_margin`` above it."""
+    is a rival: a best pose away from it must score more than ``prior_margin`` above it, and
+    one nearer than the rival distance more than ``prior_tie`` (else the refined prediction
+    is the verdict's pose).
+
+    ``seen``: where the submap's scans looked; points of the current scan elsewhere are not
+    judged (:class:`SeenArea`, :func:`seen_hit_fraction`). None judges every point."""
     reg = config.registration
     distance = min(window[0], config.search_distance)
     angle = min(window[1], config.search_angle)
@@ -169,14 +228,19 @@ def verify(
     # level's blur would let it slide along a corridor, away from what the search found.
     level = min(config.search_level, len(pyramid.grids) - 1)
     pose, report = refine(pyramid, found.pose, query, _levels_up_to(reg.max_iterations, level))
-    score = _hit_fraction(judge, pose, query, reg.hit_level)
+    score = seen_hit_fraction(judge, pose, query, reg.hit_level, seen, config.min_seen)
     # The map's own prediction, refined where it stands. Along a corridor the window's best
     # may lie on a plateau the scan barely constrains, far from the truth and with no
     # distinct lattice rival (Gauss-Newton may also slide along it): a correction away from
     # the prediction must fit clearly better than the prediction itself.
-    kept, _ = refine(pyramid, predicted, query, _levels_up_to(reg.max_iterations, 0))
-    kept_score = _hit_fraction(judge, kept, query, reg.hit_level)
+    kept, kept_report = refine(pyramid, predicted, query, _levels_up_to(reg.max_iterations, 0))
+    kept_score = seen_hit_fraction(judge, kept, query, reg.hit_level, seen, config.min_seen)
     agree = within(between(kept, pose), config.rival_distance, config.rival_angle)
+    if agree and kept_score >= score - config.prior_tie:
+        # Near the prediction, the prediction refined fits as well: the window's best is
+        # then another point of the same plateau (along a corridor), not a measured
+        # correction, and moving the map there would inject its error.
+        pose, score, report = kept, kept_score, kept_report
     slid = not within(between(found.pose, pose), 2.0 * matcher.resolution, config.rival_angle)
     reason = ""
     if score < config.min_score:
@@ -191,7 +255,7 @@ def verify(
         reason = "slid"
     elif not within(between(predicted, pose), distance, angle):
         reason = "beyond drift"
-    return Verdict(not reason, pose, score, found.ambiguity, reason)
+    return Verdict(not reason, pose, score, found.ambiguity, reason, kept_score)
 
 
 def _levels_up_to(iterations: tuple[int, ...], level: int) -> tuple[int, ...]:
@@ -209,12 +273,27 @@ def _submap_pyramid(reference: FloatArray, reg: RegistrationConfig) -> MapPyrami
     return pyramid
 
 
-def _hit_fraction(grid: OccupancyGrid, pose: FloatArray, query: FloatArray, level: float) -> float:
-    """Share of the query's points inside the submap's grid that land within about a cell of
-    its walls (the map function at least ``level``), as ``register_scans`` scores."""
+def seen_hit_fraction(
+    grid: OccupancyGrid,
+    pose: FloatArray,
+    query: FloatArray,
+    level: float,
+    seen: SeenArea | None = None,
+    min_seen: float = 0.0,
+) -> float:
+    """The registration score: of the query's points inside the submap's grid that the
+    submap's scans saw (``seen``; all of them without it), the share that land within about a
+    cell of its walls (the map function at least ``level``), as ``register_scans`` scores.
+    At least ``min_seen`` of the points inside count (as misses when unseen), so a pose that
+    puts most of the scan where the submap never looked cannot pass on the few left."""
     far = grid.origin + grid.resolution * np.array(grid.shape[::-1])
     extent = (grid.origin[0], grid.origin[1], far[0], far[1])
-    return map_hits(grid, transform_points(pose, query), extent, level)[0]
+    world = transform_points(pose, query)
+    share, _, inside = map_hits(grid, world, extent, level)
+    if seen is None or inside == 0:
+        return share
+    judged_share, _, judged = map_hits(grid, world[seen.covers(world)], extent, level)
+    return judged_share * judged / max(judged, min_seen * inside)
 
 
 def within(correction: FloatArray, distance: float, angle: float) -> bool:

@@ -10,10 +10,23 @@ OpenRatSLAM's ``PosecellNetwork::get_action`` and ``ExperienceMap`` (Ball et al.
   link to it;
 * a known view whose nearest experience is within the threshold and is not the current one
   moves the robot there; if there is no link from the current experience to it yet, this
-  closes a loop and adds a ``loop`` link whose Δp is the odometry since the current experience
-  (optionally refined by a scan registration, ``refine``); the map is then relaxed (Eq. 14).
+  closes a loop and adds a ``loop`` link whose Δp is the odometry since the current experience;
+  the map is then relaxed (Eq. 14).
+* With a scan registration (``refine``) the move is a measurement instead: the robot's pose
+  becomes an experience of its own chain and the registration a ``loop`` link from it to the
+  recognised experience; the robot's pose keeps hanging off its own chain, so that a
+  registration's error stays in that one link, where the relaxation can weigh it.
 
 Relaxation (Eq. 14) — the choices the paper leaves open, written down:
+
+* Eq. 14 sums every link's residual with the same weight. Here each residual is weighted by its
+  link's information (:func:`link_information`): an odometry link's variance grows with the
+  distance and angle it spans, a loop link's is one registration's. With equal weights a
+  closure a few centimetres off is spread like an exact one and bends a loop whose odometry
+  was better than the registration; weighted, a loop is corrected in proportion to how much
+  its odometry can have drifted. A robust kernel (dynamic covariance scaling,
+  :func:`robust_scale`) then demotes loop links that the solved map contradicts. With equal
+  weights (all links alike) this is Eq. 14 as printed.
 
 * Eq. 14 only names positions; headings are relaxed the same way (as OpenRatSLAM does), since a
   link's Δp is expressed in its source's frame and the compositions must stay consistent.
@@ -49,7 +62,7 @@ from numba import njit
 from numpy.typing import ArrayLike, NDArray
 from scipy.sparse.linalg import splu
 
-from bioslam.geometry import compose, inverse, wrap_angle
+from bioslam.geometry import between, compose, inverse, wrap_angle
 from bioslam.growing import GrowingArray
 from bioslam.pose_cells import PoseCellConfig, wrapped_cell_distance
 
@@ -83,6 +96,27 @@ class CognitiveMapConfig:
     #: 5,000 experiences on one core, see ``benchmarks/bench_pose_cells.py``) on long runs;
     #: ``None`` always frees the whole map.
     solve_window: int | None = 5000
+    #: Eq. 14's link weights are the links' information (1 / variance). An odometry link's
+    #: position variance grows by this (m^2) per metre it spans (a random walk: 1e-4 is a
+    #: 1 cm standard deviation after 1 m, 7 cm after 50 m) ...
+    odometry_var_per_m: float = 1e-4
+    #: ... and its heading variance by this (rad^2) per metre ...
+    odometry_heading_var_per_m: float = 1e-5
+    #: ... and by this (rad^2) per radian it turns.
+    odometry_heading_var_per_rad: float = 1e-4
+    #: Variance (m^2, rad^2) every link has at least, so that a zero-length link is finite.
+    link_var_floor: tuple[float, float] = (1e-6, 1e-8)
+    #: Standard deviation of a loop closure's measured relative pose: position (m) ...
+    closure_sigma_m: float = 0.02
+    #: ... and heading (rad).
+    closure_sigma_rad: float = 0.005
+    #: Robust kernel (dynamic covariance scaling): a loop link whose residual after the solve
+    #: exceeds this many standard deviations has its weight scaled down until it does not,
+    #: so that one closure inconsistent with the odometry and the other closures cannot bend
+    #: the map. ``0`` turns the kernel off.
+    robust_sigmas: float = 3.0
+    #: Solves at most per relaxation while the kernel changes a loop link's weight.
+    robust_iterations: int = 4
 
     def __post_init__(self) -> None:
         if self.match_threshold <= 0.0:
@@ -93,6 +127,14 @@ class CognitiveMapConfig:
             raise ValueError("sweeps_per_update must be >= 0")
         if self.solve_window is not None and self.solve_window < 1:
             raise ValueError(f"solve_window must be >= 1 or None, got {self.solve_window}")
+        variances = (
+            self.odometry_var_per_m, self.odometry_heading_var_per_m,
+            self.odometry_heading_var_per_rad, self.closure_sigma_m, self.closure_sigma_rad,
+        )  # fmt: skip
+        if min(variances) < 0.0 or min(self.link_var_floor) <= 0.0:
+            raise ValueError("link uncertainties must be >= 0 and their floors > 0")
+        if self.robust_sigmas < 0.0 or self.robust_iterations < 1:
+            raise ValueError("robust_sigmas must be >= 0 and robust_iterations >= 1")
 
 
 @dataclass
@@ -140,8 +182,9 @@ def _wrap(a):
 
 
 @njit(cache=True)
-def _relax_sweep(poses, src, dst, dps, out_ptr, out_e, in_ptr, in_e, a):
-    """One in-place sweep of Eq. 14 over nodes 1..N-1; returns the largest (move, turn)."""
+def _relax_sweep(poses, src, dst, dps, weights, out_ptr, out_e, in_ptr, in_e, a):
+    """One in-place sweep of the weighted Eq. 14 over nodes 1..N-1; returns the largest
+    (move, turn). ``weights[e]`` is link e's (position, heading) information."""
     n = poses.shape[0]
     max_move = 0.0
     max_turn = 0.0
@@ -149,16 +192,25 @@ def _relax_sweep(poses, src, dst, dps, out_ptr, out_e, in_ptr, in_e, a):
         deg = (out_ptr[i + 1] - out_ptr[i]) + (in_ptr[i + 1] - in_ptr[i])
         if deg == 0:
             continue
-        gain = a if deg <= 2 else 1.0 / deg
+        w_xy = 0.0
+        w_th = 0.0
+        for q in range(out_ptr[i], out_ptr[i + 1]):
+            w_xy += weights[out_e[q], 0]
+            w_th += weights[out_e[q], 1]
+        for q in range(in_ptr[i], in_ptr[i + 1]):
+            w_xy += weights[in_e[q], 0]
+            w_th += weights[in_e[q], 1]
+        # Eq. 14's a per unit of weight: equal weights give a (one or two links) or 1 / N.
+        scale = a * deg if deg <= 2 else 1.0
         th_i = poses[i, 2]
         r_th = 0.0
         for q in range(out_ptr[i], out_ptr[i + 1]):
             e = out_e[q]
-            r_th += _wrap(poses[dst[e], 2] - th_i - dps[e, 2])
+            r_th += weights[e, 1] * _wrap(poses[dst[e], 2] - th_i - dps[e, 2])
         for q in range(in_ptr[i], in_ptr[i + 1]):
             e = in_e[q]
-            r_th += _wrap(poses[src[e], 2] + dps[e, 2] - th_i)
-        d_th = gain * r_th
+            r_th += weights[e, 1] * _wrap(poses[src[e], 2] + dps[e, 2] - th_i)
+        d_th = scale * r_th / w_th
         th_i = _wrap(th_i + d_th)
         poses[i, 2] = th_i
         c = math.cos(th_i)
@@ -168,17 +220,17 @@ def _relax_sweep(poses, src, dst, dps, out_ptr, out_e, in_ptr, in_e, a):
         for q in range(out_ptr[i], out_ptr[i + 1]):
             e = out_e[q]
             j = dst[e]
-            rx += poses[j, 0] - (poses[i, 0] + c * dps[e, 0] - s * dps[e, 1])
-            ry += poses[j, 1] - (poses[i, 1] + s * dps[e, 0] + c * dps[e, 1])
+            rx += weights[e, 0] * (poses[j, 0] - (poses[i, 0] + c * dps[e, 0] - s * dps[e, 1]))
+            ry += weights[e, 0] * (poses[j, 1] - (poses[i, 1] + s * dps[e, 0] + c * dps[e, 1]))
         for q in range(in_ptr[i], in_ptr[i + 1]):
             e = in_e[q]
             k = src[e]
             ck = math.cos(poses[k, 2])
             sk = math.sin(poses[k, 2])
-            rx += poses[k, 0] + ck * dps[e, 0] - sk * dps[e, 1] - poses[i, 0]
-            ry += poses[k, 1] + sk * dps[e, 0] + ck * dps[e, 1] - poses[i, 1]
-        dx = gain * rx
-        dy = gain * ry
+            rx += weights[e, 0] * (poses[k, 0] + ck * dps[e, 0] - sk * dps[e, 1] - poses[i, 0])
+            ry += weights[e, 0] * (poses[k, 1] + sk * dps[e, 0] + ck * dps[e, 1] - poses[i, 1])
+        dx = scale * rx / w_xy
+        dy = scale * ry / w_xy
         poses[i, 0] += dx
         poses[i, 1] += dy
         max_move = max(max_move, math.hypot(dx, dy))
@@ -186,14 +238,17 @@ def _relax_sweep(poses, src, dst, dps, out_ptr, out_e, in_ptr, in_e, a):
     return max_move, max_turn
 
 
-def _laplacian_lu(src: NDArray[np.int64], dst: NDArray[np.int64], n: int) -> Any:
-    """LU of the graph Laplacian without its last node (the fixed ground). The loop links
+def _laplacian_lu(
+    src: NDArray[np.int64], dst: NDArray[np.int64], weights: FloatArray, n: int
+) -> Any:
+    """LU of the weighted graph Laplacian ``Bᵀ W B`` without its last node (the fixed
+    ground). The loop links
     join nodes far apart in creation order, so a minimum-degree ordering is used: on the demo
     maze's final map (3163 nodes) it leaves 8x fewer non-zeros than the natural order and
     factorises in 4.3 instead of 12.7 ms."""
     rows = np.concatenate([src, dst, src, dst])
     cols = np.concatenate([src, dst, dst, src])
-    vals = np.concatenate([np.ones(2 * src.size), -np.ones(2 * src.size)])
+    vals = np.concatenate([weights, weights, -weights, -weights])
     lap = sp.csc_matrix((vals, (rows, cols)), shape=(n, n))[:-1, :-1]
     return splu(lap.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
 
@@ -203,11 +258,99 @@ def _incidence_t(src: NDArray[np.int64], dst: NDArray[np.int64], v: FloatArray, 
     return np.bincount(dst, v, minlength=n) - np.bincount(src, v, minlength=n)
 
 
+def _solve_fixed_point(
+    poses: FloatArray,
+    src: NDArray[np.int64],
+    dst: NDArray[np.int64],
+    dps: FloatArray,
+    weights: FloatArray,
+    lo: int,
+) -> None:
+    """The weighted Eq. 14's fixed point for experiences ``lo``.. (in place), those before
+    held fixed: headings by the weighted Laplacian of the heading residuals, then positions
+    with the headings fixed (see :meth:`CognitiveMap.solve`)."""
+    free = poses.shape[0] - lo
+    # Fixed experiences all map to one ground index (the last), dropped from the system.
+    ls = np.where(src >= lo, src - lo, free)
+    lt = np.where(dst >= lo, dst - lo, free)
+    for column, col_w in ((2, weights[:, 1]), (0, weights[:, 0])):
+        lu = _laplacian_lu(ls, lt, col_w, free + 1)
+        if column == 2:
+            for _ in range(2):  # a second pass settles residuals that wrapped around ±π
+                r = wrap_angle(poses[src, 2] + dps[:, 2] - poses[dst, 2])
+                step = lu.solve(_incidence_t(ls, lt, col_w * r, free + 1)[:free])
+                poses[lo:, 2] = wrap_angle(poses[lo:, 2] + step)
+            continue
+        c, sn = np.cos(poses[src, 2]), np.sin(poses[src, 2])
+        rel = np.stack([c * dps[:, 0] - sn * dps[:, 1], sn * dps[:, 0] + c * dps[:, 1]], 1)
+        # Known positions of fixed ends move to the right-hand side.
+        rel = rel + np.where(src < lo, 1.0, 0.0)[:, None] * poses[src, :2]
+        rel = rel - np.where(dst < lo, 1.0, 0.0)[:, None] * poses[dst, :2]
+        rhs = np.stack(
+            [_incidence_t(ls, lt, col_w * rel[:, k], free + 1)[:free] for k in range(2)], 1
+        )
+        poses[lo:, :2] = lu.solve(rhs)
+
+
+def _link_chi2(
+    poses: FloatArray, src: NDArray[np.int64], dst: NDArray[np.int64], dps: FloatArray,
+    info: FloatArray,
+) -> FloatArray:
+    """Each link's squared residual in units of its own variance (its χ²)."""
+    r = between(compose(poses[src], dps), poses[dst])
+    return (r[:, 0] ** 2 + r[:, 1] ** 2) * info[:, 0] + wrap_angle(r[:, 2]) ** 2 * info[:, 1]
+
+
+def link_information(
+    distance: float, turned: float, registrations: int, config: CognitiveMapConfig
+) -> tuple[float, float]:
+    """Eq. 14's weight of a link: the information (1 / variance) of its Δp, for the position
+    (m⁻²) and the heading (rad⁻²).
+
+    A link's Δp composes the odometry since its source was entered (``distance`` metres
+    travelled, ``turned`` radians turned) and
+    ``registrations`` loop-closure registrations (one for a loop link, one more when the
+    robot entered the source by a registration). The odometry's uncertainty grows with the
+    distance travelled and the angle turned (a random walk), so a long link counts for less
+    than a short one; a registration is as uncertain however far apart its experiences were
+    made. With equal weights a closure's error would be spread like an exact one's over a
+    loop of odometry that is often more precise than a single registration.
+    """
+    floor_xy, floor_th = config.link_var_floor
+    var_xy = config.odometry_var_per_m * distance + registrations * config.closure_sigma_m**2
+    var_th = (
+        config.odometry_heading_var_per_m * distance
+        + config.odometry_heading_var_per_rad * turned
+        + registrations * config.closure_sigma_rad**2
+    )
+    return 1.0 / (floor_xy + var_xy), 1.0 / (floor_th + var_th)
+
+
+def robust_scale(chi2: FloatArray, sigmas: float) -> FloatArray:
+    """Dynamic covariance scaling (Agarwal et al. 2013) of loop links: the factor
+    ``s = min(1, 2Φ / (Φ + χ²))`` on a link's standard-deviation-normalised residual, with
+    ``Φ = sigmas²``; the link's weight is multiplied by ``s²``. A link consistent with the
+    rest of the map keeps its weight; one whose residual is k times the threshold keeps about
+    ``4 / k⁴`` of it, so that it no longer bends the map. ``sigmas = 0``: no scaling."""
+    chi2 = np.asarray(chi2, dtype=np.float64)
+    if sigmas <= 0.0:
+        return np.ones_like(chi2)
+    phi = sigmas * sigmas
+    return np.minimum(1.0, 2.0 * phi / (phi + chi2)) ** 2
+
+
 def relaxation_correction(
-    poses: ArrayLike, sources: ArrayLike, targets: ArrayLike, dps: ArrayLike, a: float = 0.5
+    poses: ArrayLike,
+    sources: ArrayLike,
+    targets: ArrayLike,
+    dps: ArrayLike,
+    a: float = 0.5,
+    weights: ArrayLike | None = None,
 ) -> FloatArray:
     """Eq. 14 for every node at once: ``Δp^i = a [Σ_out (p^j - p^i ⊕ Δp^ij) + Σ_in (p^k ⊕ Δp^ki
-    - p^i)]`` (positions and, as OpenRatSLAM does, headings), without the gain normalisation.
+    - p^i)]`` (positions and, as OpenRatSLAM does, headings), without the gain normalisation;
+    with ``weights`` ((E, 2): each link's position and heading weight) every residual is
+    multiplied by its link's weight (the weighted Eq. 14 that ``CognitiveMap`` relaxes).
 
     ``CognitiveMap.relax`` applies it node by node in place; this vectorised form states the
     equation and measures how far a map is from its fixed point (all corrections zero).
@@ -218,6 +361,9 @@ def relaxation_correction(
     predicted = compose(p[s], np.asarray(dps, dtype=np.float64))
     r = p[t] - predicted
     r[:, 2] = wrap_angle(r[:, 2])
+    if weights is not None:
+        w = np.asarray(weights, dtype=np.float64).reshape(-1, 2)
+        r *= w[:, [0, 0, 1]]
     out = np.zeros_like(p)
     np.add.at(out, s, r)
     np.add.at(out, t, -r)
@@ -248,15 +394,27 @@ class CognitiveMap:
         self._link_dt: list[float] = []
         self._link_stamp: list[float] = []
         self._link_kind: list[LinkKind] = []
+        # Eq. 14's weights: each link's (position, heading) information, and the robust
+        # kernel's factor on it (loop links; 1 = fully trusted)
+        self._link_info = GrowingArray(np.float64, 2, capacity=64)
+        self._link_scale = GrowingArray(np.float64, capacity=64)
         self._linked: set[tuple[int, int]] = set()
         # undirected, with each link's length: for the odometry distance between two places
         self._neighbours: dict[int, list[tuple[int, float]]] = {}
+        # the recognised place (topology) and the experience the robot's pose is composed from
+        # (``_base ⊕ _offset``): the same, except after a measured loop closure, when the
+        # robot is at the recognised place while its pose still hangs off its own chain
         self._current = -1
+        self._base = -1
         self._offset = np.zeros(3)
         self._entered = 0.0
         self._last_stamp = 0.0
         self._dirty = False
         self._needs_solve = False
+        # metres travelled and radians turned since the current experience was entered, and
+        # whether it was entered by a registration (all part of the next link's uncertainty)
+        self._travel = np.zeros(2)
+        self._entered_measured = False
         self._csr: tuple[NDArray[np.int64], ...] | None = None
         self.loop_closures = 0
         self.rejected_closures = 0
@@ -362,13 +520,15 @@ class CognitiveMap:
         if not np.all(np.isfinite(d)):
             raise ValueError(f"odometry step must be finite, got {dp}")
         self._offset = compose(self._offset, d)
+        self._travel += (math.hypot(d[0], d[1]), abs(d[2]))
         if stamp is not None:
             self._last_stamp = float(stamp)
 
     def anchor(self) -> tuple[int, FloatArray]:
-        """(current experience id, robot pose in its frame); id -1 before the first experience,
-        when the offset is in the map frame."""
-        return self._current, self._offset.copy()
+        """(experience id, robot pose in its frame): the experience the robot's pose hangs off
+        (the current one, or the last of its own chain after a measured loop closure); id -1
+        before the first experience, when the offset is in the map frame."""
+        return self._base, self._offset.copy()
 
     def poses_of(self, experience_ids: ArrayLike, offsets: ArrayLike) -> FloatArray:
         """Map poses ``p_e ⊕ offset`` for arrays of anchors (vectorised; id -1 = map origin)."""
@@ -381,9 +541,9 @@ class CognitiveMap:
 
     def pose(self) -> FloatArray:
         """The robot's current map pose."""
-        if self._current < 0:
+        if self._base < 0:
             return self._offset.copy()
-        return compose(self._poses.view()[self._current], self._offset)
+        return compose(self._poses.view()[self._base], self._offset)
 
     # --- topology (Eq. 12-13) --------------------------------------------------------------
 
@@ -413,9 +573,9 @@ class CognitiveMap:
             dist = wrapped_cell_distance(self._centres.view()[candidates], centre, self.dims)
             best = int(np.argmin(dist))
             if dist[best] <= self.config.match_threshold:
-                return self._move_to(candidates[best], stamp, refine)
+                return self._move_to(candidates[best], stamp, refine, (vid, centre, payload))
         if nearby is not None and nearby != self._current:
-            event = self._move_to(int(nearby), stamp, refine)
+            event = self._move_to(int(nearby), stamp, refine, (vid, centre, payload))
             if not event.rejected:
                 return event
         return self._new_experience(vid, centre, stamp, payload)
@@ -436,20 +596,26 @@ class CognitiveMap:
     def _add_link(
         self, source: int, target: int, dp: FloatArray, stamp: float, kind: LinkKind
     ) -> None:
-        """Eq. 13: l_ij = <Δp^ij, Δt^ij>."""
+        """Eq. 13: l_ij = <Δp^ij, Δt^ij>, weighted by the odometry and registrations it
+        composes (:func:`link_information`)."""
+        registrations = int(kind == "loop") + int(self._entered_measured)
         self._link_ends.append((source, target))
         self._link_dp.append(dp)
         self._link_dt.append(stamp - self._entered)
         self._link_stamp.append(stamp)
         self._link_kind.append(kind)
+        self._link_info.append(link_information(*self._travel, registrations, self.config))
+        self._link_scale.append(1.0)
         self._linked.add((source, target))
         length = math.hypot(float(dp[0]), float(dp[1]))
         self._neighbours.setdefault(source, []).append((target, length))
         self._neighbours.setdefault(target, []).append((source, length))
         self._csr = None
 
-    def _enter(self, eid: int, offset: FloatArray, stamp: float) -> None:
-        self._current = eid
+    def _enter(self, eid: int, offset: FloatArray, stamp: float, measured: bool = False) -> None:
+        self._travel = np.zeros(2)
+        self._entered_measured = measured
+        self._current = self._base = eid
         self._offset = np.asarray(offset, dtype=np.float64).copy()
         self._entered = stamp
 
@@ -457,36 +623,59 @@ class CognitiveMap:
         """Eq. 13: e_j at p^i ⊕ Δp^ij, linked from the current experience by the odometry."""
         pose = self.pose()
         eid = self._add_experience(pose, vid, centre, stamp, payload)
-        if self._current >= 0:
-            self._add_link(self._current, eid, self._offset.copy(), stamp, "odometry")
+        if self._base >= 0:
+            self._add_link(self._base, eid, self._offset.copy(), stamp, "odometry")
         self._enter(eid, np.zeros(3), stamp)
         return MapEvent("new", eid)
 
     def _move_to(
-        self, target: int, stamp: float, refine: Callable[[Experience], ArrayLike | None] | None
+        self,
+        target: int,
+        stamp: float,
+        refine: Callable[[Experience], ArrayLike | None] | None,
+        here: tuple[int, FloatArray, Any],
     ) -> MapEvent:
+        """Move the robot to experience ``target``.
+
+        Without ``refine`` (the paper) the robot is placed on it, and a loop link records the
+        odometry since the current experience. With ``refine``, its registration measures
+        the robot's pose in ``target``'s frame. The robot's pose becomes an experience of
+        its own chain (``here``: its view id, packet centre and payload), linked by the
+        odometry, and the measurement a new loop link from it to ``target`` (also along an
+        existing link: a new measurement of it), weighted as one registration
+        (:func:`link_information`); the robot's pose hangs off that experience, so that the
+        relaxation corrects it. (Entering ``target`` at the measured pose instead would put
+        the measurement into every link made afterwards too, where the robust kernel could
+        not demote it.)"""
         current = self._current
         if target == current:
             return MapEvent("none", current, matched=target)
-        arrival = np.zeros(3)
-        if refine is not None:
-            refined = refine(self.experience(target))
-            if refined is None:
-                self.rejected_closures += 1
-                return MapEvent("none", current, rejected=True, matched=target)
-            arrival = np.asarray(refined, dtype=np.float64).reshape(3)
-        kind: EventKind = "link"
-        if (current, target) not in self._linked:
-            # p_current ⊕ offset = p_target ⊕ arrival, so Δp = offset ⊕ arrival⁻¹.
-            dp = compose(self._offset, inverse(arrival))
-            self._add_link(current, target, dp, stamp, "loop")
-            self.loop_closures += 1
-            if not self._agrees(current, target, dp):
-                self._dirty = True
-                self._needs_solve = True
-            kind = "loop"
-        self._enter(target, arrival, stamp)
-        return MapEvent(kind, target, matched=target)
+        if refine is None:
+            kind: EventKind = "link"
+            if (current, target) not in self._linked:
+                self._close(target, np.zeros(3), stamp)
+                kind = "loop"
+            self._enter(target, np.zeros(3), stamp, measured=True)
+            return MapEvent(kind, target, matched=target)
+        refined = refine(self.experience(target))
+        if refined is None:
+            self.rejected_closures += 1
+            return MapEvent("none", current, rejected=True, matched=target)
+        if self._offset.any():
+            self._new_experience(*here[:2], stamp, here[2])
+        self._close(target, np.asarray(refined, dtype=np.float64).reshape(3), stamp)
+        self._current = target
+        return MapEvent("loop", target, matched=target)
+
+    def _close(self, target: int, arrival: FloatArray, stamp: float) -> None:
+        """A loop link to ``target``, the robot being at ``arrival`` in its frame."""
+        # p_base ⊕ offset = p_target ⊕ arrival, so Δp = offset ⊕ arrival⁻¹.
+        dp = compose(self._offset, inverse(arrival))
+        self._add_link(self._base, target, dp, stamp, "loop")
+        self.loop_closures += 1
+        if not self._agrees(self._base, target, dp):
+            self._dirty = True
+            self._needs_solve = True
 
     def _agrees(self, source: int, target: int, dp: FloatArray) -> bool:
         """Whether the map already satisfies a new link exactly (a closure that confirms the
@@ -518,8 +707,13 @@ class CognitiveMap:
             self._csr = (src, dst, out_ptr, out_e, in_ptr, in_e)
         return self._csr
 
+    def link_weights(self) -> FloatArray:
+        """(E, 2) Eq. 14's weight of every link, position and heading: its information
+        (:func:`link_information`) times the robust kernel's factor (:func:`robust_scale`)."""
+        return self._link_info.view() * self._link_scale.view()[:, None]
+
     def relax(self, iterations: int | None = None) -> int:
-        """Relax the map per Eq. 14; returns the number of sweeps run.
+        """Relax the map per the weighted Eq. 14; returns the number of sweeps run.
 
         Nothing runs while the map is consistent. After a loop closure the fixed point is
         solved directly (``solve_on_loop``, no sweeps needed); otherwise at most ``iterations``
@@ -539,23 +733,30 @@ class CognitiveMap:
         src, dst, out_ptr, out_e, in_ptr, in_e = self._adjacency()
         poses = self._poses.view()
         dps = self._link_dp.view()
+        weights = self.link_weights()
+        done = n_sweeps
         for k in range(n_sweeps):
             move, turn = _relax_sweep(
-                poses, src, dst, dps, out_ptr, out_e, in_ptr, in_e, self.config.correction
-            )
+                poses, src, dst, dps, weights, out_ptr, out_e, in_ptr, in_e,
+                self.config.correction,
+            )  # fmt: skip
             if move < self.config.tolerance_m and turn < self.config.tolerance_rad:
                 self._dirty = False
-                return k + 1
-        return n_sweeps
+                done = k + 1
+                break
+        return done
 
     def solve(self, window: int | None = -1) -> None:
-        """Jump to the fixed point of Eq. 14 (every Δp^i zero) by a sparse linear solve.
+        """Jump to the fixed point of the weighted Eq. 14 (every Δp^i zero) by a sparse
+        linear solve, with the robust kernel re-weighting loop links that the solution
+        contradicts (:func:`robust_scale`, at most ``robust_iterations`` solves).
 
-        Headings first (the linearised Laplacian system of the heading residuals), then
-        positions with the headings fixed: ``min Σ |p_j - p_i - R(θ_i) Δp_ij|²``, whose normal
-        equations are exactly "the sum of each node's residuals is zero". Only the ``window``
-        most recent experiences move (default ``config.solve_window``; ``None`` = all but
-        experience 0); older ones act as fixed boundary conditions.
+        Headings first (the linearised weighted Laplacian system of the heading residuals),
+        then positions with the headings fixed: ``min Σ w_ij |p_j - p_i - R(θ_i) Δp_ij|²``,
+        whose normal equations are exactly "the weighted sum of each node's residuals is
+        zero". Only the ``window`` most recent experiences move (default
+        ``config.solve_window``; ``None`` = all but experience 0); older ones act as fixed
+        boundary conditions.
         """
         n, m = len(self), self.num_links
         if n < 2 or m == 0:
@@ -563,26 +764,27 @@ class CognitiveMap:
         window = self.config.solve_window if window == -1 else window
         lo = 1 if window is None else max(1, n - int(window))
         src, dst, *_ = self._adjacency()
-        keep = (src >= lo) | (dst >= lo)
-        s, t = src[keep], dst[keep]
-        free = n - lo
-        # Fixed experiences all map to one ground index (the last), dropped from the system.
-        ls = np.where(s >= lo, s - lo, free)
-        lt = np.where(t >= lo, t - lo, free)
-        lu = _laplacian_lu(ls, lt, free + 1)
-        poses = self._poses.view()
-        dps = self._link_dp.view()[keep]
-        for _ in range(2):  # a second pass settles residuals that wrapped around ±π
-            r = wrap_angle(poses[s, 2] + dps[:, 2] - poses[t, 2])
-            step = lu.solve(_incidence_t(ls, lt, r, free + 1)[:free])
-            poses[lo:, 2] = wrap_angle(poses[lo:, 2] + step)
-        c, sn = np.cos(poses[s, 2]), np.sin(poses[s, 2])
-        rel = np.stack([c * dps[:, 0] - sn * dps[:, 1], sn * dps[:, 0] + c * dps[:, 1]], axis=1)
-        # Known positions of fixed ends move to the right-hand side.
-        rel = rel + np.where(s < lo, 1.0, 0.0)[:, None] * poses[s, :2]
-        rel = rel - np.where(t < lo, 1.0, 0.0)[:, None] * poses[t, :2]
-        rhs = np.stack([_incidence_t(ls, lt, rel[:, k], free + 1)[:free] for k in range(2)], 1)
-        poses[lo:, :2] = lu.solve(rhs)
+        keep = np.flatnonzero((src >= lo) | (dst >= lo))
+        start = self._poses.view()[lo:].copy()
+        loops = np.array([self._link_kind[k] == "loop" for k in keep], dtype=bool)
+        info = self._link_info.view()[keep]
+        scale = self._link_scale.view()
+        for _ in range(self.config.robust_iterations):
+            self._poses.view()[lo:] = start
+            _solve_fixed_point(
+                self._poses.view(), src[keep], dst[keep], self._link_dp.view()[keep],
+                info * scale[keep][:, None], lo,
+            )  # fmt: skip
+            if not loops.any() or self.config.robust_sigmas <= 0.0:
+                break
+            chi2 = _link_chi2(
+                self._poses.view(), src[keep], dst[keep], self._link_dp.view()[keep], info
+            )
+            wanted = robust_scale(chi2[loops], self.config.robust_sigmas)
+            changed = np.abs(wanted - scale[keep[loops]]) > 0.05 * np.maximum(wanted, 1e-3)
+            scale[keep[loops]] = wanted
+            if not changed.any():
+                break
 
     # --- output ----------------------------------------------------------------------------
 

@@ -101,6 +101,13 @@ class LoopClosureConfig:
             pose farther than the rival distance from it is refused unless its score (share
             of points on the submap) beats the prediction's by more than this (along a
             corridor the best may sit on a plateau the scan barely constrains).
+        prior_tie: a best pose nearer the prediction than the rival distance must score
+            more than this above the prediction refined where it stands, or the latter is
+            taken (along a corridor the window's best is one point of a plateau; on the
+            rooms world such picks were 22-36 cm off, the prediction 2 cm).
+        min_seen: the score counts only the points of the current scan where the submap's
+            scans looked (a robot off the old centre-line sees what they never saw), but at
+            least this share of the points (the unseen ones then as misses).
         registration: the registration's map and Gauss-Newton parameters.
     """
 
@@ -133,6 +140,8 @@ class LoopClosureConfig:
     rival_angle: float = math.radians(20.0)
     max_ambiguity: float = 0.9
     prior_margin: float = 0.1
+    prior_tie: float = 0.02
+    min_seen: float = 0.6
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)
 
 
@@ -182,6 +191,7 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "views.ds": (0.0, 1e3, False),
     "pose_cells.cell_size_xy": (0.0, 1e3, False),
     "loop_closure.min_score": (0.0, 1.0, True),
+    "loop_closure.min_seen": (0.0, 1.0, True),
     "loop_closure.payload_spacing": (1e-3, 10.0, True),
     "loop_closure.registration.resolution": (1e-3, 10.0, True),
     "loop_closure.registration.max_range": (0.0, 1e4, False),

@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from bioslam.boundary import BoundaryCells
 from bioslam.closure import (
     Check,
+    SeenArea,
     fuse_submap,
     nearest_experience,
     pass_neighbours,
@@ -215,11 +216,11 @@ class BioSLAM:
         drift, drift_angle = self._drift_bound(since, linked)
         if np.hypot(predicted[0], predicted[1]) > cfg.recognition_radius + drift:
             return None
-        reference = self._submap(experience.id)
+        reference, seen = self._submap(experience.id)
         if reference.shape[0] < 3:
             return None
         self._last_registration = self._travelled
-        verdict = verify(reference, points, predicted, (drift, drift_angle), cfg)
+        verdict = verify(reference, points, predicted, (drift, drift_angle), cfg, seen)
         cue = "proximity" if experience.id == self._proposed else "view"
         self.checks.append(Check(self._stamp, experience.id, experience.stamp, cue, verdict))
         if not verdict.accepted:
@@ -230,18 +231,22 @@ class BioSLAM:
             return predicted
         return verdict.pose
 
-    def _submap(self, anchor: int) -> NDArray[np.float32]:
+    def _submap(self, anchor: int) -> tuple[NDArray[np.float32], SeenArea]:
         """The scans around ``anchor`` on its own pass, fused in its frame
-        (:func:`bioslam.closure.fuse_submap`); the last ``submap_reach`` metres of travel,
-        which the current scan would match trivially, are left out."""
+        (:func:`bioslam.closure.fuse_submap`), and where they looked; the last
+        ``submap_reach`` metres of travel, which the current scan would match trivially, are
+        left out."""
         cfg = self.config.loop_closure
         cmap = self.cognitive_map
         members = pass_neighbours(
             self._made_at[: len(cmap)], anchor, cfg.submap_reach,
             cfg.submap_step, self._travelled - cfg.submap_reach,
         )  # fmt: skip
-        return fuse_submap(
-            cmap.experience_poses_view, cmap.payloads, anchor, members, cfg.submap_spacing
+        poses, payloads = cmap.experience_poses_view, cmap.payloads
+        resolution = cfg.registration.resolution * 2**cfg.registration.score_level
+        return (
+            fuse_submap(poses, payloads, anchor, members, cfg.submap_spacing),
+            SeenArea(poses, payloads, anchor, members, resolution),
         )
 
     def _odometry_relation(self, experience_id: int) -> tuple[bool, float]:

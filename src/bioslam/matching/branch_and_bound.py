@@ -30,8 +30,18 @@ API (both the odometry and loop-closure verification use it)::
 passes the box around its pose); ``set_map`` with no box covers the whole grid. The map
 value is the grid's occupancy probability of cells ever hit (0 elsewhere), spread to the
 neighbouring cells with a Gaussian of ``blur`` cells (a sparse scan's endpoints on a wall
-fall between another scan's). Memory: the pooled grids (``depth + 1`` float32 copies of the
-reachable part of the grid) and a few point-sized buffers, reused by later searches. No file
+fall between another scan's).
+
+Speed: the whole search is one compiled call. The endpoints' cells are computed once per
+heading of the lattice (a table of flat indices into the pooled grids, so a bound is a
+gather-and-sum without bounds checks for the endpoints that stay inside the crop), and the
+rival search does not start again from the roots: it continues from the nodes the first
+search cut (each with its bound), which together cover the window.
+
+Memory: the pooled grids (``depth + 1`` float32 copies of the reachable part of the grid,
+kept in one buffer grown to the largest crop seen and reused by later searches; a level's
+cells are read at ``row * buffer width + column``), and per search the heading table (three
+int64 per endpoint and heading) and the frontier (about as many entries as nodes). No file
 or terminal I/O here.
 """
 
@@ -148,11 +158,15 @@ def _fill_levels(weights, r0, c0, rows, cols, blur, levels):
         kernel[d + blur] = math.exp(-0.5 * d * d)
     levels[0, :rows, :cols] = 0.0
     # scattered from the hit cells (few in a map): each raises its neighbours
+    first = max(c0 - blur, 0)
+    width = max(min(c0 + cols + blur, gcols) - first, 0)
     for r in range(max(r0 - blur, 0), min(r0 + rows + blur, grows)):
-        for c in range(max(c0 - blur, 0), min(c0 + cols + blur, gcols)):
-            w = weights[r, c]
+        line = weights[r, first : first + width]
+        for i in range(width):
+            w = line[i]
             if w == 0.0:
                 continue
+            c = first + i
             for dr in range(-blur, blur + 1):
                 rr = r - r0 + dr
                 if rr < 0 or rr >= rows:
@@ -166,16 +180,23 @@ def _fill_levels(weights, r0, c0, rows, cols, blur, levels):
                         levels[0, rr, cc] = v
     for h in range(1, levels.shape[0]):
         s = 1 << (h - 1)
+        # Row r's maximum with the cell s to its right, then row r - s's with row r (still
+        # only that row's): one sweep whose rows are still in cache. The loops index slices
+        # from 0 (no index arithmetic, which Numba checks for negatives), so they run on
+        # vector registers; a maximum of float32 is exact.
+        inside = max(cols - s, 0)
         for r in range(rows):
-            for c in range(cols):
-                a = levels[h - 1, r, c]
-                if c + s < cols and levels[h - 1, r, c + s] > a:
-                    a = levels[h - 1, r, c + s]
-                levels[h, r, c] = a
-        for r in range(rows - s):
-            for c in range(cols):
-                if levels[h, r + s, c] > levels[h, r, c]:
-                    levels[h, r, c] = levels[h, r + s, c]
+            here = levels[h - 1, r, :inside]
+            right = levels[h - 1, r, s : s + inside]
+            out = levels[h, r, :inside]
+            for c in range(inside):
+                out[c] = max(here[c], right[c])
+            levels[h, r, inside:cols] = levels[h - 1, r, inside:cols]
+            if r >= s:
+                done = levels[h, r - s, :cols]
+                row = levels[h, r, :cols]
+                for c in range(cols):
+                    done[c] = max(done[c], row[c])
 
 
 @numba.njit(cache=True)
@@ -220,155 +241,266 @@ def _in_zone(j, ix, iy, span, zone):
 
 
 @numba.njit(cache=True)
-def _local_maximum(levels, cells3, score, ix, iy, rows, cols):
-    """Whether no lattice neighbour of (ix, iy) at the heading of ``cells3[1]`` (26 of
-    them, past the window's edge too) scores higher than ``score``. ``cells3`` holds the
-    endpoints' cells at that heading's lattice neighbours and itself."""
-    for dj in range(3):
+def _heading_table(pts, args, nh, reach, span, rows, cols, stride):
+    """The endpoints' cells at every heading ``-nh..nh`` of the lattice, computed once per
+    search (the bounds then only add whole cells). A search reads cell (r + iy, c + ix) for
+    node origins |ix|, |iy| <= ``reach``: an endpoint whose reads all fall inside the crop
+    is kept as its flat index ``r * stride + c`` (no bounds checks when summed); one whose
+    reads may fall outside keeps (r, c) for the checked sum; one no node of ``span`` cells
+    can bring onto the crop is dropped (it adds 0 everywhere).
+
+    Returns (flat, n_inner, edge rows, edge cols, n_edge), each row one heading."""
+    x, y, th, step, ox, oy, res = args
+    n = pts.shape[0]
+    count = 2 * nh + 1
+    flat = np.empty((count, n), dtype=np.int32)
+    edge_r = np.empty((count, n), dtype=np.int64)
+    edge_c = np.empty((count, n), dtype=np.int64)
+    n_inner = np.zeros(count, dtype=np.int64)
+    n_edge = np.zeros(count, dtype=np.int64)
+    # Endpoints whose cell stays inside at every heading (those nearer the centre than
+    # its distance to the crop's edge, the most) come first and are not tested per heading.
+    row0 = math.floor((y - oy) / res)
+    col0 = math.floor((x - ox) / res)
+    room = min(row0, col0, rows - 1 - row0, cols - 1 - col0) - reach - 2
+    order = np.empty(n, dtype=np.int64)
+    n_sure = 0
+    for k in range(n):
+        if math.hypot(pts[k, 0], pts[k, 1]) / res < room:
+            order[n_sure] = k
+            n_sure += 1
+    n_rest = n_sure
+    for k in range(n):
+        if not math.hypot(pts[k, 0], pts[k, 1]) / res < room:
+            order[n_rest] = k
+            n_rest += 1
+    px = pts[order, 0]
+    py = pts[order, 1]
+    for jj in range(count):
+        theta = th + (jj - nh) * step
+        c = math.cos(theta)
+        s = math.sin(theta)
+        row = flat[jj]
+        for k in range(n_sure):  # branch-free: vector registers
+            r = math.floor((s * px[k] + c * py[k] + y - oy) / res)
+            q = math.floor((c * px[k] - s * py[k] + x - ox) / res)
+            row[k] = r * stride + q
+        a = n_sure
+        e = 0
+        for k in range(n_sure, n):
+            r = math.floor((s * px[k] + c * py[k] + y - oy) / res)
+            q = math.floor((c * px[k] - s * py[k] + x - ox) / res)
+            if r - reach >= rows or q - reach >= cols:
+                continue
+            if r + reach + span <= 0 or q + reach + span <= 0:
+                continue
+            if r - reach >= 0 and q - reach >= 0 and r + reach < rows and q + reach < cols:
+                row[a] = r * stride + q
+                a += 1
+            else:
+                edge_r[jj, e] = r
+                edge_c[jj, e] = q
+                e += 1
+        n_inner[jj] = a
+        n_edge[jj] = e
+    return flat, n_inner, edge_r, edge_c, n_edge
+
+
+@numba.njit(cache=True)
+def _node_bound(levels, h, table, jj, ix, iy, rows, cols, stride):
+    """Σ over the endpoints at heading row ``jj`` of ``table`` of pooled level ``h`` at
+    their cell shifted by (ix, iy): the score of the lattice pose at h = 0, an upper bound
+    of the ``2^h x 2^h`` translations from (ix, iy) above. ``levels`` is flat per level
+    (row ``stride``). A window reaching in from below or left reads the first cell (whose
+    window covers its part inside); one wholly outside the crop adds 0."""
+    flat, n_inner, edge_r, edge_c, n_edge = table
+    base = iy * stride + ix
+    grid = levels[h]
+    total = 0.0
+    for k in range(n_inner[jj]):
+        total += grid[flat[jj, k] + base]
+    size = 1 << h
+    for k in range(n_edge[jj]):
+        r = edge_r[jj, k] + iy
+        c = edge_c[jj, k] + ix
+        if r >= rows or c >= cols or r + size <= 0 or c + size <= 0:
+            continue
+        total += grid[max(r, 0) * stride + max(c, 0)]
+    return total
+
+
+@numba.njit(cache=True)
+def _node_bounds4(levels, h, table, jj, xs, ys, m, out, rows, cols, stride):
+    """``out[t]`` = :func:`_node_bound` of the nodes (xs[t], ys[t]), t < m <= 4, at level
+    ``h`` and heading row ``jj``, in one pass over the endpoints (the siblings' cells are
+    near each other in memory); each sum in the same order, so the same to the last bit."""
+    flat, n_inner, edge_r, edge_c, n_edge = table
+    grid = levels[h]
+    o0 = ys[0] * stride + xs[0]
+    o1 = ys[min(1, m - 1)] * stride + xs[min(1, m - 1)]
+    o2 = ys[min(2, m - 1)] * stride + xs[min(2, m - 1)]
+    o3 = ys[min(3, m - 1)] * stride + xs[min(3, m - 1)]
+    a0 = 0.0
+    a1 = 0.0
+    a2 = 0.0
+    a3 = 0.0
+    for k in range(n_inner[jj]):
+        f = flat[jj, k]
+        a0 += grid[f + o0]
+        a1 += grid[f + o1]
+        a2 += grid[f + o2]
+        a3 += grid[f + o3]
+    out[0] = a0
+    out[1] = a1
+    out[2] = a2
+    out[3] = a3
+    size = 1 << h
+    for k in range(n_edge[jj]):
+        for t in range(m):
+            r = edge_r[jj, k] + ys[t]
+            c = edge_c[jj, k] + xs[t]
+            if r >= rows or c >= cols or r + size <= 0 or c + size <= 0:
+                continue
+            out[t] += grid[max(r, 0) * stride + max(c, 0)]
+
+
+@numba.njit(cache=True)
+def _local_maximum(levels, table, jj, score, ix, iy, rows, cols, stride):
+    """Whether no lattice neighbour of (ix, iy) at heading row ``jj`` (26 of them, past
+    the window's edge too) scores higher than ``score``."""
+    for dj in range(-1, 2):
         for dx in range(-1, 2):
             for dy in range(-1, 2):
-                if dj == 1 and dx == 0 and dy == 0:
+                if dj == 0 and dx == 0 and dy == 0:
                     continue
-                if _bound(levels, 0, cells3[dj], ix + dx, iy + dy, rows, cols) > score:
+                v = _node_bound(levels, 0, table, jj + dj, ix + dx, iy + dy, rows, cols, stride)
+                if v > score:
                     return False
     return True
 
 
 @numba.njit(cache=True)
-def _cells_at(pts, j, args, out):
-    x, y, th, step, ox, oy, res = args
-    _discretize(pts, th + j * step, x, y, ox, oy, res, out)
+def _record(front_b, front_k, n, bound, j, h, ix, iy):
+    """Append a node to the frontier (grown by doubling); returns the arrays and count."""
+    if n == front_b.shape[0]:
+        grown_b = np.empty(2 * n)
+        grown_b[:n] = front_b
+        grown_k = np.empty((2 * n, 4), dtype=np.int64)
+        grown_k[:n] = front_k
+        front_b, front_k = grown_b, grown_k
+    front_b[n] = bound
+    front_k[n, 0] = j
+    front_k[n, 1] = h
+    front_k[n, 2] = ix
+    front_k[n, 3] = iy
+    return front_b, front_k, n + 1
 
 
 @numba.njit(cache=True)
-def _search(levels, pts, args, nt, nx, rows, cols, floor, zone, use_zone, seed):
-    """Branch and bound over headings -nt..nt and translations -nx..nx (cells). Without
-    ``use_zone``: the best lattice pose. With it: the best local maximum outside ``zone``.
-    Only poses scoring above ``floor`` count. ``seed`` (score, j, ix, iy) is a lattice pose
-    already scored (j > nt for none): only poses scoring more replace it, and it prunes
-    from the start. Returns (score, j, ix, iy, nodes); j is ``nt + 1`` when nothing beat
-    ``floor``."""
-    depth = levels.shape[0] - 1
-    span = 1 << depth
-    per_axis = (2 * nx + span) // span
-    n_roots = (2 * nt + 1) * per_axis * per_axis
-    root_score = np.empty(n_roots)
-    root_key = np.empty((n_roots, 3), dtype=np.int64)
-    cells = np.empty((pts.shape[0], 2), dtype=np.int64)
-    cells3 = np.empty((3, pts.shape[0], 2), dtype=np.int64)
-    nodes = 0
-    n = 0
-    for j in range(-nt, nt + 1):
-        _cells_at(pts, j, args, cells)
-        for a in range(per_axis):
-            for b in range(per_axis):
-                ix = -nx + a * span
-                iy = -nx + b * span
-                root_score[n] = _bound(levels, depth, cells, ix, iy, rows, cols)
-                root_key[n, 0] = j
-                root_key[n, 1] = ix
-                root_key[n, 2] = iy
-                n += 1
-    nodes += n
-    order = np.argsort(-root_score, kind="mergesort")
-    best = floor
-    best_j = nt + 1
-    best_x = 0
-    best_y = 0
-    if seed[1] <= nt and seed[0] > floor:
-        best = seed[0]
-        best_j = int(seed[1])
-        best_x = int(seed[2])
-        best_y = int(seed[3])
-    # explicit depth-first stack of (h, ix, iy, bound): at most 4 children per level
-    stack_h = np.empty(4 * depth + 4, dtype=np.int64)
-    stack_x = np.empty(4 * depth + 4, dtype=np.int64)
-    stack_y = np.empty(4 * depth + 4, dtype=np.int64)
-    stack_b = np.empty(4 * depth + 4)
+def _descend(levels, table, dims, node, bound0, best, found, zone, use_zone, front, stack):
+    """Depth-first branch and bound below ``node`` (j, h, ix, iy) whose bound is
+    ``bound0``, children best first. ``best`` (1,) and ``found`` (j, ix, iy, from_search)
+    hold the best pose so far and are updated. Without ``use_zone`` a pose beating it
+    becomes the best; with it only a local maximum outside ``zone`` does. Without
+    ``use_zone`` every node cut (and every best replaced) is appended to ``front`` (arrays,
+    count): together they cover the window, so the rival search starts from them instead
+    of from the roots. Returns the nodes whose bound was computed and ``front``."""
+    nh, nx, rows, cols, stride = dims
+    front_b, front_k, nf = front
+    stack_h, stack_x, stack_y, stack_b = stack
     child_b = np.empty(4)
     child_x = np.empty(4, dtype=np.int64)
     child_y = np.empty(4, dtype=np.int64)
-    for q in range(n_roots):
-        r = order[q]
-        if root_score[r] <= best:
-            break
-        j = root_key[r, 0]
-        if use_zone and _in_zone(j, root_key[r, 1], root_key[r, 2], span, zone):
+    kid_b = np.empty(4)
+    kid_x = np.empty(4, dtype=np.int64)
+    kid_y = np.empty(4, dtype=np.int64)
+    j = node[0]
+    jj = j + nh
+    nodes = 0
+    stack_h[0] = node[1]
+    stack_x[0] = node[2]
+    stack_y[0] = node[3]
+    stack_b[0] = bound0
+    top = 1
+    while top > 0:
+        top -= 1
+        h = stack_h[top]
+        ix = stack_x[top]
+        iy = stack_y[top]
+        bound = stack_b[top]
+        if bound <= best[0]:
+            if not use_zone:
+                front_b, front_k, nf = _record(front_b, front_k, nf, bound, j, h, ix, iy)
             continue
-        _cells_at(pts, j, args, cells)
-        have_neighbours = False
-        top = 0
-        stack_h[0] = depth
-        stack_x[0] = root_key[r, 1]
-        stack_y[0] = root_key[r, 2]
-        stack_b[0] = root_score[r]
-        top = 1
-        while top > 0:
-            top -= 1
-            h = stack_h[top]
-            ix = stack_x[top]
-            iy = stack_y[top]
-            bound = stack_b[top]
-            if bound <= best:
+        if h == 0:
+            if use_zone:
+                if _in_zone(j, ix, iy, 1, zone):
+                    continue
+                if not _local_maximum(levels, table, jj, bound, ix, iy, rows, cols, stride):
+                    continue
+            elif found[3]:
+                front_b, front_k, nf = _record(
+                    front_b, front_k, nf, best[0], found[0], 0, found[1], found[2]
+                )
+            best[0] = bound
+            found[0] = j
+            found[1] = ix
+            found[2] = iy
+            found[3] = 1
+            continue
+        half = 1 << (h - 1)
+        n_kids = 0
+        for a in range(2):
+            for b in range(2):
+                cx = ix + a * half
+                cy = iy + b * half
+                if cx > nx or cy > nx:
+                    continue
+                if use_zone and _in_zone(j, cx, cy, half, zone):
+                    continue
+                kid_x[n_kids] = cx
+                kid_y[n_kids] = cy
+                n_kids += 1
+        if n_kids == 0:
+            continue
+        _node_bounds4(levels, h - 1, table, jj, kid_x, kid_y, n_kids, kid_b, rows, cols, stride)
+        nodes += n_kids
+        m = 0
+        for t in range(n_kids):
+            cb = kid_b[t]
+            cx = kid_x[t]
+            cy = kid_y[t]
+            if cb <= best[0]:
+                if not use_zone:
+                    front_b, front_k, nf = _record(front_b, front_k, nf, cb, j, h - 1, cx, cy)
                 continue
-            if h == 0:
-                if use_zone:
-                    if _in_zone(j, ix, iy, 1, zone):
-                        continue
-                    if not have_neighbours:
-                        for d in range(3):
-                            _cells_at(pts, j + d - 1, args, cells3[d])
-                        have_neighbours = True
-                    if not _local_maximum(levels, cells3, bound, ix, iy, rows, cols):
-                        continue
-                best = bound
-                best_j = j
-                best_x = ix
-                best_y = iy
-                continue
-            half = 1 << (h - 1)
-            m = 0
-            for a in range(2):
-                for b in range(2):
-                    cx = ix + a * half
-                    cy = iy + b * half
-                    if cx > nx or cy > nx:
-                        continue
-                    if use_zone and _in_zone(j, cx, cy, half, zone):
-                        continue
-                    cb = _bound(levels, h - 1, cells, cx, cy, rows, cols)
-                    nodes += 1
-                    if cb <= best:
-                        continue
-                    # insert sorted ascending, so that the best child is popped first
-                    p = m
-                    while p > 0 and child_b[p - 1] > cb:
-                        child_b[p] = child_b[p - 1]
-                        child_x[p] = child_x[p - 1]
-                        child_y[p] = child_y[p - 1]
-                        p -= 1
-                    child_b[p] = cb
-                    child_x[p] = cx
-                    child_y[p] = cy
-                    m += 1
-            for p in range(m):
-                stack_h[top] = h - 1
-                stack_x[top] = child_x[p]
-                stack_y[top] = child_y[p]
-                stack_b[top] = child_b[p]
-                top += 1
-    return best, best_j, best_x, best_y, nodes
+            # insert sorted ascending, so that the best child is popped first
+            p = m
+            while p > 0 and child_b[p - 1] > cb:
+                child_b[p] = child_b[p - 1]
+                child_x[p] = child_x[p - 1]
+                child_y[p] = child_y[p - 1]
+                p -= 1
+            child_b[p] = cb
+            child_x[p] = cx
+            child_y[p] = cy
+            m += 1
+        for p in range(m):
+            stack_h[top] = h - 1
+            stack_x[top] = child_x[p]
+            stack_y[top] = child_y[p]
+            stack_b[top] = child_b[p]
+            top += 1
+    return nodes, (front_b, front_k, nf)
 
 
 @numba.njit(cache=True)
-def _climb(levels, pts, args, nt, nx, rows, cols, j, ix, iy):
+def _climb(levels, table, dims, nt, j, ix, iy):
     """Hill-climb on the lattice from (j, ix, iy), within the window, to a local maximum:
     a good pose scored before the search lets it prune from its first node. Returns
     (score, j, ix, iy)."""
-    cells3 = np.empty((3, pts.shape[0], 2), dtype=np.int64)
-    for d in range(3):
-        _cells_at(pts, j + d - 1, args, cells3[d])
-    best = _bound(levels, 0, cells3[1], ix, iy, rows, cols)
+    nh, nx, rows, cols, stride = dims
+    best = _node_bound(levels, 0, table, j + nh, ix, iy, rows, cols, stride)
     for _ in range(4 * (nx + nt) + 4):
         move_j = 0
         move_x = 0
@@ -381,7 +513,9 @@ def _climb(levels, pts, args, nt, nx, rows, cols, j, ix, iy):
                 for dy in range(-1, 2):
                     if abs(ix + dx) > nx or abs(iy + dy) > nx:
                         continue
-                    v = _bound(levels, 0, cells3[dj + 1], ix + dx, iy + dy, rows, cols)
+                    v = _node_bound(
+                        levels, 0, table, j + dj + nh, ix + dx, iy + dy, rows, cols, stride
+                    )
                     if v > top:
                         top = v
                         move_j = dj
@@ -390,26 +524,131 @@ def _climb(levels, pts, args, nt, nx, rows, cols, j, ix, iy):
         if top <= best:
             break
         best = top
+        j += move_j
         ix += move_x
         iy += move_y
-        if move_j != 0:
-            j += move_j
-            for d in range(3):
-                _cells_at(pts, j + d - 1, args, cells3[d])
     return best, j, ix, iy
 
 
 @numba.njit(cache=True)
-def _brute_force(levels, pts, args, nt, nx, rows, cols, pad):
-    """Every lattice score, headings -nt-pad..nt+pad, translations -nx-pad..nx+pad."""
+def _search(levels, pts, args, nt, nx, dims, hint, rival):
+    """The whole search in one call: the best lattice pose of headings -nt..nt and
+    translations -nx..nx (cells), then its best distinct rival.
+
+    ``hint`` (j, ix, iy; j > nt for none): a lattice pose to climb from first; the local
+    maximum reached prunes from the first node (only poses scoring as much replace it, so
+    the answer is the same). ``rival``: (cells, headings) of the winner's zone and the
+    fraction of its score a rival needs. The rival search is a branch and bound over the
+    frontier the first search left (every node it cut, with its bound) rather than over
+    the roots again; only poses outside the zone that are local maxima count.
+
+    Returns (score, j, ix, iy, rival score, rj, rx, ry, nodes); rj is ``nt + 1`` without a
+    rival."""
+    rows, cols, stride = dims
+    depth = levels.shape[0] - 1
+    span = 1 << depth
+    nh = nt + 1
+    geo = (nh, nx, rows, cols, stride)
+    table = _heading_table(pts, args, nh, nx + 1, span, rows, cols, stride)
+    per_axis = (2 * nx + span) // span
+    n_roots = (2 * nt + 1) * per_axis * per_axis
+    root_b = np.empty(n_roots)
+    root_k = np.empty((n_roots, 4), dtype=np.int64)
+    per_heading = per_axis * per_axis
+    xs = np.empty(4, dtype=np.int64)
+    ys = np.empty(4, dtype=np.int64)
+    out = np.empty(4)
+    n = 0
+    for j in range(-nt, nt + 1):
+        for first in range(0, per_heading, 4):
+            m = min(4, per_heading - first)
+            for t in range(m):
+                xs[t] = -nx + ((first + t) // per_axis) * span
+                ys[t] = -nx + ((first + t) % per_axis) * span
+            _node_bounds4(levels, depth, table, j + nh, xs, ys, m, out, rows, cols, stride)
+            for t in range(m):
+                root_b[n] = out[t]
+                root_k[n, 0] = j
+                root_k[n, 1] = depth
+                root_k[n, 2] = xs[t]
+                root_k[n, 3] = ys[t]
+                n += 1
+    nodes = n_roots
+    best = np.full(1, -1.0)
+    found = np.array([nt + 1, 0, 0, 0], dtype=np.int64)
+    if abs(hint[0]) <= nt:
+        score, hj, hx, hy = _climb(levels, table, geo, nt, hint[0], hint[1], hint[2])
+        # just below its score, so that the search still returns the first pose it meets
+        # that scores as much (the same as without a hint)
+        best[0] = np.nextafter(score, -np.inf)
+        found[0] = hj
+        found[1] = hx
+        found[2] = hy
+    stack = (
+        np.empty(4 * depth + 4, dtype=np.int64),
+        np.empty(4 * depth + 4, dtype=np.int64),
+        np.empty(4 * depth + 4, dtype=np.int64),
+        np.empty(4 * depth + 4),
+    )
+    zone = np.zeros(5, dtype=np.int64)
+    front = (np.empty(n_roots + 1024), np.empty((n_roots + 1024, 4), dtype=np.int64), 0)
+    order = np.argsort(-root_b, kind="mergesort")
+    for q in range(n_roots):
+        r = order[q]
+        if root_b[r] <= best[0]:
+            front_b, front_k, nf = front
+            for q2 in range(q, n_roots):
+                r2 = order[q2]
+                front_b, front_k, nf = _record(
+                    front_b, front_k, nf, root_b[r2], root_k[r2, 0], depth,
+                    root_k[r2, 2], root_k[r2, 3],
+                )  # fmt: skip
+            front = (front_b, front_k, nf)
+            break
+        more, front = _descend(
+            levels, table, geo, root_k[r], root_b[r], best, found, zone, False, front, stack
+        )
+        nodes += more
+    score, j, ix, iy = best[0], found[0], found[1], found[2]
+    # the rival: the best local maximum outside the winner's zone scoring at least
+    # rival[2] of the winner
+    zone[0] = j
+    zone[1] = ix
+    zone[2] = iy
+    zone[3] = int(rival[0])
+    zone[4] = int(rival[1])
+    floor = max(rival[2] * score, 0.0)
+    best[0] = np.nextafter(floor, -np.inf) if floor > 0 else -1.0
+    found[0] = nt + 1
+    front_b, front_k, nf = front
+    order = np.argsort(-front_b[:nf], kind="mergesort")
+    for q in range(nf):
+        r = order[q]
+        if front_b[r] <= best[0]:
+            break
+        if _in_zone(front_k[r, 0], front_k[r, 2], front_k[r, 3], 1 << front_k[r, 1], zone):
+            continue
+        more, _ = _descend(
+            levels, table, geo, front_k[r], front_b[r], best, found, zone, True, front, stack
+        )
+        nodes += more
+    return score, j, ix, iy, best[0], found[0], found[1], found[2], nodes
+
+
+@numba.njit(cache=True)
+def _brute_force(levels, pts, args, nt, nx, dims, pad):
+    """Every lattice score, headings -nt-pad..nt+pad, translations -nx-pad..nx+pad (with
+    the search's own sums: the same table for ``pad`` <= 1)."""
+    rows, cols, stride = dims
+    reach = max(pad, 1)
+    span = 1 << (levels.shape[0] - 1)
+    table = _heading_table(pts, args, nt + reach, nx + reach, span, rows, cols, stride)
     out = np.empty((2 * (nt + pad) + 1, 2 * (nx + pad) + 1, 2 * (nx + pad) + 1))
-    cells = np.empty((pts.shape[0], 2), dtype=np.int64)
     for j in range(-nt - pad, nt + pad + 1):
-        _cells_at(pts, j, args, cells)
         for ix in range(-nx - pad, nx + pad + 1):
             for iy in range(-nx - pad, nx + pad + 1):
-                out[j + nt + pad, ix + nx + pad, iy + nx + pad] = _bound(
-                    levels, 0, cells, ix, iy, rows, cols
+                out[j + nt + pad, ix + nx + pad, iy + nx + pad] = _node_bound(
+                    levels, 0, table, j + nt + reach, ix, iy, rows, cols, stride
                 )
     return out
 
@@ -469,8 +708,9 @@ class WideBasinMatcher:
             self._levels = np.zeros(
                 (need[0], max(have[1], rows), max(have[2], cols)), dtype=np.float32
             )
-        levels = self._levels[: depth + 1, :rows, :cols]
-        _fill_levels(grid.weights, r0, c0, rows, cols, self.config.blur, levels)
+        # the whole (C-contiguous) buffer: its rows are contiguous, so the kernel's loops
+        # over them run on vector registers
+        _fill_levels(grid.weights, r0, c0, rows, cols, self.config.blur, self._levels[: depth + 1])
         self._shape = (rows, cols)
         self._origin = grid.origin + res * np.array([c0, r0], dtype=np.float64)
         self._resolution = res
@@ -501,6 +741,13 @@ class WideBasinMatcher:
         x, y, th, step, _, _, res = args
         return np.array([x + ix * res, y + iy * res, th + j * step])
 
+    def _flat_levels(self) -> tuple[FloatArray, tuple[int, int, int]]:
+        """The pooled levels, one flat row each (row stride: the buffer's width), and
+        (rows, cols, stride) of the crop in it."""
+        buffer = self._levels
+        flat = buffer.reshape(buffer.shape[0], -1)[: self._depth + 1]
+        return flat, (*self._shape, buffer.shape[2])
+
     def search(
         self, points: ArrayLike, centre: ArrayLike, hint: ArrayLike | None = None
     ) -> WideMatch:
@@ -515,35 +762,26 @@ class WideBasinMatcher:
         n = max(len(pts), 1)
         if len(pts) == 0:
             return WideMatch(centre.copy(), 0.0, None, 0.0, 0, lattice)
-        levels = self._levels[: self._depth + 1, : self._shape[0], : self._shape[1]]
-        rows, cols = self._shape
-        zone = np.zeros(5, dtype=np.int64)
-        seed = self._seed(levels, pts, args, nt, nx, hint)
-        best, j, ix, iy, nodes = _search(
-            levels, pts, args, nt, nx, rows, cols, -1.0, zone, False, seed
-        )
+        levels, dims = self._flat_levels()
         c = self.config
-        zone[:] = (j, ix, iy, int(c.rival_distance / args[6]), int(c.rival_angle / args[3]))
-        floor = max(c.min_rival_ratio * best, 0.0)
-        floor = np.nextafter(floor, -np.inf) if floor > 0 else -1.0
-        none = np.array([0.0, nt + 1, 0, 0])
-        rival, rj, rx, ry, more = _search(
-            levels, pts, args, nt, nx, rows, cols, floor, zone, True, none
+        rival = (int(c.rival_distance / args[6]), int(c.rival_angle / args[3]), c.min_rival_ratio)
+        best, j, ix, iy, score, rj, rx, ry, nodes = _search(
+            levels, pts, args, nt, nx, dims, self._hint_cell(args, nt, nx, hint), rival
         )
         found = rj <= nt
         return WideMatch(
             pose=self._pose(args, j, ix, iy),
             score=best / n,
             rival_pose=self._pose(args, rj, rx, ry) if found else None,
-            rival_score=rival / n if found else 0.0,
-            nodes=int(nodes + more),
+            rival_score=score / n if found else 0.0,
+            nodes=int(nodes),
             lattice=lattice,
         )
 
-    def _seed(self, levels, pts, args, nt, nx, hint) -> FloatArray:
-        """(score, j, ix, iy) of the local maximum climbed to from the lattice pose nearest
-        ``hint``; j = nt + 1 (none) without a hint inside the window."""
-        none = np.array([0.0, nt + 1, 0, 0])
+    def _hint_cell(self, args: tuple, nt: int, nx: int, hint: ArrayLike | None) -> tuple:
+        """(j, ix, iy) of the lattice pose nearest ``hint``; j = nt + 1 (none) without a
+        hint inside the window."""
+        none = (nt + 1, 0, 0)
         if hint is None:
             return none
         x, y, th, step, _, _, res = args
@@ -552,10 +790,7 @@ class WideBasinMatcher:
         ix, iy = round((h[0] - x) / res), round((h[1] - y) / res)
         if abs(j) > nt or abs(ix) > nx or abs(iy) > nx:
             return none
-        score, j, ix, iy = _climb(levels, pts, args, nt, nx, *self._shape, j, ix, iy)
-        # just below its score, so that the search still returns the first pose it meets
-        # that scores as much (the same as without a hint)
-        return np.array([np.nextafter(score, -np.inf), j, ix, iy])
+        return (j, ix, iy)
 
     def score_at(self, points: ArrayLike, pose: ArrayLike) -> float:
         """The mean map value of sensor-frame ``points`` placed by ``pose`` (any pose, not
@@ -576,9 +811,8 @@ class WideBasinMatcher:
         reference the branch and bound must equal (tests, benchmark)."""
         pts, centre = self._prepare(points, centre)
         nt, nx, args = self._lattice(pts, centre)
-        levels = self._levels[: self._depth + 1, : self._shape[0], : self._shape[1]]
-        rows, cols = self._shape
-        scores = _brute_force(levels, pts, args, nt, nx, rows, cols, pad)
+        levels, dims = self._flat_levels()
+        scores = _brute_force(levels, pts, args, nt, nx, dims, pad)
         return scores / max(len(pts), 1), args
 
 
