@@ -158,11 +158,15 @@ def _fill_levels(weights, r0, c0, rows, cols, blur, levels):
         kernel[d + blur] = math.exp(-0.5 * d * d)
     levels[0, :rows, :cols] = 0.0
     # scattered from the hit cells (few in a map): each raises its neighbours
+    first = max(c0 - blur, 0)
+    width = max(min(c0 + cols + blur, gcols) - first, 0)
     for r in range(max(r0 - blur, 0), min(r0 + rows + blur, grows)):
-        for c in range(max(c0 - blur, 0), min(c0 + cols + blur, gcols)):
-            w = weights[r, c]
+        line = weights[r, first : first + width]
+        for i in range(width):
+            w = line[i]
             if w == 0.0:
                 continue
+            c = first + i
             for dr in range(-blur, blur + 1):
                 rr = r - r0 + dr
                 if rr < 0 or rr >= rows:
@@ -176,16 +180,23 @@ def _fill_levels(weights, r0, c0, rows, cols, blur, levels):
                         levels[0, rr, cc] = v
     for h in range(1, levels.shape[0]):
         s = 1 << (h - 1)
+        # Row r's maximum with the cell s to its right, then row r - s's with row r (still
+        # only that row's): one sweep whose rows are still in cache. The loops index slices
+        # from 0 (no index arithmetic, which Numba checks for negatives), so they run on
+        # vector registers; a maximum of float32 is exact.
+        inside = max(cols - s, 0)
         for r in range(rows):
-            for c in range(cols):
-                a = levels[h - 1, r, c]
-                if c + s < cols and levels[h - 1, r, c + s] > a:
-                    a = levels[h - 1, r, c + s]
-                levels[h, r, c] = a
-        for r in range(rows - s):
-            for c in range(cols):
-                if levels[h, r + s, c] > levels[h, r, c]:
-                    levels[h, r, c] = levels[h, r + s, c]
+            here = levels[h - 1, r, :inside]
+            right = levels[h - 1, r, s : s + inside]
+            out = levels[h, r, :inside]
+            for c in range(inside):
+                out[c] = max(here[c], right[c])
+            levels[h, r, inside:cols] = levels[h - 1, r, inside:cols]
+            if r >= s:
+                done = levels[h, r - s, :cols]
+                row = levels[h, r, :cols]
+                for c in range(cols):
+                    done[c] = max(done[c], row[c])
 
 
 @numba.njit(cache=True)
@@ -242,28 +253,49 @@ def _heading_table(pts, args, nh, reach, span, rows, cols, stride):
     x, y, th, step, ox, oy, res = args
     n = pts.shape[0]
     count = 2 * nh + 1
-    flat = np.empty((count, n), dtype=np.int64)
+    flat = np.empty((count, n), dtype=np.int32)
     edge_r = np.empty((count, n), dtype=np.int64)
     edge_c = np.empty((count, n), dtype=np.int64)
     n_inner = np.zeros(count, dtype=np.int64)
     n_edge = np.zeros(count, dtype=np.int64)
+    # Endpoints whose cell stays inside at every heading (those nearer the centre than
+    # its distance to the crop's edge, the most) come first and are not tested per heading.
+    row0 = math.floor((y - oy) / res)
+    col0 = math.floor((x - ox) / res)
+    room = min(row0, col0, rows - 1 - row0, cols - 1 - col0) - reach - 2
+    order = np.empty(n, dtype=np.int64)
+    n_sure = 0
+    for k in range(n):
+        if math.hypot(pts[k, 0], pts[k, 1]) / res < room:
+            order[n_sure] = k
+            n_sure += 1
+    n_rest = n_sure
+    for k in range(n):
+        if not math.hypot(pts[k, 0], pts[k, 1]) / res < room:
+            order[n_rest] = k
+            n_rest += 1
+    px = pts[order, 0]
+    py = pts[order, 1]
     for jj in range(count):
         theta = th + (jj - nh) * step
         c = math.cos(theta)
         s = math.sin(theta)
-        a = 0
+        row = flat[jj]
+        for k in range(n_sure):  # branch-free: vector registers
+            r = math.floor((s * px[k] + c * py[k] + y - oy) / res)
+            q = math.floor((c * px[k] - s * py[k] + x - ox) / res)
+            row[k] = r * stride + q
+        a = n_sure
         e = 0
-        for k in range(n):
-            wx = c * pts[k, 0] - s * pts[k, 1] + x
-            wy = s * pts[k, 0] + c * pts[k, 1] + y
-            r = math.floor((wy - oy) / res)
-            q = math.floor((wx - ox) / res)
+        for k in range(n_sure, n):
+            r = math.floor((s * px[k] + c * py[k] + y - oy) / res)
+            q = math.floor((c * px[k] - s * py[k] + x - ox) / res)
             if r - reach >= rows or q - reach >= cols:
                 continue
             if r + reach + span <= 0 or q + reach + span <= 0:
                 continue
             if r - reach >= 0 and q - reach >= 0 and r + reach < rows and q + reach < cols:
-                flat[jj, a] = r * stride + q
+                row[a] = r * stride + q
                 a += 1
             else:
                 edge_r[jj, e] = r
@@ -295,6 +327,41 @@ def _node_bound(levels, h, table, jj, ix, iy, rows, cols, stride):
             continue
         total += grid[max(r, 0) * stride + max(c, 0)]
     return total
+
+
+@numba.njit(cache=True)
+def _node_bounds4(levels, h, table, jj, xs, ys, m, out, rows, cols, stride):
+    """``out[t]`` = :func:`_node_bound` of the nodes (xs[t], ys[t]), t < m <= 4, at level
+    ``h`` and heading row ``jj``, in one pass over the endpoints (the siblings' cells are
+    near each other in memory); each sum in the same order, so the same to the last bit."""
+    flat, n_inner, edge_r, edge_c, n_edge = table
+    grid = levels[h]
+    o0 = ys[0] * stride + xs[0]
+    o1 = ys[min(1, m - 1)] * stride + xs[min(1, m - 1)]
+    o2 = ys[min(2, m - 1)] * stride + xs[min(2, m - 1)]
+    o3 = ys[min(3, m - 1)] * stride + xs[min(3, m - 1)]
+    a0 = 0.0
+    a1 = 0.0
+    a2 = 0.0
+    a3 = 0.0
+    for k in range(n_inner[jj]):
+        f = flat[jj, k]
+        a0 += grid[f + o0]
+        a1 += grid[f + o1]
+        a2 += grid[f + o2]
+        a3 += grid[f + o3]
+    out[0] = a0
+    out[1] = a1
+    out[2] = a2
+    out[3] = a3
+    size = 1 << h
+    for k in range(n_edge[jj]):
+        for t in range(m):
+            r = edge_r[jj, k] + ys[t]
+            c = edge_c[jj, k] + xs[t]
+            if r >= rows or c >= cols or r + size <= 0 or c + size <= 0:
+                continue
+            out[t] += grid[max(r, 0) * stride + max(c, 0)]
 
 
 @numba.njit(cache=True)
@@ -344,6 +411,9 @@ def _descend(levels, table, dims, node, bound0, best, found, zone, use_zone, fro
     child_b = np.empty(4)
     child_x = np.empty(4, dtype=np.int64)
     child_y = np.empty(4, dtype=np.int64)
+    kid_b = np.empty(4)
+    kid_x = np.empty(4, dtype=np.int64)
+    kid_y = np.empty(4, dtype=np.int64)
     j = node[0]
     jj = j + nh
     nodes = 0
@@ -379,7 +449,7 @@ def _descend(levels, table, dims, node, bound0, best, found, zone, use_zone, fro
             found[3] = 1
             continue
         half = 1 << (h - 1)
-        m = 0
+        n_kids = 0
         for a in range(2):
             for b in range(2):
                 cx = ix + a * half
@@ -388,23 +458,33 @@ def _descend(levels, table, dims, node, bound0, best, found, zone, use_zone, fro
                     continue
                 if use_zone and _in_zone(j, cx, cy, half, zone):
                     continue
-                cb = _node_bound(levels, h - 1, table, jj, cx, cy, rows, cols, stride)
-                nodes += 1
-                if cb <= best[0]:
-                    if not use_zone:
-                        front_b, front_k, nf = _record(front_b, front_k, nf, cb, j, h - 1, cx, cy)
-                    continue
-                # insert sorted ascending, so that the best child is popped first
-                p = m
-                while p > 0 and child_b[p - 1] > cb:
-                    child_b[p] = child_b[p - 1]
-                    child_x[p] = child_x[p - 1]
-                    child_y[p] = child_y[p - 1]
-                    p -= 1
-                child_b[p] = cb
-                child_x[p] = cx
-                child_y[p] = cy
-                m += 1
+                kid_x[n_kids] = cx
+                kid_y[n_kids] = cy
+                n_kids += 1
+        if n_kids == 0:
+            continue
+        _node_bounds4(levels, h - 1, table, jj, kid_x, kid_y, n_kids, kid_b, rows, cols, stride)
+        nodes += n_kids
+        m = 0
+        for t in range(n_kids):
+            cb = kid_b[t]
+            cx = kid_x[t]
+            cy = kid_y[t]
+            if cb <= best[0]:
+                if not use_zone:
+                    front_b, front_k, nf = _record(front_b, front_k, nf, cb, j, h - 1, cx, cy)
+                continue
+            # insert sorted ascending, so that the best child is popped first
+            p = m
+            while p > 0 and child_b[p - 1] > cb:
+                child_b[p] = child_b[p - 1]
+                child_x[p] = child_x[p - 1]
+                child_y[p] = child_y[p - 1]
+                p -= 1
+            child_b[p] = cb
+            child_x[p] = cx
+            child_y[p] = cy
+            m += 1
         for p in range(m):
             stack_h[top] = h - 1
             stack_x[top] = child_x[p]
@@ -474,17 +554,24 @@ def _search(levels, pts, args, nt, nx, dims, hint, rival):
     n_roots = (2 * nt + 1) * per_axis * per_axis
     root_b = np.empty(n_roots)
     root_k = np.empty((n_roots, 4), dtype=np.int64)
+    per_heading = per_axis * per_axis
+    xs = np.empty(4, dtype=np.int64)
+    ys = np.empty(4, dtype=np.int64)
+    out = np.empty(4)
     n = 0
     for j in range(-nt, nt + 1):
-        for a in range(per_axis):
-            for b in range(per_axis):
-                ix = -nx + a * span
-                iy = -nx + b * span
-                root_b[n] = _node_bound(levels, depth, table, j + nh, ix, iy, rows, cols, stride)
+        for first in range(0, per_heading, 4):
+            m = min(4, per_heading - first)
+            for t in range(m):
+                xs[t] = -nx + ((first + t) // per_axis) * span
+                ys[t] = -nx + ((first + t) % per_axis) * span
+            _node_bounds4(levels, depth, table, j + nh, xs, ys, m, out, rows, cols, stride)
+            for t in range(m):
+                root_b[n] = out[t]
                 root_k[n, 0] = j
                 root_k[n, 1] = depth
-                root_k[n, 2] = ix
-                root_k[n, 3] = iy
+                root_k[n, 2] = xs[t]
+                root_k[n, 3] = ys[t]
                 n += 1
     nodes = n_roots
     best = np.full(1, -1.0)
@@ -621,8 +708,9 @@ class WideBasinMatcher:
             self._levels = np.zeros(
                 (need[0], max(have[1], rows), max(have[2], cols)), dtype=np.float32
             )
-        levels = self._levels[: depth + 1, :rows, :cols]
-        _fill_levels(grid.weights, r0, c0, rows, cols, self.config.blur, levels)
+        # the whole (C-contiguous) buffer: its rows are contiguous, so the kernel's loops
+        # over them run on vector registers
+        _fill_levels(grid.weights, r0, c0, rows, cols, self.config.blur, self._levels[: depth + 1])
         self._shape = (rows, cols)
         self._origin = grid.origin + res * np.array([c0, r0], dtype=np.float64)
         self._resolution = res
