@@ -106,3 +106,36 @@ def test_a_log_longer_than_the_replay_budget_reads_the_same(tmp_path, monkeypatc
     assert skipped_again == skipped and source_again == source
     np.testing.assert_array_equal(odometry_again.stamps, odometry.stamps)
     np.testing.assert_array_equal(odometry_again.poses, odometry.poses)
+
+
+TIMING = {"wall_s", "startup_s", "realtime_factor", "ms_per_scan_median", "ms_per_scan_p99"}
+
+
+@pytest.mark.parametrize("odometry_only", [False, True])
+def test_releasing_the_working_memory_writes_the_same_results(tmp_path, odometry_only):
+    """``RunOptions.release`` drops the system's per-scan state before the map and figures:
+    every output is that of a run that kept it."""
+    from loop_world import ring_route, ring_world
+
+    from bioslam.pipeline import RunOptions, run_slam, write_results
+    from bioslam.sim import LIDAR_PRESETS, simulate_scans
+
+    pairs = simulate_scans(ring_world(), LIDAR_PRESETS["urg04lx"], ring_route(laps=0.6), seed=1)
+    scans = [scan for scan, _ in pairs]
+    options = RunOptions(progress=False, odometry_only=odometry_only)
+    result = run_slam(scans, options=options)
+    kept = write_results(result, tmp_path / "kept", options=options)
+    released_options = RunOptions(progress=False, odometry_only=odometry_only, release=True)
+    released = write_results(result, tmp_path / "released", options=released_options)
+    assert result.system.self_motion.odometry is None and len(result.keyframes) == 0
+    assert {k: v for k, v in released.items() if k not in TIMING} == {
+        k: v for k, v in kept.items() if k not in TIMING
+    }
+    names = ["trajectory.tum", "odometry.tum", "map.pgm", "map.yaml"]
+    names += [] if odometry_only else ["cognitive_map.json"]
+    for name in names:
+        released_bytes = (tmp_path / "released" / name).read_bytes()
+        assert released_bytes == (tmp_path / "kept" / name).read_bytes(), name
+    figures = sorted(p.name for p in (tmp_path / "kept" / "figures").iterdir())
+    assert figures == sorted(p.name for p in (tmp_path / "released" / "figures").iterdir())
+    assert len(figures) >= (1 if odometry_only else 3)
