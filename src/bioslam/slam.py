@@ -160,6 +160,7 @@ class BioSLAM:
         self.cognitive_map.integrate_odometry(dp, scan.stamp)
         self._stamp = scan.stamp
         self._proposed = self._nearby(self.cognitive_map.pose(), self._travelled)
+        known = len(self.cognitive_map)
         event = self.cognitive_map.update(
             match.view_id,
             match.is_new,
@@ -172,8 +173,9 @@ class BioSLAM:
         if event.kind == "loop":
             self.cognitive_map.relax()
         self._travelled += float(np.hypot(dp[0], dp[1]))
-        if event.kind == "new":
-            self._note_made(event.experience)
+        # every experience this look made (a closure also makes one of the robot's pose)
+        for experience_id in range(known, len(self.cognitive_map)):
+            self._note_made(experience_id)
         if event.kind != "none":
             self._travelled_at_entry = self._travelled
         self.records.append(
