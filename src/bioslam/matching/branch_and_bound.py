@@ -422,6 +422,18 @@ def _heap_pop(heap_b, heap_n, n):
 
 
 @numba.njit(cache=True)
+def _open(pool_b, pool_k, heap_b, heap_n, n, size, bound, j, h, ix, iy):
+    """Store node ``n`` (heading j, level h, origin ix, iy) with its bound and push it on
+    the heap of ``size`` entries (both with room for it); returns (n + 1, size + 1)."""
+    pool_b[n] = bound
+    pool_k[n, 0] = j
+    pool_k[n, 1] = h
+    pool_k[n, 2] = ix
+    pool_k[n, 3] = iy
+    return n + 1, _heap_push(heap_b, heap_n, size, bound, n)
+
+
+@numba.njit(cache=True)
 def _grown(pool_b, pool_k, heap_b, heap_n, need):
     """The node pool and heap with room for ``need`` nodes (doubled when short)."""
     if need <= pool_b.shape[0]:
@@ -447,11 +459,11 @@ def _search(levels, pts, args, nt, nx, dims, rival):
     expands only nodes whose bound beats the optimum, however good or bad the first leaves
     met are. The node of highest bound is taken from a heap and its children are bounded
     and pushed, until a leaf comes out on top: its score is at least every bound left, so
-    it is the lattice optimum. The rival search goes on from the
-    same heap (which with the winner covers the whole window): nodes wholly inside the
-    winner's zone (``rival[0]`` cells, ``rival[1]`` headings) are dropped, and the first
-    leaf on top that is a local maximum outside it is the best rival, if it scores more
-    than the floor (``rival[2]`` of the winner).
+    it is the lattice optimum. The rival search goes on from the same heap (which with the
+    winner covers the whole window): nodes wholly inside the winner's zone (``rival[0]``
+    cells, ``rival[1]`` headings) are dropped, and the first leaf on top that is a local
+    maximum outside it is the best rival, if it scores more than the floor (``rival[2]``
+    of the winner).
 
     Returns (score, j, ix, iy, rival score, rj, rx, ry, nodes); rj is ``nt + 1`` without a
     rival."""
@@ -481,13 +493,9 @@ def _search(levels, pts, args, nt, nx, dims, rival):
                 ys[t] = -nx + ((first + t) % per_axis) * span
             _node_bounds4(levels, depth, table, j + nh, xs, ys, m, out, rows, cols, stride)
             for t in range(m):
-                pool_b[n] = out[t]
-                pool_k[n, 0] = j
-                pool_k[n, 1] = depth
-                pool_k[n, 2] = xs[t]
-                pool_k[n, 3] = ys[t]
-                size = _heap_push(heap_b, heap_n, size, out[t], n)
-                n += 1
+                n, size = _open(
+                    pool_b, pool_k, heap_b, heap_n, n, size, out[t], j, depth, xs[t], ys[t]
+                )
     nodes = n
     zone = np.zeros(5, dtype=np.int64)
     score = -1.0
@@ -549,15 +557,10 @@ def _search(levels, pts, args, nt, nx, dims, rival):
         nodes += m
         pool_b, pool_k, heap_b, heap_n = _grown(pool_b, pool_k, heap_b, heap_n, n + m)
         for t in range(m):
-            if phase == 1 and out[t] <= floor:
-                continue
-            pool_b[n] = out[t]
-            pool_k[n, 0] = j
-            pool_k[n, 1] = h - 1
-            pool_k[n, 2] = xs[t]
-            pool_k[n, 3] = ys[t]
-            size = _heap_push(heap_b, heap_n, size, out[t], n)
-            n += 1
+            if phase == 0 or out[t] > floor:
+                n, size = _open(
+                    pool_b, pool_k, heap_b, heap_n, n, size, out[t], j, h - 1, xs[t], ys[t]
+                )
     return score, bj, bx, by, rival_score, rj, rx, ry, nodes
 
 
