@@ -335,6 +335,9 @@ def _node_bounds4(levels, h, table, jj, xs, ys, m, out, rows, cols, stride):
     """``out[t]`` = :func:`_node_bound` of the nodes (xs[t], ys[t]), t < m <= 4, at level
     ``h`` and heading row ``jj``, in one pass over the endpoints (the siblings' cells are
     near each other in memory); each sum in the same order, so the same to the last bit."""
+    if m == 1:
+        out[0] = _node_bound(levels, h, table, jj, xs[0], ys[0], rows, cols, stride)
+        return
     flat, n_inner, edge_r, edge_c, n_edge = table
     grid = levels[h]
     o0 = ys[0] * stride + xs[0]
