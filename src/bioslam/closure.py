@@ -26,6 +26,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 from scipy.ndimage import binary_dilation
 
@@ -149,11 +150,24 @@ def nearest_experience(
     made at least ``min_travel`` metres of travel ago (a place just left is no loop), or None.
     """
     old = int(np.searchsorted(travelled, now - min_travel, side="right"))
-    if old == 0:
-        return None
-    d = np.hypot(poses[:old, 0] - position[0], poses[:old, 1] - position[1])
-    best = int(np.argmin(d))
-    return best if d[best] <= radius else None
+    best = _nearest_within(poses, old, float(position[0]), float(position[1]), radius)
+    return None if best < 0 else best
+
+
+@njit(cache=True)
+def _nearest_within(poses: FloatArray, count: int, x: float, y: float, radius: float) -> int:
+    # One pass over the first ``count`` poses without temporaries: the cue is probed at
+    # every scan between looks, where a few NumPy calls would cost more than the odometry.
+    best = -1
+    best_d2 = radius * radius
+    for i in range(count):
+        dx = poses[i, 0] - x
+        dy = poses[i, 1] - y
+        d2 = dx * dx + dy * dy
+        if d2 <= best_d2 and (best < 0 or d2 < best_d2):  # the first of equals, as argmin
+            best_d2 = d2
+            best = i
+    return best
 
 
 @dataclass(frozen=True)

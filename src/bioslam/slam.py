@@ -125,14 +125,19 @@ class BioSLAM:
         return Pose2D(*compose(self.cognitive_map.pose(), self._pending))
 
     def _due(self) -> bool:
-        """Whether the robot has moved enough since the last view to look again. Between two
-        looks only the odometry runs; its motion reaches the pose cells and the map at the
-        next look (path integration takes steps of any size)."""
+        """Whether to look again: the robot has moved or turned enough since the last look,
+        or the map puts it near an old experience while a registration is due (so that the
+        path-integration cue is checked as often as registrations are allowed, however
+        sparse the looks). Between two looks only the odometry runs; its motion reaches the
+        pose cells and the map at the next look (path integration takes steps of any size)."""
         cfg = self.config
-        return len(self.cognitive_map) == 0 or (
-            np.hypot(self._pending[0], self._pending[1]) >= cfg.view_distance
-            or abs(self._pending[2]) >= cfg.view_angle
-        )
+        if len(self.cognitive_map) == 0:
+            return True
+        moved = float(np.hypot(self._pending[0], self._pending[1]))
+        if moved >= cfg.view_distance or abs(self._pending[2]) >= cfg.view_angle:
+            return True
+        here = compose(self.cognitive_map.pose(), self._pending)
+        return self._nearby(here, self._travelled + moved) is not None
 
     def _perceive(self, scan: LaserScan, dp: FloatArray) -> None:
         """The view cells, pose cells and cognitive map for one scan, after motion ``dp``."""
@@ -151,7 +156,7 @@ class BioSLAM:
         self.pose_cells.step()
         self.cognitive_map.integrate_odometry(dp, scan.stamp)
         self._stamp = scan.stamp
-        self._proposed = self._nearby()
+        self._proposed = self._nearby(self.cognitive_map.pose(), self._travelled)
         event = self.cognitive_map.update(
             match.view_id,
             match.is_new,
@@ -177,20 +182,20 @@ class BioSLAM:
             self._made_at = np.concatenate([self._made_at, np.empty_like(self._made_at)])
         self._made_at[experience_id] = self._travelled
 
-    def _nearby(self) -> int | None:
-        """The path-integration cue: the experience nearest the robot's map pose, made long
-        enough ago to be a loop and not already joined to the current one by a short chain
-        of links (:func:`bioslam.closure.nearest_experience`)."""
+    def _nearby(self, pose: FloatArray, travelled: float) -> int | None:
+        """The path-integration cue: the experience nearest the robot's map ``pose`` (after
+        ``travelled`` metres of odometry), made long enough ago to be a loop and not already
+        joined to the current one by a short chain of links
+        (:func:`bioslam.closure.nearest_experience`); None while no registration is due."""
         cfg = self.config.loop_closure
         cmap = self.cognitive_map
         if not (cfg.proximity and cfg.refine) or len(cmap) < 2:
             return None
-        if self._travelled - self._last_registration < cfg.registration_interval:
+        if travelled - self._last_registration < cfg.registration_interval:
             return None
-        travelled = self._made_at[: len(cmap)]
-        drift, _ = self._drift_bound(self._travelled, False)
+        drift, _ = self._drift_bound(travelled, False)
         found = nearest_experience(
-            cmap.experience_poses_view, travelled, cmap.pose(), self._travelled,
+            cmap.experience_poses_view, self._made_at[: len(cmap)], pose, travelled,
             min(cfg.recognition_radius, drift), cfg.min_loop_travel,
         )  # fmt: skip
         if found is None or found == cmap.current:
