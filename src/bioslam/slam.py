@@ -346,13 +346,15 @@ class BioSLAM:
 
     def release(self) -> None:
         """After the last scan: drop what only the per-scan update uses (the odometry's local
-        map, the view cells' stored views, the pose cells; about 70 MB after 600 s at 40 Hz),
-        so that the outputs are written and drawn without it. The trajectories, the cognitive
-        map, the records and the summary stay; :meth:`process` no longer works."""
+        map, the view cells' stored views, the pose cells, the loop closures' cached submaps;
+        about 70 MB after 600 s at 40 Hz), so that the outputs are written and drawn without
+        it. The trajectories, the cognitive map, the records and the summary stay;
+        :meth:`process` no longer works."""
         if self._released is None:
             self._released = self.summary()
         self.self_motion.odometry = None  # type: ignore[assignment]
         self.view_cells = self.pose_cells = self.boundary_cells = None  # type: ignore[assignment]
+        self.submaps = SubmapCache(size=0)
 
     def summary(self) -> dict[str, int]:
         if self._released is not None:
