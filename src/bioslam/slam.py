@@ -151,6 +151,7 @@ class BioSLAM:
         self.cognitive_map.integrate_odometry(dp, scan.stamp)
         self._stamp = scan.stamp
         self._proposed = self._nearby()
+        known = len(self.cognitive_map)
         event = self.cognitive_map.update(
             match.view_id,
             match.is_new,
@@ -163,8 +164,9 @@ class BioSLAM:
         if event.kind == "loop":
             self.cognitive_map.relax()
         self._travelled += float(np.hypot(dp[0], dp[1]))
-        if event.kind == "new":
-            self._note_made(event.experience)
+        # a new place, or the robot's own pose made an experience by a measured loop closure
+        for made in range(known, len(self.cognitive_map)):
+            self._note_made(made)
         if event.kind != "none":
             self._travelled_at_entry = self._travelled
         self.records.append(
