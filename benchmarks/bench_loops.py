@@ -11,18 +11,22 @@ For each case (world, scanner, route):
   true ones, cm / deg);
 * recall: the route is cut into 1 m bins of travel; a bin is a *revisit* when the robot passes
   within 0.5 m of where it was at least ``--gap`` metres of travel earlier, and is *recognised*
-  when a true closure was accepted in it;
+  when a true closure was accepted in it; also split by the heading offset from the earlier
+  pass (median over the bin): up to 30 deg, 30-90 deg, and beyond 90 deg (the other way: a
+  180 or 270 deg scanner then shares little or nothing of its field of view with it);
 * ATE RMSE of the full system and of its own odometry;
-* per-scan wall time: the full system's median and p99, and the odometry alone on the same
-  scans (median ratio).
+* per-scan wall time: the full system's median, p99 and mean, and the odometry alone on the
+  same scans (ratios of medians and of means).
 
     python benchmarks/bench_loops.py [--cases maze-tour,rooms-adversarial,...] [--duration 600]
+        [--set view_distance=0.2 --set loop_closure.min_score=0.9 ...]
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import math
 import os
 import time
@@ -32,9 +36,9 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np
 
-from bioslam.config import SLAMConfig
+from bioslam.config import SLAMConfig, config_from_dict
 from bioslam.evaluation import evaluate
-from bioslam.geometry import between
+from bioslam.geometry import between, wrap_angle
 from bioslam.odometry import LidarOdometry
 from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world, simulate_scans
 from bioslam.slam import BioSLAM
@@ -109,22 +113,42 @@ def closure_errors(slam: BioSLAM, gt: Trajectory) -> list[tuple[float, str, floa
     return out
 
 
-def revisit_recall(gt: Trajectory, true_stamps: np.ndarray, gap: float) -> tuple[int, int]:
-    """(revisit bins, recognised bins): 1 m bins of travel (module docstring)."""
+#: Heading-offset classes of revisits (degrees from the earlier pass), as reported.
+OFFSET_CLASSES = ((0.0, 30.0, "<=30deg"), (30.0, 90.0, "30-90deg"), (90.0, 180.1, ">90deg"))
+
+
+def revisit_bins(gt: Trajectory, gap: float) -> tuple[np.ndarray, dict[int, float]]:
+    """The travel bin of every pose and, per revisit bin, the median heading offset (deg)
+    from the earlier pass where the robot came within ``TRUE_DISTANCE`` of it."""
     xy = gt.poses[:, :2]
     travel = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
     bins = np.floor(travel).astype(np.int64)
-    revisit = np.zeros(bins[-1] + 1, dtype=bool)
+    offsets: dict[int, list[float]] = {}
     # a sparse sample of the route is enough to find where it was before
     sample = np.arange(0, len(xy), max(1, len(xy) // 4000))
     for i in sample:
         old = sample[travel[sample] <= travel[i] - gap]
-        if old.size and np.min(np.hypot(*(xy[old] - xy[i]).T)) <= TRUE_DISTANCE:
-            revisit[bins[i]] = True
-    hit_bins = bins[np.clip(np.searchsorted(gt.stamps, true_stamps), 0, len(bins) - 1)]
-    recognised = np.zeros_like(revisit)
-    recognised[hit_bins] = True
-    return int(revisit.sum()), int((revisit & recognised).sum())
+        if not old.size:
+            continue
+        d = np.hypot(*(xy[old] - xy[i]).T)
+        j = int(np.argmin(d))
+        if d[j] <= TRUE_DISTANCE:
+            turn = abs(math.degrees(wrap_angle(gt.poses[i, 2] - gt.poses[old[j], 2])))
+            offsets.setdefault(int(bins[i]), []).append(turn)
+    return bins, {b: float(np.median(v)) for b, v in offsets.items()}
+
+
+def revisit_recall(
+    gt: Trajectory, true_stamps: np.ndarray, gap: float
+) -> dict[str, tuple[int, int]]:
+    """(revisit bins, recognised bins), all and per heading-offset class (module docstring)."""
+    bins, offsets = revisit_bins(gt, gap)
+    hit = set(bins[np.clip(np.searchsorted(gt.stamps, true_stamps), 0, len(bins) - 1)].tolist())
+    out = {"all": (len(offsets), sum(b in hit for b in offsets))}
+    for lo, hi, name in OFFSET_CLASSES:
+        members = [b for b, turn in offsets.items() if lo <= turn < hi]
+        out[name] = (len(members), sum(b in hit for b in members))
+    return out
 
 
 def report(case: SimCase, duration: float, seed: int, gap: float, config: SLAMConfig) -> str:
@@ -133,7 +157,12 @@ def report(case: SimCase, duration: float, seed: int, gap: float, config: SLAMCo
     odo_ms = odometry_ms(scans, config)
     errors = closure_errors(slam, gt)
     true = [e for e in errors if e[2] <= TRUE_DISTANCE and e[3] <= math.degrees(TRUE_ANGLE)]
-    revisits, recognised = revisit_recall(gt, np.array([e[0] for e in true]), gap)
+    recall = revisit_recall(gt, np.array([e[0] for e in true]), gap)
+    revisits, recognised = recall["all"]
+    by_offset = ", ".join(
+        f"{name} {hit}/{n}" + (f" {hit / n:.2f}" if n else "")
+        for name, (n, hit) in recall.items() if name != "all"
+    )
     by = {}
     for check in slam.checks:
         key = f"{check.cue}:{check.verdict.reason or 'accepted'}"
@@ -152,10 +181,13 @@ def report(case: SimCase, duration: float, seed: int, gap: float, config: SLAMCo
         f"{len(true) / max(len(errors), 1):.3f}; median error of true ones {med_err}",
         f"  revisit bins {revisits}, recognised {recognised}, recall "
         f"{recognised / max(revisits, 1):.3f}; loop links {slam.summary()['loop_closures']}",
+        f"  recall by heading offset from the earlier pass: {by_offset}",
         f"  ATE RMSE full {100 * full:.2f} cm, odometry {100 * odo:.2f} cm",
         f"  per-scan ms full median {np.median(full_ms):.2f} p99 {np.percentile(full_ms, 99):.2f};"
         f" odometry median {np.median(odo_ms):.2f} p99 {np.percentile(odo_ms, 99):.2f};"
-        f" ratio of medians {np.median(full_ms) / np.median(odo_ms):.2f}",
+        f" ratio of medians {np.median(full_ms) / np.median(odo_ms):.2f};"
+        f" means {np.mean(full_ms):.2f} / {np.mean(odo_ms):.2f} = "
+        f"{np.mean(full_ms) / np.mean(odo_ms):.2f}",
     ]
     if len(errors) > len(true):
         worst = max(errors, key=lambda e: e[2])
@@ -163,6 +195,23 @@ def report(case: SimCase, duration: float, seed: int, gap: float, config: SLAMCo
             f"  worst false: t={worst[0]:.1f} s {worst[1]} {worst[2]:.2f} m {worst[3]:.1f} deg"
         )
     return "\n".join(lines)
+
+
+def overrides(items: list[str]) -> dict:
+    """``key=value`` settings (dotted keys nest; a key that is no top-level setting is a
+    ``loop_closure`` one, as before) as the nested dict ``config_from_dict`` takes."""
+    top = {f.name for f in dataclasses.fields(SLAMConfig)}
+    out: dict = {}
+    for item in items:
+        key, value = item.split("=", 1)
+        path = key.split(".")
+        if path[0] not in top:
+            path = ["loop_closure", *path]
+        node = out
+        for part in path[:-1]:
+            node = node.setdefault(part, {})
+        node[path[-1]] = json.loads(value)  # numbers, true/false
+    return out
 
 
 def main() -> None:
@@ -173,14 +222,10 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--gap", type=float, default=10.0, help="metres of travel before a revisit")
     ap.add_argument("--set", action="append", default=[],
-                    help="loop_closure override, e.g. --set deadband=0")
+                    help="setting override, e.g. --set loop_closure.deadband=0 (a bare name "
+                         "is a loop_closure setting)")
     args = ap.parse_args()
-    config = SLAMConfig()
-    for item in args.set:
-        key, value = item.split("=", 1)
-        config = dataclasses.replace(
-            config, loop_closure=dataclasses.replace(config.loop_closure, **{key: float(value)})
-        )
+    config = config_from_dict(overrides(args.set), "--set")
     for name in args.cases.split(","):
         world, lidar, route = name.split("-")
         print(report(SimCase(world, lidar, route), args.duration, args.seed, args.gap, config),

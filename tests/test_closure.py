@@ -9,7 +9,16 @@ import pytest
 from _views_world import box, cast
 
 from bioslam.boundary import BoundaryCells
-from bioslam.closure import fuse_submap, nearest_experience, pass_neighbours, verify
+from bioslam.closure import (
+    SeenArea,
+    SubmapCache,
+    fuse_submap,
+    nearest_experience,
+    pass_neighbours,
+    seen_hit_fraction,
+    submap_anchor,
+    verify,
+)
 from bioslam.config import LoopClosureConfig
 from bioslam.geometry import between, compose
 from bioslam.views import ViewCellConfig, ViewCells
@@ -46,10 +55,15 @@ def _points(walls, pose, fov=270.0, noise=0.01, seed=0) -> np.ndarray:
     return np.column_stack([ranges * np.cos(scan.angles), ranges * np.sin(scan.angles)])[ok]
 
 
-def _submap(walls, anchor, around) -> np.ndarray:
-    """Scans taken at ``around`` (world poses) fused in the frame of ``anchor`` (index)."""
-    payloads = [_points(walls, p, seed=k + 1) for k, p in enumerate(around)]
-    return fuse_submap(np.asarray(around), payloads, anchor, range(len(around)), 0.03)
+def _submap(walls, anchor, around, fov=270.0) -> tuple[np.ndarray, SeenArea]:
+    """Scans taken at ``around`` (world poses) fused in the frame of ``anchor`` (index), and
+    where they looked (as the system verifies)."""
+    payloads = [_points(walls, p, fov=fov, seed=k + 1) for k, p in enumerate(around)]
+    poses, members = np.asarray(around), range(len(around))
+    return (
+        fuse_submap(poses, payloads, anchor, members, 0.03),
+        SeenArea(poses, payloads, anchor, members, 0.1),
+    )
 
 
 def _offset(pose, lateral=0.0, turn=0.0):
@@ -101,12 +115,14 @@ def test_rotated_twin_is_not_compared_when_the_heading_disagrees():
 def test_place_is_verified_from_half_a_metre_sideways_and_30_degrees_turned(lateral, turn):
     # The experience at the middle of a pass along the hall, with scans 0.5 m apart around it.
     around = [(5.0 + 0.5 * k, 1.5, 0.0) for k in range(5)]
-    submap = _submap(HALL, 2, around)
+    submap, seen = _submap(HALL, 2, around)
     robot = _offset(around[2], lateral, turn)
     truth = between(around[2], robot)
     # The map's prediction is off by what the odometry may have drifted.
     predicted = compose(truth, (0.15, -0.1, math.radians(4.0)))
-    verdict = verify(submap, _points(HALL, robot), predicted, (0.5, 0.3), LoopClosureConfig())
+    verdict = verify(
+        submap, _points(HALL, robot), predicted, (0.5, 0.3), LoopClosureConfig(), seen
+    )
     assert verdict.accepted, verdict.reason
     err = between(truth, verdict.pose)
     assert math.hypot(err[0], err[1]) < 0.03
@@ -116,22 +132,74 @@ def test_place_is_verified_from_half_a_metre_sideways_and_30_degrees_turned(late
 def test_identical_doors_along_a_corridor_are_not_closed():
     walls = _corridor_with_doors(1.2, 12)
     around = [(6.0 + 0.5 * k, 1.0, 0.0) for k in range(-2, 3)]
-    submap = _submap(walls, 2, around)
+    submap, seen = _submap(walls, 2, around)
     # The robot stands one door further than the map believes: the scan fits both places.
     robot = (7.2, 1.0, 0.0)
     predicted = between(around[2], (6.6, 1.0, 0.0))
-    verdict = verify(submap, _points(walls, robot), predicted, (1.5, 0.5), LoopClosureConfig())
+    verdict = verify(
+        submap, _points(walls, robot), predicted, (1.5, 0.5), LoopClosureConfig(), seen
+    )
     assert not verdict.accepted
     assert verdict.reason in ("ambiguous", "degenerate")
 
 
 def test_a_wrong_place_is_not_closed_however_well_its_walls_fit():
     around = [(5.0 + 0.5 * k, 1.5, 0.0) for k in range(5)]
-    submap = _submap(HALL, 2, around)
+    submap, seen = _submap(HALL, 2, around)
     elsewhere = (3.0, 7.5, 0.0)
     predicted = np.zeros(3)
-    verdict = verify(submap, _points(HALL, elsewhere), predicted, (1.0, 0.3), LoopClosureConfig())
+    verdict = verify(
+        submap, _points(HALL, elsewhere), predicted, (1.0, 0.3), LoopClosureConfig(), seen
+    )
     assert not verdict.accepted
+
+
+# A corridor with a room off its north side and a recess and a cabinet to tell places apart.
+CORRIDOR_ROOM = [
+    (0.0, 0.0, 20.0, 0.0), (0.0, 2.0, 8.0, 2.0), (8.0, 2.0, 8.0, 6.0), (8.0, 6.0, 12.0, 6.0),
+    (12.0, 6.0, 12.0, 2.0), (12.0, 2.0, 20.0, 2.0), (0.0, 0.0, 0.0, 2.0), (20.0, 0.0, 20.0, 2.0),
+    (3.0, 0.0, 3.0, 0.4), (3.0, 0.4, 3.4, 0.4), (3.4, 0.4, 3.4, 0.0),
+    (14.0, 2.0, 14.0, 1.6), (14.0, 1.6, 14.5, 1.6), (14.5, 1.6, 14.5, 2.0),
+]
+
+
+def test_half_a_metre_sideways_what_the_old_pass_never_saw_is_not_held_against_it():
+    # The old pass drove the centre-line facing east with a 180 deg scanner; the robot comes
+    # back half a metre to the north with a 360 deg one and sees the corridor behind it and
+    # deeper into the room: judged on every point, a tenth of them are "misses".
+    around = [(5.0 + 0.5 * k, 1.0, 0.0) for k in range(5)]
+    submap, seen = _submap(CORRIDOR_ROOM, 2, around, fov=180.0)
+    robot = _offset(around[2], 0.5)
+    truth = between(around[2], robot)
+    predicted = compose(truth, (0.15, -0.1, math.radians(4.0)))
+    query = _points(CORRIDOR_ROOM, robot, fov=360.0)
+    config = LoopClosureConfig()
+    assert not verify(submap, query, predicted, (0.5, 0.3), config).accepted
+    verdict = verify(submap, query, predicted, (0.5, 0.3), config, seen)
+    assert verdict.accepted, verdict.reason
+    err = between(truth, verdict.pose)
+    assert math.hypot(err[0], err[1]) < 0.03 and abs(err[2]) < math.radians(0.5)
+
+
+def test_points_put_in_space_the_old_pass_saw_free_still_count_as_misses():
+    around = [(5.0 + 0.5 * k, 1.0, 0.0) for k in range(5)]
+    submap, seen = _submap(CORRIDOR_ROOM, 2, around, fov=180.0)
+    robot = _offset(around[2], 0.5)
+    truth = between(around[2], robot)
+    query = _points(CORRIDOR_ROOM, robot, fov=360.0)
+    judge = _judge_grid(submap)
+    right = seen_hit_fraction(judge, truth, query, 0.5, seen, 0.6)
+    # 20 cm across the corridor or 6 deg turned: the walls fall in what was seen free.
+    for wrong in ((0.0, 0.2, 0.0), (0.0, -0.2, 0.0), (0.0, 0.0, 0.1)):
+        assert seen_hit_fraction(judge, compose(truth, wrong), query, 0.5, seen, 0.6) < 0.5
+    assert right > 0.95
+
+
+def _judge_grid(submap: np.ndarray):
+    from bioslam.closure import _submap_pyramid
+
+    reg = LoopClosureConfig().registration
+    return _submap_pyramid(submap, reg).grids[reg.score_level]
 
 
 def test_submap_members_are_taken_on_the_candidate_pass_and_before_the_cutoff():
@@ -149,3 +217,50 @@ def test_nearest_experience_skips_places_just_left():
     assert nearest_experience(poses, travelled, np.array([0.1, 0.0]), 10.0, 0.5, 3.0) == 0
     assert nearest_experience(poses, travelled, np.array([5.0, 0.0]), 10.0, 0.5, 3.0) is None
     assert nearest_experience(poses, travelled, np.array([0.1, 0.0]), 2.5, 0.5, 3.0) is None
+
+
+def test_identical_rooms_give_only_true_closures():
+    # Identical rooms off a corridor, driven like a person (off-centre, back the other way)
+    # with a 180 deg scanner: every accepted closure must be the same place (to within what
+    # a registration errs), and revisits half a metre off must still close.
+    from bioslam.config import SLAMConfig
+    from bioslam.sim import LIDAR_PRESETS, load_world, make_adversarial_route, simulate_scans
+    from bioslam.slam import BioSLAM
+
+    world = load_world("rooms")
+    route = make_adversarial_route(world, duration=120.0, seed=1)
+    pairs = list(simulate_scans(world, LIDAR_PRESETS["sick"], route, seed=1))
+    slam = BioSLAM(SLAMConfig())
+    for scan, _ in pairs:
+        slam.process(scan)
+    stamps = np.array([scan.stamp for scan, _ in pairs])
+    truth = np.array([pose for _, pose in pairs])
+
+    def at(t):
+        return truth[min(int(np.searchsorted(stamps, t)), len(stamps) - 1)]
+
+    accepted = [c for c in slam.checks if c.verdict.accepted]
+    assert len(accepted) >= 5
+    for check in accepted:
+        err = between(between(at(check.experience_stamp), at(check.stamp)), check.verdict.pose)
+        assert math.hypot(err[0], err[1]) < 0.1 and abs(err[2]) < math.radians(2.0)
+
+
+def test_checks_near_one_old_place_share_a_submap_until_the_map_bends_it():
+    around = np.array([(5.0 + 0.5 * k, 1.5, 0.0) for k in range(5)])
+    payloads = [_points(HALL, p, seed=k + 1) for k, p in enumerate(around)]
+    travelled = np.arange(5) * 0.5 + 0.1
+    # candidates a quarter step either side of the middle experience use its submap
+    assert submap_anchor(np.arange(0.0, 3.0, 0.1), 14, 0.5) == 15
+    assert submap_anchor(np.arange(0.0, 3.0, 0.1), 16, 0.5) == 15
+    assert submap_anchor(travelled, 2, 0.5) in (1, 2)
+    cache, config = SubmapCache(), LoopClosureConfig()
+    first = cache.get(around, payloads, 2, range(5), config)
+    assert cache.get(around, payloads, 2, range(5), config) is first
+    bent = around.copy()
+    bent[4, 1] += 0.05  # a relaxation moved the last member sideways
+    rebuilt = cache.get(bent, payloads, 2, range(5), config)
+    assert rebuilt is not first and (cache.hits, cache.builds) == (1, 2)
+    # the rebuilt submap has the moved scan where the map now puts it
+    now = fuse_submap(bent, payloads, 2, range(5), config.submap_spacing)
+    assert np.array_equal(rebuilt.points, now) and not np.array_equal(first.points, now)

@@ -11,7 +11,8 @@ from bioslam.matching.branch_and_bound import (
     WideBasinMatcher,
     refine,
 )
-from bioslam.occupancy_grid import MapPyramid, OccupancyGrid
+from bioslam.occupancy_grid import MapPyramid, OccupancyGrid, subsample_by_spacing
+from bioslam.sim.warehouse import aisle_centres, warehouse_world
 
 
 def _brute_force_reference(matcher, points, centre):
@@ -40,7 +41,7 @@ def test_branch_and_bound_equals_brute_force_on_random_maps_and_windows():
     # Random cells of random occupancy are the adversarial case for the bounds: no structure
     # to prune on, many near-ties. Best and rival must be the brute force's to the last bit.
     rng = np.random.default_rng(7)
-    for _ in range(12):
+    for _ in range(16):
         res = rng.choice([0.05, 0.1, 0.2])
         grid = OccupancyGrid(res, 12.0)
         mask = rng.random(grid.shape) < rng.uniform(0.01, 0.1)
@@ -54,17 +55,55 @@ def test_branch_and_bound_equals_brute_force_on_random_maps_and_windows():
             depth=[None, 0, 1, 2, 4][int(rng.integers(0, 5))],
         )  # fmt: skip
         matcher = WideBasinMatcher(cfg)
-        matcher.set_map(grid)
+        # the whole grid, or a crop of it whose edges cut through the map and the scan: the
+        # bounds of endpoints that a node's translations move across the crop's edge
+        half = rng.uniform(1.0, 5.0, 2)
+        crop = (*(centre[:2] - half), *(centre[:2] + half[::-1]))
+        matcher.set_map(grid, crop if rng.random() < 0.5 else None)
         found = matcher.search(points, centre)
         best, rival = _brute_force_reference(matcher, points, centre)
         assert found.score == best
         assert found.rival_score == rival
         assert (found.rival_pose is None) == (rival == 0.0)
-        # a hint (a pose believed good) only speeds the search: the same answer
+        # a hint (a pose believed good) does not change the answer
         hint = centre + np.array([*rng.uniform(-0.3, 0.3, 2), rng.uniform(-0.1, 0.1)])
         hinted = matcher.search(points, centre, hint)
         assert hinted.score == found.score and np.array_equal(hinted.pose, found.pose)
         assert hinted.rival_score == found.rival_score
+
+
+@pytest.mark.parametrize(("beams", "fov"), [(1081, 1.5 * np.pi), (181, np.pi)])
+def test_branch_and_bound_equals_brute_force_in_a_repetitive_warehouse(beams, fov):
+    # Identical aisles whose view repeats every 2.8 m: many near-equal maxima, little to
+    # prune. A dense scanner (1081 beams) and a sparse one (181), the odometry's window
+    # (±1.5 m, ±45°) and its crop of the map around the search (endpoints near the crop's
+    # edge are summed with bounds checks, the others without): best and rival must be the
+    # brute force's to the last bit, with and without pooling to a single top node.
+    segs = warehouse_world().segments.reshape(-1, 2, 2)
+    y = aisle_centres()[2]
+    truth = np.array([16.1, y + 0.2, 0.07])
+    rng = np.random.default_rng(3)
+    pyramid = MapPyramid(0.05, 40.0, 3)
+    pyramid.recenter(truth[0], truth[1])
+    for x in (12.0, 14.5, 18.0):
+        pose = np.array([x, y, rng.uniform(-0.2, 0.2)])
+        scan = make_scan(segs, pose, beams=beams, fov=fov, sigma=0.01, rng=rng)
+        pyramid.insert_scan(pose, scan.endpoints())
+    scan = make_scan(segs, truth, beams=beams, fov=fov, sigma=0.01, rng=rng).endpoints()
+    points = scan[subsample_by_spacing(scan, 0.1)]
+    start = compose(truth, (0.8, -0.6, math.radians(30)))
+    reach = float(np.max(np.hypot(*points.T))) + 2.5
+    crop = (start[0] - reach, start[1] - reach, start[0] + reach, start[1] + reach)
+    for depth in (4, None):
+        matcher = WideBasinMatcher(WideBasinConfig(depth=depth, angular_cells=2.0))
+        matcher.set_map(pyramid.grids[1], crop)
+        found = matcher.search(points, start)
+        best, rival = _brute_force_reference(matcher, points, start)
+        assert found.score == best and found.rival_score == rival
+        assert found.rival_pose is not None and found.ambiguity > 0.8  # look-alikes
+        assert found.nodes < 0.2 * np.prod(found.lattice) * found.lattice[1]
+        hinted = matcher.search(points, start, truth)
+        assert hinted.score == best and hinted.rival_score == rival
 
 
 def _mapped(world, poses, beams=361, fov=1.5 * np.pi, size=24.0):

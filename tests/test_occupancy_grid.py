@@ -180,3 +180,24 @@ def test_display_grid_has_the_same_logodds_in_less_memory() -> None:
     assert light.nbytes * 3 < full.nbytes
     with pytest.raises(ValueError, match="subcell"):
         light.value_and_gradient(np.zeros((1, 2)))
+
+
+def test_fraction_through_walls_counts_beams_that_cross_a_known_wall():
+    """A wall at x = 2 seen from the origin: beams from a pose behind it that end beyond the
+    wall cross it; beams ending in front of it, or within the margin of it, do not; nor do
+    beams whose path only crosses unknown or free cells."""
+    grid = OccupancyGrid(0.05, 8.0)
+    grid.insert_scan([0.0, 0.0, 0.0], _wall_scan(2.0))
+    level, margin = 1.5, 0.3
+    # from the origin, facing +x: ends at 3 m (beyond the wall), 1.5 m (in front), 2.2 m
+    # (just beyond, within the margin), and at -2 m (behind the sensor, unknown space)
+    pts = np.array([[3.0, 0.0], [1.5, 0.0], [2.2, 0.1], [-2.0, 0.0]])
+    assert grid.fraction_through_walls((0.0, 0.0, 0.0), pts, level, margin) == 0.25
+    # turned by 180 degrees: three beams go into unknown space, the fourth ends on the wall
+    assert grid.fraction_through_walls((0.0, 0.0, np.pi), pts, level, margin) == 0.0
+    # moved 1.5 m back: the 3 m and 2.2 m beams end at 1.5 / 0.7 m, in front of the wall
+    assert grid.fraction_through_walls((-1.5, 0.0, 0.0), pts, level, margin) == 0.0
+    # moved 0.5 m forward: the 1.5 m beam now ends on the wall, the 3 m and 2.2 m beams
+    # (at x = 3.5 and 2.7) beyond it
+    assert grid.fraction_through_walls((0.5, 0.0, 0.0), pts, level, margin) == 0.5
+    assert grid.fraction_through_walls((0.0, 0.0, 0.0), np.zeros((0, 2)), level, margin) == 0.0

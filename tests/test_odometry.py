@@ -357,3 +357,23 @@ def test_look_alike_places_never_pull_the_pose_after_a_gap(guard):
         assert odo.last_report.ambiguous and odo.summary()["odometry_ambiguous"] >= 1
     else:
         assert dist > 0.5
+
+
+@pytest.mark.parametrize("window_deg", [45.0, 80.0])
+def test_a_turn_beyond_the_search_window_is_found_by_the_turn_searches(window_deg):
+    """A thinned log keeps a scan per metre or per ~30-80 degrees of turn: here the robot
+    turned 75 degrees on the spot between two scans 2 s apart, beyond the ±45 degree window
+    around the prediction. Every match there sees through walls, so the search is repeated
+    for a turn of about 90 degrees either way, which holds the true pose (as an 80 degree
+    window does at once)."""
+    rng = np.random.default_rng(31)
+    cfg = OdometryConfig(search_angle=np.radians(window_deg))
+    odo = LidarOdometry(cfg, initial_pose=(-2.0, 0.0, 0.0))
+    for k in range(8):
+        odo.update(make_scan(ROOM, (-2.0 + 0.1 * k, 0.0, 0.0), stamp=0.1 * k, sigma=0.01,
+                             rng=rng))  # fmt: skip
+    true = (-1.25, 0.1, np.radians(75.0))
+    odo.update(make_scan(ROOM, true, stamp=2.7, sigma=0.01, rng=rng))
+    dt_err, dr_err = pose_error(true, odo.pose)
+    assert odo.last_report.recovered
+    assert dt_err < 0.03 and dr_err < np.radians(0.5)

@@ -22,14 +22,17 @@ No I/O here; :class:`bioslam.slam.BioSLAM` calls these once per look.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
+from scipy.ndimage import binary_dilation
 
 from bioslam.config import LoopClosureConfig
-from bioslam.geometry import between, transform_points
+from bioslam.geometry import between, transform_points, wrap_angle
 from bioslam.matching.branch_and_bound import WideBasinConfig, WideBasinMatcher, refine
 from bioslam.matching.registration import RegistrationConfig, densify_scan, map_hits
 from bioslam.occupancy_grid import NORMAL_MAX_GAP, LogOddsConfig, MapPyramid, OccupancyGrid
@@ -64,6 +67,20 @@ def pass_neighbours(
     return sorted({anchor, *near})
 
 
+def submap_anchor(travelled: FloatArray, anchor: int, step: float) -> int:
+    """The experience whose submap verifies a candidate ``anchor``: on the same pass, the one
+    made nearest the multiple of ``step`` metres of travel nearest ``anchor``'s. Checks a
+    fraction of a step apart at one old place then share a submap (:class:`SubmapCache`)
+    instead of each fusing its own around its own candidate."""
+    if step <= 0:
+        return anchor
+    target = round(travelled[anchor] / step) * step
+    i = int(np.searchsorted(travelled, target))
+    picks = [j for j in (i - 1, i) if 0 <= j < travelled.size]
+    best = min(picks, key=lambda j: abs(travelled[j] - target))
+    return best if abs(travelled[best] - travelled[anchor]) <= step else anchor
+
+
 def fuse_submap(
     poses: FloatArray,
     payloads: Sequence[FloatArray | None],
@@ -86,6 +103,121 @@ def fuse_submap(
     return thin_points(np.concatenate(parts), spacing)
 
 
+class SeenArea:
+    """The cells the beams of a submap's member scans crossed or ended in (and the cells next
+    to them), in the anchor's frame: where the submap can vouch for what is there.
+
+    Off the centre-line or turned, the robot sees walls, room corners and doorways the old
+    pass never saw; a point of the current scan there is neither a hit nor a miss, since the
+    submap knows nothing of that place. Points in cells the old pass saw free still count
+    as misses, so a wrong alignment (points in open space) still fails."""
+
+    def __init__(
+        self,
+        poses: FloatArray,
+        payloads: Sequence[FloatArray | None],
+        anchor: int,
+        members: Sequence[int],
+        resolution: float,
+    ) -> None:
+        scans = []
+        for m in members:
+            scan = payloads[m]
+            if scan is not None and len(scan):
+                rel = between(poses[anchor], poses[m])
+                # a ray per cell width along the scan is enough to mark the cells it crosses
+                pts = thin_points(np.asarray(scan, dtype=np.float64), 0.5 * resolution)
+                scans.append((rel, pts.astype(np.float64)))
+        self.resolution = float(resolution)
+        if not scans:
+            self.origin = np.zeros(2)
+            self.mask = np.zeros((1, 1), dtype=bool)
+            return
+        corners = np.concatenate(
+            [np.vstack([transform_points(rel, pts), rel[None, :2]]) for rel, pts in scans]
+        )
+        lo, hi = corners.min(axis=0) - resolution, corners.max(axis=0) + resolution
+        grid = OccupancyGrid.from_extent(resolution, (*lo, *hi), subcell=False)
+        for rel, pts in scans:
+            grid.insert_scan(rel, pts)
+        self.origin = grid.origin
+        self.mask = binary_dilation(grid.known_mask(), np.ones((3, 3), dtype=bool))
+
+    def covers(self, world: FloatArray) -> NDArray[np.bool_]:
+        """Whether each anchor-frame point lies in a seen cell (or next to one)."""
+        cells = np.floor((world - self.origin) / self.resolution).astype(np.int64)
+        rows, cols = self.mask.shape
+        ok = (cells[:, 0] >= 0) & (cells[:, 0] < cols) & (cells[:, 1] >= 0) & (cells[:, 1] < rows)
+        out = np.zeros(world.shape[0], dtype=bool)
+        out[ok] = self.mask[cells[ok, 1], cells[ok, 0]]
+        return out
+
+
+@dataclass
+class Submap:
+    """What verifies candidates near one old place, in the frame of experience ``anchor``:
+    the member scans fused (``points``), where they looked (``seen``), the map pyramid the
+    registration runs on, and the members' poses relative to the anchor when it was built
+    (``layout``)."""
+
+    anchor: int
+    members: tuple[int, ...]
+    layout: FloatArray
+    points: NDArray[np.float32]
+    seen: SeenArea
+    pyramid: MapPyramid | None = field(default=None, repr=False)
+
+
+class SubmapCache:
+    """The last ``size`` submaps built, reused while their members keep their relative poses
+    (to ``tolerance`` metres / radians: the map's relaxation may bend a pass, and a submap
+    fused along the old bend would not fit the new one)."""
+
+    def __init__(self, size: int = 32, tolerance: float = 0.01) -> None:
+        self.size = size
+        self.tolerance = tolerance
+        self._items: OrderedDict[tuple[int, tuple[int, ...]], Submap] = OrderedDict()
+        self.hits = 0
+        self.builds = 0
+
+    def get(
+        self,
+        poses: FloatArray,
+        payloads: Sequence[FloatArray | None],
+        anchor: int,
+        members: Sequence[int],
+        config: LoopClosureConfig,
+    ) -> Submap:
+        key = (anchor, tuple(members))
+        layout = np.array([between(poses[anchor], poses[m]) for m in key[1]])
+        known = self._items.get(key)
+        if known is not None and _same_layout(known.layout, layout, self.tolerance):
+            self._items.move_to_end(key)
+            self.hits += 1
+            return known
+        reg = config.registration
+        points = fuse_submap(poses, payloads, anchor, key[1], config.submap_spacing)
+        seen = SeenArea(poses, payloads, anchor, key[1], reg.resolution * 2**reg.score_level)
+        pyramid = _submap_pyramid(points, reg) if points.shape[0] >= 3 else None
+        built = Submap(anchor, key[1], layout, points, seen, pyramid)
+        self._items[key] = built
+        self._items.move_to_end(key)
+        while len(self._items) > self.size:
+            self._items.popitem(last=False)
+        self.builds += 1
+        return built
+
+
+def _same_layout(a: FloatArray, b: FloatArray, tolerance: float) -> bool:
+    if a.shape != b.shape:
+        return False
+    if not a.size:
+        return True
+    moved = np.hypot(a[:, 0] - b[:, 0], a[:, 1] - b[:, 1])
+    turned = np.abs(wrap_angle(a[:, 2] - b[:, 2]))
+    return bool(np.all(moved <= tolerance) and np.all(turned <= tolerance))
+
+
 def nearest_experience(
     poses: FloatArray,
     travelled: FloatArray,
@@ -98,11 +230,24 @@ def nearest_experience(
     made at least ``min_travel`` metres of travel ago (a place just left is no loop), or None.
     """
     old = int(np.searchsorted(travelled, now - min_travel, side="right"))
-    if old == 0:
-        return None
-    d = np.hypot(poses[:old, 0] - position[0], poses[:old, 1] - position[1])
-    best = int(np.argmin(d))
-    return best if d[best] <= radius else None
+    best = _nearest_within(poses, old, float(position[0]), float(position[1]), radius)
+    return None if best < 0 else best
+
+
+@njit(cache=True)
+def _nearest_within(poses: FloatArray, count: int, x: float, y: float, radius: float) -> int:
+    # One pass over the first ``count`` poses without temporaries: the cue is probed at
+    # every scan between looks, where a few NumPy calls would cost more than the odometry.
+    best = -1
+    best_d2 = radius * radius
+    for i in range(count):
+        dx = poses[i, 0] - x
+        dy = poses[i, 1] - y
+        d2 = dx * dx + dy * dy
+        if d2 <= best_d2 and (best < 0 or d2 < best_d2):  # the first of equals, as argmin
+            best_d2 = d2
+            best = i
+    return best
 
 
 @dataclass(frozen=True)
@@ -122,13 +267,15 @@ class Verdict:
     """The outcome of verifying one candidate: ``pose`` is the robot in the candidate
     experience's frame; ``score`` the share of its points on the submap; ``ambiguity`` the
     best distinct rival's search score over the best's; ``reason`` says why a candidate was
-    refused ('' when accepted)."""
+    refused ('' when accepted); ``prior_score`` the score of the map's prediction refined
+    where it stands."""
 
     accepted: bool
     pose: FloatArray
     score: float
     ambiguity: float
     reason: str = ""
+    prior_score: float = float("nan")
 
 
 def verify(
@@ -137,6 +284,8 @@ def verify(
     predicted: FloatArray,
     window: tuple[float, float],
     config: LoopClosureConfig,
+    seen: SeenArea | None = None,
+    pyramid: MapPyramid | None = None,
 ) -> Verdict:
     """Register ``query`` (the current scan, robot frame) against ``reference`` (a submap in
     a candidate experience's frame) within ``window`` (m, rad) of ``predicted``, and judge it.
@@ -148,11 +297,17 @@ def verify(
     distinct pose in the window fits nearly as well (``rival / best < max_ambiguity``): in a
     corridor or among identical rooms the scan alone cannot say where it is, and a false
     closure bends the whole map. Likewise the map's own prediction, refined where it stands,
-    is a rival: a best pose away from it must score more than ``prior_margin`` above it."""
+    is a rival: a best pose away from it must score more than ``prior_margin`` above it, and
+    one nearer than the rival distance more than ``prior_tie`` (else the refined prediction
+    is the verdict's pose).
+
+    ``seen``: where the submap's scans looked; points of the current scan elsewhere are not
+    judged (:class:`SeenArea`, :func:`seen_hit_fraction`). None judges every point.
+    ``pyramid``: ``reference`` already rasterised (:class:`Submap`), else built here."""
     reg = config.registration
     distance = min(window[0], config.search_distance)
     angle = min(window[1], config.search_angle)
-    pyramid = _submap_pyramid(reference, reg)
+    pyramid = pyramid or _submap_pyramid(reference, reg)
     matcher = WideBasinMatcher(
         WideBasinConfig(
             distance=distance,
@@ -169,14 +324,19 @@ def verify(
     # level's blur would let it slide along a corridor, away from what the search found.
     level = min(config.search_level, len(pyramid.grids) - 1)
     pose, report = refine(pyramid, found.pose, query, _levels_up_to(reg.max_iterations, level))
-    score = _hit_fraction(judge, pose, query, reg.hit_level)
+    score = seen_hit_fraction(judge, pose, query, reg.hit_level, seen, config.min_seen)
     # The map's own prediction, refined where it stands. Along a corridor the window's best
     # may lie on a plateau the scan barely constrains, far from the truth and with no
     # distinct lattice rival (Gauss-Newton may also slide along it): a correction away from
     # the prediction must fit clearly better than the prediction itself.
-    kept, _ = refine(pyramid, predicted, query, _levels_up_to(reg.max_iterations, 0))
-    kept_score = _hit_fraction(judge, kept, query, reg.hit_level)
+    kept, kept_report = refine(pyramid, predicted, query, _levels_up_to(reg.max_iterations, 0))
+    kept_score = seen_hit_fraction(judge, kept, query, reg.hit_level, seen, config.min_seen)
     agree = within(between(kept, pose), config.rival_distance, config.rival_angle)
+    if agree and kept_score >= score - config.prior_tie:
+        # Near the prediction, the prediction refined fits as well: the window's best is
+        # then another point of the same plateau (along a corridor), not a measured
+        # correction, and moving the map there would inject its error.
+        pose, score, report = kept, kept_score, kept_report
     slid = not within(between(found.pose, pose), 2.0 * matcher.resolution, config.rival_angle)
     reason = ""
     if score < config.min_score:
@@ -191,7 +351,7 @@ def verify(
         reason = "slid"
     elif not within(between(predicted, pose), distance, angle):
         reason = "beyond drift"
-    return Verdict(not reason, pose, score, found.ambiguity, reason)
+    return Verdict(not reason, pose, score, found.ambiguity, reason, kept_score)
 
 
 def _levels_up_to(iterations: tuple[int, ...], level: int) -> tuple[int, ...]:
@@ -209,12 +369,27 @@ def _submap_pyramid(reference: FloatArray, reg: RegistrationConfig) -> MapPyrami
     return pyramid
 
 
-def _hit_fraction(grid: OccupancyGrid, pose: FloatArray, query: FloatArray, level: float) -> float:
-    """Share of the query's points inside the submap's grid that land within about a cell of
-    its walls (the map function at least ``level``), as ``register_scans`` scores."""
+def seen_hit_fraction(
+    grid: OccupancyGrid,
+    pose: FloatArray,
+    query: FloatArray,
+    level: float,
+    seen: SeenArea | None = None,
+    min_seen: float = 0.0,
+) -> float:
+    """The registration score: of the query's points inside the submap's grid that the
+    submap's scans saw (``seen``; all of them without it), the share that land within about a
+    cell of its walls (the map function at least ``level``), as ``register_scans`` scores.
+    At least ``min_seen`` of the points inside count (as misses when unseen), so a pose that
+    puts most of the scan where the submap never looked cannot pass on the few left."""
     far = grid.origin + grid.resolution * np.array(grid.shape[::-1])
     extent = (grid.origin[0], grid.origin[1], far[0], far[1])
-    return map_hits(grid, transform_points(pose, query), extent, level)[0]
+    world = transform_points(pose, query)
+    share, _, inside = map_hits(grid, world, extent, level)
+    if seen is None or inside == 0:
+        return share
+    judged_share, _, judged = map_hits(grid, world[seen.covers(world)], extent, level)
+    return judged_share * judged / max(judged, min_seen * inside)
 
 
 def within(correction: FloatArray, distance: float, angle: float) -> bool:

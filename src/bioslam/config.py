@@ -108,6 +108,13 @@ class LoopClosureConfig:
             pose farther than the rival distance from it is refused unless its score (share
             of points on the submap) beats the prediction's by more than this (along a
             corridor the best may sit on a plateau the scan barely constrains).
+        prior_tie: a best pose nearer the prediction than the rival distance must score
+            more than this above the prediction refined where it stands, or the latter is
+            taken (along a corridor the window's best is one point of a plateau; on the
+            rooms world such picks were 22-36 cm off, the prediction 2 cm).
+        min_seen: the score counts only the points of the current scan where the submap's
+            scans looked (a robot off the old centre-line sees what they never saw), but at
+            least this share of the points (the unseen ones then as misses).
         registration: the registration's map and Gauss-Newton parameters.
     """
 
@@ -140,6 +147,8 @@ class LoopClosureConfig:
     rival_angle: float = math.radians(20.0)
     max_ambiguity: float = 0.9
     prior_margin: float = 0.1
+    prior_tie: float = 0.02
+    min_seen: float = 0.6
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)
 
 
@@ -150,9 +159,14 @@ class SLAMConfig:
     Attributes:
         view_distance, view_angle: the view cells, pose cells and cognitive map take a new
             look after the robot has moved this far (m) or turned this much (rad) since the
-            last; in between only the odometry runs. The paper looks at every scan; at 40 Hz
-            consecutive scans are 1 cm apart and say nothing new, while these three modules
-            cost as much as the odometry. 0 looks at every scan.
+            last; in between only the odometry runs (and, while a registration is due, the
+            map's proximity cue, which forces a look when it has a candidate). The paper looks
+            at every scan; at 40 Hz consecutive scans are 1 cm apart and say nothing new,
+            while a look costs 2-3 times the odometry's median scan. Default 0.2 m / 0.15 rad:
+            with a 10 Hz scanner every look at 0.05 m made the full system's median scan
+            3.5 times the odometry's, at 0.2 m 1.2-1.6 times (``benchmarks/bench_loops.py``;
+            recall of revisits -2 to -11 points on some worlds, +13 on one). 0 looks at every
+            scan.
         heading_bias: an artificial gyro-like heading drift (rad/s) added to every odometry
             step before it reaches the pose cells and the map; 0 in normal use. It exists for
             ablations that show loop closure pulling an extra drift back down.
@@ -164,8 +178,8 @@ class SLAMConfig:
     pose_cells: PoseCellConfig = field(default_factory=PoseCellConfig)
     cognitive_map: CognitiveMapConfig = field(default_factory=CognitiveMapConfig)
     loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
-    view_distance: float = 0.05
-    view_angle: float = 0.05
+    view_distance: float = 0.2
+    view_angle: float = 0.15
     heading_bias: float = 0.0
 
 
@@ -189,6 +203,7 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "views.ds": (0.0, 1e3, False),
     "pose_cells.cell_size_xy": (0.0, 1e3, False),
     "loop_closure.min_score": (0.0, 1.0, True),
+    "loop_closure.min_seen": (0.0, 1.0, True),
     "loop_closure.payload_spacing": (1e-3, 10.0, True),
     "loop_closure.registration.resolution": (1e-3, 10.0, True),
     "loop_closure.registration.max_range": (0.0, 1e4, False),

@@ -88,6 +88,51 @@ def _count_not_above_near(logodds, pts, x, y, theta, ox, oy, res, level):
 
 
 @numba.njit(cache=True)
+def _ray_blocked(logodds, r0, c0, r1, c1, level):
+    """Whether a cell above ``level`` lies on the Bresenham line from (r0, c0) to (r1, c1),
+    both ends excluded (cells outside the grid count as unknown, not blocked)."""
+    rows, cols = logodds.shape
+    dc = abs(c1 - c0)
+    dr = -abs(r1 - r0)
+    sc = 1 if c0 < c1 else -1
+    sr = 1 if r0 < r1 else -1
+    err = dc + dr
+    r, c = r0, c0
+    while not (r == r1 and c == c1):
+        e2 = 2 * err
+        if e2 >= dr:
+            err += dr
+            c += sc
+        if e2 <= dc:
+            err += dc
+            r += sr
+        if (r != r1 or c != c1) and 0 <= r < rows and 0 <= c < cols and logodds[r, c] > level:
+            return True
+    return False
+
+
+@numba.njit(cache=True)
+def _count_through_walls(logodds, pts, x, y, theta, ox, oy, res, level, margin):
+    cos_t = math.cos(theta)
+    sin_t = math.sin(theta)
+    r0, c0 = _cell_of(x, y, ox, oy, res)
+    n = 0
+    for k in range(pts.shape[0]):
+        px = pts[k, 0]
+        py = pts[k, 1]
+        rng = math.sqrt(px * px + py * py)
+        if rng <= margin:
+            continue
+        f = (rng - margin) / rng  # stop short of the endpoint's own wall
+        wx = cos_t * px * f - sin_t * py * f + x
+        wy = sin_t * px * f + cos_t * py * f + y
+        r1, c1 = _cell_of(wx, wy, ox, oy, res)
+        if _ray_blocked(logodds, r0, c0, r1, c1, level):
+            n += 1
+    return n
+
+
+@numba.njit(cache=True)
 def _add_clamped(grid, r, c, delta, lo, hi) -> None:
     v = grid[r, c] + delta
     if v < lo:
@@ -522,6 +567,24 @@ class OccupancyGrid:
         x, y, theta = (float(v) for v in np.asarray(pose, dtype=np.float64).reshape(3))
         ox, oy = self.origin.tolist()
         n = _count_not_above_near(self.logodds, pts, x, y, theta, ox, oy, self.resolution, level)
+        return n / pts.shape[0]
+
+    def fraction_through_walls(
+        self, pose: ArrayLike, points: ArrayLike, level: float, margin: float
+    ) -> float:
+        """The fraction of the beams to sensor-frame ``points`` placed by ``pose`` that cross
+        a cell with a log-odds above ``level`` before ``margin`` metres short of their
+        endpoint: a scan placed there would have seen through a known wall (free-space
+        consistency, the evidence a pose off along a corridor leaves that the endpoints'
+        map values do not). 0 for no points."""
+        pts = _as_points(points)
+        if pts.shape[0] == 0:
+            return 0.0
+        x, y, theta = (float(v) for v in np.asarray(pose, dtype=np.float64).reshape(3))
+        ox, oy = self.origin.tolist()
+        n = _count_through_walls(
+            self.logodds, pts, x, y, theta, ox, oy, self.resolution, level, margin
+        )
         return n / pts.shape[0]
 
     def world_to_cell(self, points: ArrayLike) -> NDArray[np.int64]:

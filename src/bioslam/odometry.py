@@ -137,7 +137,9 @@ class OdometryConfig:
             step is longer than ``large_step`` / ``large_turn``. The window is centred on
             the prediction, widened to hold the previous pose as well (a robot that turned
             on the spot may stop turning; a thinned log has up to 80° between scans).
-            0 disables the search.
+            When every match so found has failed or is rejected, the search is repeated in
+            windows turned ``2 * search_angle`` either way from the previous pose (intel's
+            60° turns in place). 0 disables the search.
         search_level: the map pyramid level searched (1: 10 cm cells; Gauss-Newton refines
             the winner from there).
         gap_time: after this many seconds without a scan the search runs even if the first
@@ -165,6 +167,22 @@ class OdometryConfig:
             dt`` radians, more than a robot moves between two scans ``dt`` seconds apart
             (freiburg-079: a failed match in clutter 0.14 s after the last scan was
             replaced by a look-alike 0.95 m away).
+        jump_factor, miss_percentile: the jump limits grow to ``jump_factor`` times the
+            ``miss_percentile``-th percentile of the motion model's misses (its start against
+            the match kept) over the last ``score_window`` scans: a log thinned to a scan per
+            metre is predicted to within tens of centimetres and degrees at best, and there a
+            fixed 0.5 m limit turns every correct step into a "jump" (intel: RPE 75 -> 46 cm
+            with the through-wall evidence below); a 40 Hz scanner's misses are millimetres
+            and the fixed limits hold.
+        wall_logodds, through_margin: where the odometry compares matches (the search
+            ran), each is also charged the fraction of its beams that cross a cell above
+            ``wall_logodds`` (about one hit more than misses) before ``through_margin``
+            metres short of their endpoint (range noise, the endpoint's own wall): a scan
+            placed a metre off along a corridor sees through the walls around a side door or
+            past the corridor's end, while its endpoints still score as well as at the true
+            pose (:meth:`bioslam.occupancy_grid.OccupancyGrid.fraction_through_walls`).
+            More than ``recovery_free_fraction`` of them rejects a match like endpoints in
+            free space do.
         log_odds: hit/miss increments of the map cells.
     """
 
@@ -206,6 +224,10 @@ class OdometryConfig:
     max_speed: float = 2.0
     max_turn_rate: float = 3.0
     overwhelming_ratio: float = 0.7
+    jump_factor: float = 2.0
+    miss_percentile: float = 90.0
+    wall_logodds: float = 1.5
+    through_margin: float = 0.3
     score_window: int = 100
     log_odds: LogOddsConfig = field(default_factory=LogOddsConfig)
 
@@ -229,8 +251,9 @@ class OdometryConfig:
 
 def _match_quality(report: MatchReport) -> float:
     """Mean M* over the matched endpoints, less the fraction of them in known free space
-    (negative evidence: the map saw through where the match puts a wall)."""
-    return report.score - report.free_fraction
+    (negative evidence: the map saw through where the match puts a wall) and the fraction of
+    beams that pass through a known wall (the scan saw through where the map has one)."""
+    return report.score - report.free_fraction - report.through_fraction
 
 
 class LidarOdometry:
@@ -263,6 +286,8 @@ class LidarOdometry:
         self._last_stamp: float | None = None
         self._history: deque[tuple[float, FloatArray]] = deque()
         self._scores: deque[float] = deque(maxlen=self.config.score_window)
+        self._misses: deque[tuple[float, float]] = deque(maxlen=self.config.score_window)
+        self._typical_miss = (0.0, 0.0)
         self._typical_score = 0.0
         self._num_scores = 0
         self._last_inserted: FloatArray | None = None
@@ -376,24 +401,59 @@ class LidarOdometry:
     ) -> tuple[FloatArray, MatchReport]:
         """Eq. 3 from ``start`` (the motion model's prior, :meth:`_best_start`); when that
         cannot be trusted (:meth:`_untrusted`), also from the wide-basin search's winner and
-        its rival, keeping the plausible match nearest ``start`` (:meth:`_choose`)."""
+        its rival, keeping the plausible match nearest ``start`` (:meth:`_choose`). When
+        every match so found sees through walls, the search is repeated for a turn of about
+        ``2 * search_angle`` either way from ``previous`` (thinned logs turn up to 80°
+        between scans)."""
         c = self.config
-        pose, report = self._match_from(level_pts, start, normals)
-        failed = self._failed(report)
-        options = [(pose, report, failed)]
-        if c.search_distance > 0 and self._untrusted(failed, dt, previous, start):
+        options = [self._option(level_pts, start, normals)]
+        if c.search_distance > 0 and self._untrusted(options[0][2], dt, previous, start):
             # the next level's endpoints (twice as far apart) on the search level's grid
             points = level_pts[min(c.search_level + 1, c.levels - 1)]
-            for seed in self._search_seeds(points, start, previous, pose):
-                second, second_report = self._match_from(level_pts, seed, normals)
-                options.append((second, second_report, self._failed(second_report)))
-        reach = (c.jump_distance + c.max_speed * dt, c.jump_angle + c.max_turn_rate * dt)
+            centre, distance, angle = self._search_window(start, previous)
+            seeds = self._search_seeds(points, centre, distance, angle, options[0][0])
+            options += [self._option(level_pts, seed, normals) for seed in seeds]
+            self._weigh_walls(options, level_pts[0])
+            if all(o[2] or self._rejected(o[1]) for o in options):
+                for side in (-1.0, 1.0):
+                    turn = compose(previous, np.array([0.0, 0.0, 2.0 * side * c.search_angle]))
+                    seeds = self._search_seeds(points, turn, c.search_distance, c.search_angle)
+                    options += [self._option(level_pts, seed, normals) for seed in seeds]
+                self._weigh_walls(options, level_pts[0])
+        jump = self._jump_limits()
+        reach = (jump[0] + c.max_speed * dt, jump[1] + c.max_turn_rate * dt)
         motion = (start, predicted, compose(previous, self._last_delta))
-        pose, report = self._choose(options, motion, previous, reach)
+        pose, report = self._choose(options, motion, previous, reach, jump)
+        self._remember_miss(between(start, pose))
 
         report.iterations = sum(option[1].iterations for option in options)
         self._remember_score(report.score)
         return pose, report
+
+    def _option(
+        self, level_pts: list[FloatArray], start: FloatArray, normals: FloatArray
+    ) -> tuple[FloatArray, MatchReport, bool]:
+        """Gauss-Newton from ``start``: (pose, report, failed)."""
+        pose, report = self._match_from(level_pts, start, normals)
+        return pose, report, self._failed(report)
+
+    def _weigh_walls(
+        self, options: list[tuple[FloatArray, MatchReport, bool]], points: FloatArray
+    ) -> None:
+        """Each match's fraction of beams through known walls (once per match), the evidence
+        that tells a pose a metre off along a corridor from the true one."""
+        c = self.config
+        for pose, report, _ in options:
+            if report.through_fraction == 0.0:
+                report.through_fraction = self.pyramid.finest.fraction_through_walls(
+                    pose, points, c.wall_logodds, c.through_margin
+                )
+
+    def _rejected(self, report: MatchReport) -> bool:
+        """More endpoints in known free space, or more beams through known walls, than
+        ``recovery_free_fraction``: a wrong pose, whatever its score."""
+        limit = self.config.recovery_free_fraction
+        return report.free_fraction > limit or report.through_fraction > limit
 
     def _untrusted(self, failed: bool, dt: float, previous: FloatArray, start: FloatArray) -> bool:
         """The match failed, the scan came after a gap, or the predicted step is large."""
@@ -402,18 +462,29 @@ class LidarOdometry:
         large = math.hypot(step[0], step[1]) > c.large_step or abs(step[2]) > c.large_turn
         return failed or dt > c.gap_time or large
 
-    def _search_seeds(
-        self, points: FloatArray, start: FloatArray, previous: FloatArray, hint: FloatArray
-    ) -> list[FloatArray]:
-        """The wide-basin search's winner and, if it scores nearly as well, its rival, in a
-        window around ``start`` grown to hold ``previous`` too (``hint``, the match from
-        ``start``, only speeds the search up)."""
+    def _search_window(
+        self, start: FloatArray, previous: FloatArray
+    ) -> tuple[FloatArray, float, float]:
+        """Centre and half-widths (metres, radians) of a window around ``start`` grown to
+        hold ``previous`` too."""
         c = self.config
         half = 0.5 * between(start, previous)
         centre = compose(start, half)
+        return centre, c.search_distance + max(abs(half[0]), abs(half[1])), (
+            c.search_angle + abs(half[2])
+        )
+
+    def _search_seeds(
+        self, points: FloatArray, centre: FloatArray, distance: float, angle: float,
+        hint: FloatArray | None = None,
+    ) -> list[FloatArray]:
+        """The wide-basin search's winner and, if it scores nearly as well, its rival, in
+        the window of half-widths ``distance``, ``angle`` around ``centre`` (``hint``, the
+        match from the prediction, only speeds the search up)."""
+        c = self.config
         window = WideBasinConfig(
-            distance=c.search_distance + max(abs(half[0]), abs(half[1])),
-            angle=c.search_angle + abs(half[2]),
+            distance=distance,
+            angle=angle,
             min_rival_ratio=c.rival_ratio,
             angular_cells=c.search_angular_cells,
             depth=c.search_depth,
@@ -432,6 +503,7 @@ class LidarOdometry:
     def _choose(
         self, options: list[tuple[FloatArray, MatchReport, bool]],
         motion: tuple[FloatArray, ...], previous: FloatArray, reach: tuple[float, float],
+        jump: tuple[float, float],
     ) -> tuple[FloatArray, MatchReport]:
         """The plausible match nearest the motion model's prior (``plausible_ratio``; the
         first of ``motion``, the start Gauss-Newton ran from), then the best of those in its
@@ -445,7 +517,7 @@ class LidarOdometry:
         if len(options) == 1:
             return first[0], first[1]
         quality = {id(o): _match_quality(o[1]) for o in options}
-        pool = [o for o in options if not o[2]] or options
+        pool = [o for o in options if not self._rejected(o[1])] or options
         best = max(quality[id(o)] for o in pool)
         floor = best - (1.0 - c.plausible_ratio) * abs(best)  # quality can be negative
         plausible = [o for o in pool if quality[id(o)] >= floor]
@@ -453,12 +525,16 @@ class LidarOdometry:
         basin = [o for o in plausible if not self._distinct(o[0], nearest[0])]
         chosen = max(basin, key=lambda o: quality[id(o)])
         ambiguous = len(basin) < len(plausible)
-        if chosen is not first and all(self._is_jump(chosen[0], m) for m in motion):
+        if chosen is not first and all(self._is_jump(chosen[0], m, jump) for m in motion):
             q_first = quality[id(first)]
             if not first[2] and q_first > c.overwhelming_ratio * quality[id(chosen)]:
                 chosen, ambiguous = first, True  # a look-alike, not overwhelming evidence
-            elif self._beyond(chosen[0], previous, reach):
-                chosen = first  # farther than the robot can have moved since the last scan
+            elif self._beyond(chosen[0], previous, reach) and not (
+                self._rejected(first[1]) and not self._rejected(chosen[1])
+            ):
+                # farther than the robot can have moved since the last scan (logged stamps
+                # jitter: a clean match against a prediction that sees through walls wins)
+                chosen = first
         pose, report = chosen[0], chosen[1]
         report.recovered = chosen is not first
         report.ambiguous = ambiguous
@@ -479,11 +555,23 @@ class LidarOdometry:
         d = between(previous, pose)
         return math.hypot(d[0], d[1]) > reach[0] or abs(d[2]) > reach[1]
 
-    def _is_jump(self, pose: FloatArray, prior: FloatArray) -> bool:
-        """Farther from a motion hypothesis ``prior`` than ``jump_distance`` or ``jump_angle``."""
+    @staticmethod
+    def _is_jump(pose: FloatArray, prior: FloatArray, jump: tuple[float, float]) -> bool:
+        """Farther from a motion hypothesis ``prior`` than ``jump`` (metres, radians)."""
         d = between(prior, pose)
+        return math.hypot(d[0], d[1]) > jump[0] or abs(d[2]) > jump[1]
+
+    def _jump_limits(self) -> tuple[float, float]:
+        """How far from the motion model a match may lie before it counts as a jump:
+        ``jump_distance`` / ``jump_angle``, or ``jump_factor`` times the motion model's
+        typical error over the last scans if that is larger (a log thinned to a scan per
+        metre is predicted to within tens of centimetres and degrees at best; a 40 Hz
+        scanner's to within millimetres, where the fixed limits hold)."""
         c = self.config
-        return math.hypot(d[0], d[1]) > c.jump_distance or abs(d[2]) > c.jump_angle
+        return (
+            max(c.jump_distance, c.jump_factor * self._typical_miss[0]),
+            max(c.jump_angle, c.jump_factor * self._typical_miss[1]),
+        )
 
     def _failed(self, report: MatchReport) -> bool:
         """Endpoints in known free space, or a score far below that of recent matches."""
@@ -498,9 +586,21 @@ class LidarOdometry:
         the failure test)."""
         self._scores.append(score)
         self._num_scores += 1
-        step = max(self.config.score_window // 10, 1)
-        if self._num_scores <= step or self._num_scores % step == 0:
+        if self._refresh_due():
             self._typical_score = float(np.median(self._scores))
+
+    def _refresh_due(self) -> bool:
+        step = max(self.config.score_window // 10, 1)
+        return self._num_scores <= step or self._num_scores % step == 0
+
+    def _remember_miss(self, miss: FloatArray) -> None:
+        """Keep the last ``score_window`` differences between the motion model's start and
+        the match kept (metres, radians): their ``miss_percentile``-th percentiles are the
+        motion model's typical error (refreshed as the scores' median is)."""
+        self._misses.append((math.hypot(miss[0], miss[1]), abs(miss[2])))
+        if self._refresh_due():
+            misses = np.percentile(np.array(self._misses), self.config.miss_percentile, axis=0)
+            self._typical_miss = (float(misses[0]), float(misses[1]))
 
     def _score_at(self, pose: FloatArray, points: FloatArray) -> float:
         """Mean M* of ``points`` at ``pose`` on the finest level (the first scan's score on

@@ -10,6 +10,7 @@ No file or terminal I/O here: :mod:`bioslam.pipeline` owns progress, timing and 
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -20,9 +21,11 @@ from numpy.typing import NDArray
 from bioslam.boundary import BoundaryCells
 from bioslam.closure import (
     Check,
-    fuse_submap,
+    Submap,
+    SubmapCache,
     nearest_experience,
     pass_neighbours,
+    submap_anchor,
     thin_points,
     verify,
     within,
@@ -110,6 +113,7 @@ class BioSLAM:
         self.checks: list[Check] = []
         self._proposed: int | None = None
         self._stamp = 0.0
+        self.submaps = SubmapCache()
 
     # --- the per-scan update ---------------------------------------------------------------
 
@@ -124,14 +128,19 @@ class BioSLAM:
         return Pose2D(*compose(self.cognitive_map.pose(), self._pending))
 
     def _due(self) -> bool:
-        """Whether the robot has moved enough since the last view to look again. Between two
-        looks only the odometry runs; its motion reaches the pose cells and the map at the
-        next look (path integration takes steps of any size)."""
+        """Whether to look again: the robot has moved or turned enough since the last look,
+        or the map puts it near an old experience while a registration is due (so that the
+        path-integration cue is checked as often as registrations are allowed, however
+        sparse the looks). Between two looks only the odometry runs; its motion reaches the
+        pose cells and the map at the next look (path integration takes steps of any size)."""
         cfg = self.config
-        return len(self.cognitive_map) == 0 or (
-            np.hypot(self._pending[0], self._pending[1]) >= cfg.view_distance
-            or abs(self._pending[2]) >= cfg.view_angle
-        )
+        if len(self.cognitive_map) == 0:
+            return True
+        moved = float(np.hypot(self._pending[0], self._pending[1]))
+        if moved >= cfg.view_distance or abs(self._pending[2]) >= cfg.view_angle:
+            return True
+        here = compose(self.cognitive_map.pose(), self._pending)
+        return self._nearby(here, self._travelled + moved) is not None
 
     def _perceive(self, scan: LaserScan, dp: FloatArray) -> None:
         """The view cells, pose cells and cognitive map for one scan, after motion ``dp``."""
@@ -150,7 +159,7 @@ class BioSLAM:
         self.pose_cells.step()
         self.cognitive_map.integrate_odometry(dp, scan.stamp)
         self._stamp = scan.stamp
-        self._proposed = self._nearby()
+        self._proposed = self._nearby(self.cognitive_map.pose(), self._travelled)
         known = len(self.cognitive_map)
         event = self.cognitive_map.update(
             match.view_id,
@@ -164,9 +173,9 @@ class BioSLAM:
         if event.kind == "loop":
             self.cognitive_map.relax()
         self._travelled += float(np.hypot(dp[0], dp[1]))
-        # a new place, or the robot's own pose made an experience by a measured loop closure
-        for made in range(known, len(self.cognitive_map)):
-            self._note_made(made)
+        # every experience this look made (a closure also makes one of the robot's pose)
+        for experience_id in range(known, len(self.cognitive_map)):
+            self._note_made(experience_id)
         if event.kind != "none":
             self._travelled_at_entry = self._travelled
         self.records.append(
@@ -178,20 +187,20 @@ class BioSLAM:
             self._made_at = np.concatenate([self._made_at, np.empty_like(self._made_at)])
         self._made_at[experience_id] = self._travelled
 
-    def _nearby(self) -> int | None:
-        """The path-integration cue: the experience nearest the robot's map pose, made long
-        enough ago to be a loop and not already joined to the current one by a short chain
-        of links (:func:`bioslam.closure.nearest_experience`)."""
+    def _nearby(self, pose: FloatArray, travelled: float) -> int | None:
+        """The path-integration cue: the experience nearest the robot's map ``pose`` (after
+        ``travelled`` metres of odometry), made long enough ago to be a loop and not already
+        joined to the current one by a short chain of links
+        (:func:`bioslam.closure.nearest_experience`); None while no registration is due."""
         cfg = self.config.loop_closure
         cmap = self.cognitive_map
         if not (cfg.proximity and cfg.refine) or len(cmap) < 2:
             return None
-        if self._travelled - self._last_registration < cfg.registration_interval:
+        if travelled - self._last_registration < cfg.registration_interval:
             return None
-        travelled = self._made_at[: len(cmap)]
-        drift, _ = self._drift_bound(self._travelled, False)
+        drift, _ = self._drift_bound(travelled, False)
         found = nearest_experience(
-            cmap.experience_poses_view, travelled, cmap.pose(), self._travelled,
+            cmap.experience_poses_view, self._made_at[: len(cmap)], pose, travelled,
             min(cfg.recognition_radius, drift), cfg.min_loop_travel,
         )  # fmt: skip
         if found is None or found == cmap.current:
@@ -217,11 +226,18 @@ class BioSLAM:
         drift, drift_angle = self._drift_bound(since, linked)
         if np.hypot(predicted[0], predicted[1]) > cfg.recognition_radius + drift:
             return None
-        reference = self._submap(experience.id)
-        if reference.shape[0] < 3:
+        submap = self._submap(experience.id)
+        if submap.pyramid is None:
             return None
         self._last_registration = self._travelled
-        verdict = verify(reference, points, predicted, (drift, drift_angle), cfg)
+        # registered in the submap anchor's frame, reported in the experience's
+        poses = self.cognitive_map.experience_poses_view
+        anchor_in_experience = between(experience.pose, poses[submap.anchor])
+        verdict = verify(
+            submap.points, points, between(poses[submap.anchor], self.cognitive_map.pose()),
+            (drift, drift_angle), cfg, submap.seen, submap.pyramid,
+        )  # fmt: skip
+        verdict = dataclasses.replace(verdict, pose=compose(anchor_in_experience, verdict.pose))
         cue = "proximity" if experience.id == self._proposed else "view"
         self.checks.append(Check(self._stamp, experience.id, experience.stamp, cue, verdict))
         if not verdict.accepted:
@@ -232,19 +248,21 @@ class BioSLAM:
             return predicted
         return verdict.pose
 
-    def _submap(self, anchor: int) -> NDArray[np.float32]:
-        """The scans around ``anchor`` on its own pass, fused in its frame
-        (:func:`bioslam.closure.fuse_submap`); the last ``submap_reach`` metres of travel,
-        which the current scan would match trivially, are left out."""
+    def _submap(self, candidate: int) -> Submap:
+        """The scans around ``candidate`` on its own pass, fused in the frame of the pass's
+        experience nearest a whole ``submap_step`` of travel (shared by the checks near one
+        old place, :class:`bioslam.closure.SubmapCache`), and where they looked; the last
+        ``submap_reach`` metres of travel, which the current scan would match trivially, are
+        left out."""
         cfg = self.config.loop_closure
         cmap = self.cognitive_map
+        made_at = self._made_at[: len(cmap)]
+        anchor = submap_anchor(made_at, candidate, cfg.submap_step)
         members = pass_neighbours(
-            self._made_at[: len(cmap)], anchor, cfg.submap_reach,
-            cfg.submap_step, self._travelled - cfg.submap_reach,
+            made_at, anchor, cfg.submap_reach, cfg.submap_step,
+            self._travelled - cfg.submap_reach,
         )  # fmt: skip
-        return fuse_submap(
-            cmap.experience_poses_view, cmap.payloads, anchor, members, cfg.submap_spacing
-        )
+        return self.submaps.get(cmap.experience_poses_view, cmap.payloads, anchor, members, cfg)
 
     def _odometry_relation(self, experience_id: int) -> tuple[bool, float]:
         """Whether a short chain of links joins the current experience to

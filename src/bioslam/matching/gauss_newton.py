@@ -47,6 +47,9 @@ class MatchReport:
         predicted_only: no usable scan; the pose is the constant-velocity prediction.
         converged: the finest level stopped on a small step within its iteration budget.
         free_fraction: matched endpoints that fell in cells the map knows to be free.
+        through_fraction: beams that pass through a cell the map knows to be occupied on
+            their way to their endpoint (computed only where matches are compared: when the
+            odometry weighs a search's matches against the prediction's).
         recovered: the match comes from the wide-basin search, run because the prediction
             could not be trusted (``OdometryConfig.search_*``, ``gap_time``), which found a
             better one.
@@ -64,6 +67,7 @@ class MatchReport:
     predicted_only: bool = False
     converged: bool = False
     free_fraction: float = 0.0
+    through_fraction: float = 0.0
     recovered: bool = False
     ambiguous: bool = False
 
