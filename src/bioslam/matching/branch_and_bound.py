@@ -81,8 +81,9 @@ class WideBasinConfig:
         depth: pooling levels above the lattice (a top node spans ``2^depth`` cells a
             side); ``None`` spans the whole window with one node (Cartographer). Fewer
             levels cost less to pool and bound more tightly at the top, at the price of more
-            top nodes: 4 (1.6 m at 10 cm cells) searched the warehouse 1.3-1.8 times faster
-            than one node per window (``benchmarks/bench_matcher.py``).
+            top nodes: with the best-first search 4 (1.6 m at 10 cm cells) and one node per
+            window search the warehouse equally fast, 3 twice as slowly
+            (``benchmarks/bench_matcher.py``); 4 pools one level less.
         blur: cells over which a hit cell's value spreads (Gaussian, sigma one cell); 0
             scores only the cells hit.
         rival_distance, rival_angle: a rival must be farther than this from the winner in
