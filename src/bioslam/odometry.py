@@ -468,6 +468,12 @@ class LidarOdometry:
             or report.through_fraction > c.recovery_through_fraction
         )
 
+    def _clean(self, report: MatchReport) -> bool:
+        """Little negative evidence of either kind: at most ``recovery_free_fraction`` of
+        endpoints in free space and beams through walls together."""
+        c = self.config
+        return report.free_fraction + report.through_fraction <= c.recovery_free_fraction
+
     def _untrusted(self, failed: bool, dt: float, previous: FloatArray, start: FloatArray) -> bool:
         """The match failed, the scan came after a gap, or the predicted step is large."""
         c = self.config
@@ -546,10 +552,10 @@ class LidarOdometry:
             if not first[2] and q_first > c.overwhelming_ratio * quality[id(chosen)]:
                 chosen, ambiguous = first, True  # a look-alike, not overwhelming evidence
             elif self._beyond(chosen[0], previous, reach) and not (
-                self._rejected(first[1]) and not self._rejected(chosen[1])
+                self._rejected(first[1]) and self._clean(chosen[1])
             ):
                 # farther than the robot can have moved since the last scan (logged stamps
-                # jitter: a clean match against a prediction that sees through walls wins)
+                # jitter: a clean match wins over a prediction rejected by the map)
                 chosen = first
         pose, report = chosen[0], chosen[1]
         report.recovered = chosen is not first
