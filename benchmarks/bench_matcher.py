@@ -9,8 +9,10 @@ subset of the queries: it is slow), how often the winner is within 10 cm / 2° o
 (and within 2 cm after Gauss-Newton), the median ambiguity, and whether the two searches
 agreed on the best score (they must, always).
 
-Usage: ``python benchmarks/bench_matcher.py [--queries 60] [--world maze|warehouse]
-[--depth 4] [--angular-cells 2]`` (the odometry's settings: depth 4, two cells).
+Usage: ``python benchmarks/bench_matcher.py [--queries 60] [--world maze,warehouse,hall]
+[--depth 4|none] [--angular-cells 2]`` (the odometry's settings: depth 4, two cells; the
+default one cell is the finer lattice, twice the headings). Worlds: maze, warehouse, rooms,
+hall (comma-separated, each in turn).
 """
 
 from __future__ import annotations
@@ -110,14 +112,16 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--queries", type=int, default=60)
     parser.add_argument("--brute-every", type=int, default=4)
-    parser.add_argument("--world", default="maze")
+    parser.add_argument("--world", default="maze", help="comma-separated world names")
     parser.add_argument("--offset", type=float, default=1.0, help="start offset, metres")
     parser.add_argument("--turn", type=float, default=30.0, help="start heading offset, deg")
-    parser.add_argument("--depth", type=int, default=None, help="pooling levels (default: all)")
+    parser.add_argument("--depth", default="4", help="pooling levels, or none: the whole window")
     parser.add_argument("--angular-cells", type=float, default=1.0)
     a = parser.parse_args()
-    cfg = WideBasinConfig(depth=a.depth, angular_cells=a.angular_cells)
-    run(a.world, a.queries, a.brute_every, a.offset, a.turn, cfg)
+    depth = None if a.depth.lower() == "none" else int(a.depth)
+    cfg = WideBasinConfig(depth=depth, angular_cells=a.angular_cells)
+    for world in a.world.split(","):
+        run(world, a.queries, a.brute_every, a.offset, a.turn, cfg)
 
 
 if __name__ == "__main__":

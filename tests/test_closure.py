@@ -11,10 +11,12 @@ from _views_world import box, cast
 from bioslam.boundary import BoundaryCells
 from bioslam.closure import (
     SeenArea,
+    SubmapCache,
     fuse_submap,
     nearest_experience,
     pass_neighbours,
     seen_hit_fraction,
+    submap_anchor,
     verify,
 )
 from bioslam.config import LoopClosureConfig
@@ -242,3 +244,23 @@ def test_identical_rooms_give_only_true_closures():
     for check in accepted:
         err = between(between(at(check.experience_stamp), at(check.stamp)), check.verdict.pose)
         assert math.hypot(err[0], err[1]) < 0.1 and abs(err[2]) < math.radians(2.0)
+
+
+def test_checks_near_one_old_place_share_a_submap_until_the_map_bends_it():
+    around = np.array([(5.0 + 0.5 * k, 1.5, 0.0) for k in range(5)])
+    payloads = [_points(HALL, p, seed=k + 1) for k, p in enumerate(around)]
+    travelled = np.arange(5) * 0.5 + 0.1
+    # candidates a quarter step either side of the middle experience use its submap
+    assert submap_anchor(np.arange(0.0, 3.0, 0.1), 14, 0.5) == 15
+    assert submap_anchor(np.arange(0.0, 3.0, 0.1), 16, 0.5) == 15
+    assert submap_anchor(travelled, 2, 0.5) in (1, 2)
+    cache, config = SubmapCache(), LoopClosureConfig()
+    first = cache.get(around, payloads, 2, range(5), config)
+    assert cache.get(around, payloads, 2, range(5), config) is first
+    bent = around.copy()
+    bent[4, 1] += 0.05  # a relaxation moved the last member sideways
+    rebuilt = cache.get(bent, payloads, 2, range(5), config)
+    assert rebuilt is not first and (cache.hits, cache.builds) == (1, 2)
+    # the rebuilt submap has the moved scan where the map now puts it
+    now = fuse_submap(bent, payloads, 2, range(5), config.submap_spacing)
+    assert np.array_equal(rebuilt.points, now) and not np.array_equal(first.points, now)

@@ -65,7 +65,7 @@ def test_branch_and_bound_equals_brute_force_on_random_maps_and_windows():
         assert found.score == best
         assert found.rival_score == rival
         assert (found.rival_pose is None) == (rival == 0.0)
-        # a hint (a pose believed good) only speeds the search: the same answer
+        # a hint (a pose believed good) does not change the answer
         hint = centre + np.array([*rng.uniform(-0.3, 0.3, 2), rng.uniform(-0.1, 0.1)])
         hinted = matcher.search(points, centre, hint)
         assert hinted.score == found.score and np.array_equal(hinted.pose, found.pose)

@@ -46,6 +46,10 @@ def test_loop_closes_and_pulls_injected_drift_back(ring_drive):
     assert odometry > 0.1, "the injected drift should be large"
     assert full < 0.5 * odometry
     assert len(slam.trajectory()) == len(scans)
+    # Closures make experiences too (the robot's pose, linked to the recognised one): the
+    # travel at which each was made must be known, in order, for the closure cues' searches.
+    made_at = slam._made_at[: summary["experiences"]]
+    assert np.all(np.isfinite(made_at)) and np.all(np.diff(made_at) >= 0.0)
 
 
 def test_drift_free_run_stays_accurate(ring_drive):

@@ -22,8 +22,9 @@ No I/O here; :class:`bioslam.slam.BioSLAM` calls these once per look.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
@@ -31,7 +32,7 @@ from numpy.typing import NDArray
 from scipy.ndimage import binary_dilation
 
 from bioslam.config import LoopClosureConfig
-from bioslam.geometry import between, transform_points
+from bioslam.geometry import between, transform_points, wrap_angle
 from bioslam.matching.branch_and_bound import WideBasinConfig, WideBasinMatcher, refine
 from bioslam.matching.registration import RegistrationConfig, densify_scan, map_hits
 from bioslam.occupancy_grid import NORMAL_MAX_GAP, LogOddsConfig, MapPyramid, OccupancyGrid
@@ -64,6 +65,20 @@ def pass_neighbours(
     picks = np.clip(np.searchsorted(travelled, targets), 0, travelled.size - 1)
     near = [int(i) for i in picks if abs(travelled[i] - centre) <= reach and travelled[i] <= before]
     return sorted({anchor, *near})
+
+
+def submap_anchor(travelled: FloatArray, anchor: int, step: float) -> int:
+    """The experience whose submap verifies a candidate ``anchor``: on the same pass, the one
+    made nearest the multiple of ``step`` metres of travel nearest ``anchor``'s. Checks a
+    fraction of a step apart at one old place then share a submap (:class:`SubmapCache`)
+    instead of each fusing its own around its own candidate."""
+    if step <= 0:
+        return anchor
+    target = round(travelled[anchor] / step) * step
+    i = int(np.searchsorted(travelled, target))
+    picks = [j for j in (i - 1, i) if 0 <= j < travelled.size]
+    best = min(picks, key=lambda j: abs(travelled[j] - target))
+    return best if abs(travelled[best] - travelled[anchor]) <= step else anchor
 
 
 def fuse_submap(
@@ -138,6 +153,71 @@ class SeenArea:
         return out
 
 
+@dataclass
+class Submap:
+    """What verifies candidates near one old place, in the frame of experience ``anchor``:
+    the member scans fused (``points``), where they looked (``seen``), the map pyramid the
+    registration runs on, and the members' poses relative to the anchor when it was built
+    (``layout``)."""
+
+    anchor: int
+    members: tuple[int, ...]
+    layout: FloatArray
+    points: NDArray[np.float32]
+    seen: SeenArea
+    pyramid: MapPyramid | None = field(default=None, repr=False)
+
+
+class SubmapCache:
+    """The last ``size`` submaps built, reused while their members keep their relative poses
+    (to ``tolerance`` metres / radians: the map's relaxation may bend a pass, and a submap
+    fused along the old bend would not fit the new one)."""
+
+    def __init__(self, size: int = 32, tolerance: float = 0.01) -> None:
+        self.size = size
+        self.tolerance = tolerance
+        self._items: OrderedDict[tuple[int, tuple[int, ...]], Submap] = OrderedDict()
+        self.hits = 0
+        self.builds = 0
+
+    def get(
+        self,
+        poses: FloatArray,
+        payloads: Sequence[FloatArray | None],
+        anchor: int,
+        members: Sequence[int],
+        config: LoopClosureConfig,
+    ) -> Submap:
+        key = (anchor, tuple(members))
+        layout = np.array([between(poses[anchor], poses[m]) for m in key[1]])
+        known = self._items.get(key)
+        if known is not None and _same_layout(known.layout, layout, self.tolerance):
+            self._items.move_to_end(key)
+            self.hits += 1
+            return known
+        reg = config.registration
+        points = fuse_submap(poses, payloads, anchor, key[1], config.submap_spacing)
+        seen = SeenArea(poses, payloads, anchor, key[1], reg.resolution * 2**reg.score_level)
+        pyramid = _submap_pyramid(points, reg) if points.shape[0] >= 3 else None
+        built = Submap(anchor, key[1], layout, points, seen, pyramid)
+        self._items[key] = built
+        self._items.move_to_end(key)
+        while len(self._items) > self.size:
+            self._items.popitem(last=False)
+        self.builds += 1
+        return built
+
+
+def _same_layout(a: FloatArray, b: FloatArray, tolerance: float) -> bool:
+    if a.shape != b.shape:
+        return False
+    if not a.size:
+        return True
+    moved = np.hypot(a[:, 0] - b[:, 0], a[:, 1] - b[:, 1])
+    turned = np.abs(wrap_angle(a[:, 2] - b[:, 2]))
+    return bool(np.all(moved <= tolerance) and np.all(turned <= tolerance))
+
+
 def nearest_experience(
     poses: FloatArray,
     travelled: FloatArray,
@@ -205,6 +285,7 @@ def verify(
     window: tuple[float, float],
     config: LoopClosureConfig,
     seen: SeenArea | None = None,
+    pyramid: MapPyramid | None = None,
 ) -> Verdict:
     """Register ``query`` (the current scan, robot frame) against ``reference`` (a submap in
     a candidate experience's frame) within ``window`` (m, rad) of ``predicted``, and judge it.
@@ -221,11 +302,12 @@ def verify(
     is the verdict's pose).
 
     ``seen``: where the submap's scans looked; points of the current scan elsewhere are not
-    judged (:class:`SeenArea`, :func:`seen_hit_fraction`). None judges every point."""
+    judged (:class:`SeenArea`, :func:`seen_hit_fraction`). None judges every point.
+    ``pyramid``: ``reference`` already rasterised (:class:`Submap`), else built here."""
     reg = config.registration
     distance = min(window[0], config.search_distance)
     angle = min(window[1], config.search_angle)
-    pyramid = _submap_pyramid(reference, reg)
+    pyramid = pyramid or _submap_pyramid(reference, reg)
     matcher = WideBasinMatcher(
         WideBasinConfig(
             distance=distance,

@@ -10,6 +10,7 @@ No file or terminal I/O here: :mod:`bioslam.pipeline` owns progress, timing and 
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -20,10 +21,11 @@ from numpy.typing import NDArray
 from bioslam.boundary import BoundaryCells
 from bioslam.closure import (
     Check,
-    SeenArea,
-    fuse_submap,
+    Submap,
+    SubmapCache,
     nearest_experience,
     pass_neighbours,
+    submap_anchor,
     thin_points,
     verify,
     within,
@@ -111,6 +113,7 @@ class BioSLAM:
         self.checks: list[Check] = []
         self._proposed: int | None = None
         self._stamp = 0.0
+        self.submaps = SubmapCache()
 
     # --- the per-scan update ---------------------------------------------------------------
 
@@ -157,6 +160,7 @@ class BioSLAM:
         self.cognitive_map.integrate_odometry(dp, scan.stamp)
         self._stamp = scan.stamp
         self._proposed = self._nearby(self.cognitive_map.pose(), self._travelled)
+        known = len(self.cognitive_map)
         event = self.cognitive_map.update(
             match.view_id,
             match.is_new,
@@ -169,8 +173,9 @@ class BioSLAM:
         if event.kind == "loop":
             self.cognitive_map.relax()
         self._travelled += float(np.hypot(dp[0], dp[1]))
-        if event.kind == "new":
-            self._note_made(event.experience)
+        # every experience this look made (a closure also makes one of the robot's pose)
+        for experience_id in range(known, len(self.cognitive_map)):
+            self._note_made(experience_id)
         if event.kind != "none":
             self._travelled_at_entry = self._travelled
         self.records.append(
@@ -221,11 +226,18 @@ class BioSLAM:
         drift, drift_angle = self._drift_bound(since, linked)
         if np.hypot(predicted[0], predicted[1]) > cfg.recognition_radius + drift:
             return None
-        reference, seen = self._submap(experience.id)
-        if reference.shape[0] < 3:
+        submap = self._submap(experience.id)
+        if submap.pyramid is None:
             return None
         self._last_registration = self._travelled
-        verdict = verify(reference, points, predicted, (drift, drift_angle), cfg, seen)
+        # registered in the submap anchor's frame, reported in the experience's
+        poses = self.cognitive_map.experience_poses_view
+        anchor_in_experience = between(experience.pose, poses[submap.anchor])
+        verdict = verify(
+            submap.points, points, between(poses[submap.anchor], self.cognitive_map.pose()),
+            (drift, drift_angle), cfg, submap.seen, submap.pyramid,
+        )  # fmt: skip
+        verdict = dataclasses.replace(verdict, pose=compose(anchor_in_experience, verdict.pose))
         cue = "proximity" if experience.id == self._proposed else "view"
         self.checks.append(Check(self._stamp, experience.id, experience.stamp, cue, verdict))
         if not verdict.accepted:
@@ -236,23 +248,21 @@ class BioSLAM:
             return predicted
         return verdict.pose
 
-    def _submap(self, anchor: int) -> tuple[NDArray[np.float32], SeenArea]:
-        """The scans around ``anchor`` on its own pass, fused in its frame
-        (:func:`bioslam.closure.fuse_submap`), and where they looked; the last
+    def _submap(self, candidate: int) -> Submap:
+        """The scans around ``candidate`` on its own pass, fused in the frame of the pass's
+        experience nearest a whole ``submap_step`` of travel (shared by the checks near one
+        old place, :class:`bioslam.closure.SubmapCache`), and where they looked; the last
         ``submap_reach`` metres of travel, which the current scan would match trivially, are
         left out."""
         cfg = self.config.loop_closure
         cmap = self.cognitive_map
+        made_at = self._made_at[: len(cmap)]
+        anchor = submap_anchor(made_at, candidate, cfg.submap_step)
         members = pass_neighbours(
-            self._made_at[: len(cmap)], anchor, cfg.submap_reach,
-            cfg.submap_step, self._travelled - cfg.submap_reach,
+            made_at, anchor, cfg.submap_reach, cfg.submap_step,
+            self._travelled - cfg.submap_reach,
         )  # fmt: skip
-        poses, payloads = cmap.experience_poses_view, cmap.payloads
-        resolution = cfg.registration.resolution * 2**cfg.registration.score_level
-        return (
-            fuse_submap(poses, payloads, anchor, members, cfg.submap_spacing),
-            SeenArea(poses, payloads, anchor, members, resolution),
-        )
+        return self.submaps.get(cmap.experience_poses_view, cmap.payloads, anchor, members, cfg)
 
     def _odometry_relation(self, experience_id: int) -> tuple[bool, float]:
         """Whether a short chain of links joins the current experience to

@@ -34,15 +34,16 @@ fall between another scan's).
 
 Speed: the whole search is one compiled call. The endpoints' cells are computed once per
 heading of the lattice (a table of flat indices into the pooled grids, so a bound is a
-gather-and-sum without bounds checks for the endpoints that stay inside the crop), and the
-rival search does not start again from the roots: it continues from the nodes the first
-search cut (each with its bound), which together cover the window.
+gather-and-sum without bounds checks for the endpoints that stay inside the crop; a node's
+four children are bounded in one pass). Nodes are expanded best first from a heap, so only
+nodes whose bound beats the optimum are expanded, and the rival search goes on from the same
+heap instead of starting again from the roots.
 
 Memory: the pooled grids (``depth + 1`` float32 copies of the reachable part of the grid,
 kept in one buffer grown to the largest crop seen and reused by later searches; a level's
-cells are read at ``row * buffer width + column``), and per search the heading table (three
-int64 per endpoint and heading) and the frontier (about as many entries as nodes). No file
-or terminal I/O here.
+cells are read at ``row * buffer width + column``), and per search the heading table (an
+int32 per endpoint and heading, two int64 more for those near the crop's edge) and the heap
+(about 50 bytes a node bounded). No file or terminal I/O here.
 """
 
 from __future__ import annotations
@@ -80,8 +81,9 @@ class WideBasinConfig:
         depth: pooling levels above the lattice (a top node spans ``2^depth`` cells a
             side); ``None`` spans the whole window with one node (Cartographer). Fewer
             levels cost less to pool and bound more tightly at the top, at the price of more
-            top nodes: 4 (1.6 m at 10 cm cells) searched the warehouse 1.3-1.8 times faster
-            than one node per window (``benchmarks/bench_matcher.py``).
+            top nodes: with the best-first search 4 (1.6 m at 10 cm cells) and one node per
+            window search the warehouse equally fast, 3 twice as slowly
+            (``benchmarks/bench_matcher.py``); 4 pools one level less.
         blur: cells over which a hit cell's value spreads (Gaussian, sigma one cell); 0
             scores only the cells hit.
         rival_distance, rival_angle: a rival must be farther than this from the winner in
@@ -334,6 +336,9 @@ def _node_bounds4(levels, h, table, jj, xs, ys, m, out, rows, cols, stride):
     """``out[t]`` = :func:`_node_bound` of the nodes (xs[t], ys[t]), t < m <= 4, at level
     ``h`` and heading row ``jj``, in one pass over the endpoints (the siblings' cells are
     near each other in memory); each sum in the same order, so the same to the last bit."""
+    if m == 1:
+        out[0] = _node_bound(levels, h, table, jj, xs[0], ys[0], rows, cols, stride)
+        return
     flat, n_inner, edge_r, edge_c, n_edge = table
     grid = levels[h]
     o0 = ys[0] * stride + xs[0]
@@ -380,167 +385,89 @@ def _local_maximum(levels, table, jj, score, ix, iy, rows, cols, stride):
 
 
 @numba.njit(cache=True)
-def _record(front_b, front_k, n, bound, j, h, ix, iy):
-    """Append a node to the frontier (grown by doubling); returns the arrays and count."""
-    if n == front_b.shape[0]:
-        grown_b = np.empty(2 * n)
-        grown_b[:n] = front_b
-        grown_k = np.empty((2 * n, 4), dtype=np.int64)
-        grown_k[:n] = front_k
-        front_b, front_k = grown_b, grown_k
-    front_b[n] = bound
-    front_k[n, 0] = j
-    front_k[n, 1] = h
-    front_k[n, 2] = ix
-    front_k[n, 3] = iy
-    return front_b, front_k, n + 1
-
-
-@numba.njit(cache=True)
-def _descend(levels, table, dims, node, bound0, best, found, zone, use_zone, front, stack):
-    """Depth-first branch and bound below ``node`` (j, h, ix, iy) whose bound is
-    ``bound0``, children best first. ``best`` (1,) and ``found`` (j, ix, iy, from_search)
-    hold the best pose so far and are updated. Without ``use_zone`` a pose beating it
-    becomes the best; with it only a local maximum outside ``zone`` does. Without
-    ``use_zone`` every node cut (and every best replaced) is appended to ``front`` (arrays,
-    count): together they cover the window, so the rival search starts from them instead
-    of from the roots. Returns the nodes whose bound was computed and ``front``."""
-    nh, nx, rows, cols, stride = dims
-    front_b, front_k, nf = front
-    stack_h, stack_x, stack_y, stack_b = stack
-    child_b = np.empty(4)
-    child_x = np.empty(4, dtype=np.int64)
-    child_y = np.empty(4, dtype=np.int64)
-    kid_b = np.empty(4)
-    kid_x = np.empty(4, dtype=np.int64)
-    kid_y = np.empty(4, dtype=np.int64)
-    j = node[0]
-    jj = j + nh
-    nodes = 0
-    stack_h[0] = node[1]
-    stack_x[0] = node[2]
-    stack_y[0] = node[3]
-    stack_b[0] = bound0
-    top = 1
-    while top > 0:
-        top -= 1
-        h = stack_h[top]
-        ix = stack_x[top]
-        iy = stack_y[top]
-        bound = stack_b[top]
-        if bound <= best[0]:
-            if not use_zone:
-                front_b, front_k, nf = _record(front_b, front_k, nf, bound, j, h, ix, iy)
-            continue
-        if h == 0:
-            if use_zone:
-                if _in_zone(j, ix, iy, 1, zone):
-                    continue
-                if not _local_maximum(levels, table, jj, bound, ix, iy, rows, cols, stride):
-                    continue
-            elif found[3]:
-                front_b, front_k, nf = _record(
-                    front_b, front_k, nf, best[0], found[0], 0, found[1], found[2]
-                )
-            best[0] = bound
-            found[0] = j
-            found[1] = ix
-            found[2] = iy
-            found[3] = 1
-            continue
-        half = 1 << (h - 1)
-        n_kids = 0
-        for a in range(2):
-            for b in range(2):
-                cx = ix + a * half
-                cy = iy + b * half
-                if cx > nx or cy > nx:
-                    continue
-                if use_zone and _in_zone(j, cx, cy, half, zone):
-                    continue
-                kid_x[n_kids] = cx
-                kid_y[n_kids] = cy
-                n_kids += 1
-        if n_kids == 0:
-            continue
-        _node_bounds4(levels, h - 1, table, jj, kid_x, kid_y, n_kids, kid_b, rows, cols, stride)
-        nodes += n_kids
-        m = 0
-        for t in range(n_kids):
-            cb = kid_b[t]
-            cx = kid_x[t]
-            cy = kid_y[t]
-            if cb <= best[0]:
-                if not use_zone:
-                    front_b, front_k, nf = _record(front_b, front_k, nf, cb, j, h - 1, cx, cy)
-                continue
-            # insert sorted ascending, so that the best child is popped first
-            p = m
-            while p > 0 and child_b[p - 1] > cb:
-                child_b[p] = child_b[p - 1]
-                child_x[p] = child_x[p - 1]
-                child_y[p] = child_y[p - 1]
-                p -= 1
-            child_b[p] = cb
-            child_x[p] = cx
-            child_y[p] = cy
-            m += 1
-        for p in range(m):
-            stack_h[top] = h - 1
-            stack_x[top] = child_x[p]
-            stack_y[top] = child_y[p]
-            stack_b[top] = child_b[p]
-            top += 1
-    return nodes, (front_b, front_k, nf)
-
-
-@numba.njit(cache=True)
-def _climb(levels, table, dims, nt, j, ix, iy):
-    """Hill-climb on the lattice from (j, ix, iy), within the window, to a local maximum:
-    a good pose scored before the search lets it prune from its first node. Returns
-    (score, j, ix, iy)."""
-    nh, nx, rows, cols, stride = dims
-    best = _node_bound(levels, 0, table, j + nh, ix, iy, rows, cols, stride)
-    for _ in range(4 * (nx + nt) + 4):
-        move_j = 0
-        move_x = 0
-        move_y = 0
-        top = best
-        for dj in range(-1, 2):
-            if abs(j + dj) > nt:
-                continue
-            for dx in range(-1, 2):
-                for dy in range(-1, 2):
-                    if abs(ix + dx) > nx or abs(iy + dy) > nx:
-                        continue
-                    v = _node_bound(
-                        levels, 0, table, j + dj + nh, ix + dx, iy + dy, rows, cols, stride
-                    )
-                    if v > top:
-                        top = v
-                        move_j = dj
-                        move_x = dx
-                        move_y = dy
-        if top <= best:
+def _heap_push(heap_b, heap_n, n, bound, node):
+    """Push ``node`` with key ``bound`` on the max-heap of ``n`` entries (room for one
+    more); returns the new count."""
+    i = n
+    while i > 0:
+        parent = (i - 1) >> 1
+        if heap_b[parent] >= bound:
             break
-        best = top
-        j += move_j
-        ix += move_x
-        iy += move_y
-    return best, j, ix, iy
+        heap_b[i] = heap_b[parent]
+        heap_n[i] = heap_n[parent]
+        i = parent
+    heap_b[i] = bound
+    heap_n[i] = node
+    return n + 1
 
 
 @numba.njit(cache=True)
-def _search(levels, pts, args, nt, nx, dims, hint, rival):
+def _heap_pop(heap_b, heap_n, n):
+    """Remove the top of the max-heap of ``n`` entries; returns its node (n - 1 remain)."""
+    top = heap_n[0]
+    n -= 1
+    bound = heap_b[n]
+    node = heap_n[n]
+    i = 0
+    while True:
+        c = 2 * i + 1
+        if c >= n:
+            break
+        if c + 1 < n and heap_b[c + 1] > heap_b[c]:
+            c += 1
+        if heap_b[c] <= bound:
+            break
+        heap_b[i] = heap_b[c]
+        heap_n[i] = heap_n[c]
+        i = c
+    heap_b[i] = bound
+    heap_n[i] = node
+    return top
+
+
+@numba.njit(cache=True)
+def _open(pool_b, pool_k, heap_b, heap_n, n, size, bound, j, h, ix, iy):
+    """Store node ``n`` (heading j, level h, origin ix, iy) with its bound and push it on
+    the heap of ``size`` entries (both with room for it); returns (n + 1, size + 1)."""
+    pool_b[n] = bound
+    pool_k[n, 0] = j
+    pool_k[n, 1] = h
+    pool_k[n, 2] = ix
+    pool_k[n, 3] = iy
+    return n + 1, _heap_push(heap_b, heap_n, size, bound, n)
+
+
+@numba.njit(cache=True)
+def _grown(pool_b, pool_k, heap_b, heap_n, need):
+    """The node pool and heap with room for ``need`` nodes (doubled when short)."""
+    if need <= pool_b.shape[0]:
+        return pool_b, pool_k, heap_b, heap_n
+    size = max(2 * pool_b.shape[0], need)
+    nb = np.empty(size)
+    nk = np.empty((size, 4), dtype=np.int64)
+    hb = np.empty(size)
+    hn = np.empty(size, dtype=np.int64)
+    nb[: pool_b.shape[0]] = pool_b
+    nk[: pool_b.shape[0]] = pool_k
+    hb[: heap_b.shape[0]] = heap_b
+    hn[: heap_n.shape[0]] = heap_n
+    return nb, nk, hb, hn
+
+
+@numba.njit(cache=True)
+def _search(levels, pts, args, nt, nx, dims, rival):
     """The whole search in one call: the best lattice pose of headings -nt..nt and
     translations -nx..nx (cells), then its best distinct rival.
 
-    ``hint`` (j, ix, iy; j > nt for none): a lattice pose to climb from first; the local
-    maximum reached prunes from the first node (only poses scoring as much replace it, so
-    the answer is the same). ``rival``: (cells, headings) of the winner's zone and the
-    fraction of its score a rival needs. The rival search is a branch and bound over the
-    frontier the first search left (every node it cut, with its bound) rather than over
-    the roots again; only poses outside the zone that are local maxima count.
+    Best first, where Hess et al. go depth first: a queue of all open nodes by bound
+    expands only nodes whose bound beats the optimum, however good or bad the first leaves
+    met are. The node of highest bound is taken from a heap and its children are bounded
+    and pushed, until a leaf comes out on top: its score is at least every bound left, so
+    it is the lattice optimum. The rival search goes on from the same heap (which with the
+    winner covers the whole window): nodes wholly inside the winner's zone (``rival[0]``
+    cells, ``rival[1]`` headings) are dropped, and the first leaf on top that is a local
+    maximum outside it is the best rival, if it scores more than the floor (``rival[2]``
+    of the winner).
 
     Returns (score, j, ix, iy, rival score, rj, rx, ry, nodes); rj is ``nt + 1`` without a
     rival."""
@@ -548,17 +475,20 @@ def _search(levels, pts, args, nt, nx, dims, hint, rival):
     depth = levels.shape[0] - 1
     span = 1 << depth
     nh = nt + 1
-    geo = (nh, nx, rows, cols, stride)
     table = _heading_table(pts, args, nh, nx + 1, span, rows, cols, stride)
     per_axis = (2 * nx + span) // span
-    n_roots = (2 * nt + 1) * per_axis * per_axis
-    root_b = np.empty(n_roots)
-    root_k = np.empty((n_roots, 4), dtype=np.int64)
     per_heading = per_axis * per_axis
+    n_roots = (2 * nt + 1) * per_heading
+    cap = 4 * n_roots + 64
+    pool_b = np.empty(cap)
+    pool_k = np.empty((cap, 4), dtype=np.int64)
+    heap_b = np.empty(cap)
+    heap_n = np.empty(cap, dtype=np.int64)
     xs = np.empty(4, dtype=np.int64)
     ys = np.empty(4, dtype=np.int64)
     out = np.empty(4)
     n = 0
+    size = 0
     for j in range(-nt, nt + 1):
         for first in range(0, per_heading, 4):
             m = min(4, per_heading - first)
@@ -567,72 +497,75 @@ def _search(levels, pts, args, nt, nx, dims, hint, rival):
                 ys[t] = -nx + ((first + t) % per_axis) * span
             _node_bounds4(levels, depth, table, j + nh, xs, ys, m, out, rows, cols, stride)
             for t in range(m):
-                root_b[n] = out[t]
-                root_k[n, 0] = j
-                root_k[n, 1] = depth
-                root_k[n, 2] = xs[t]
-                root_k[n, 3] = ys[t]
-                n += 1
-    nodes = n_roots
-    best = np.full(1, -1.0)
-    found = np.array([nt + 1, 0, 0, 0], dtype=np.int64)
-    if abs(hint[0]) <= nt:
-        score, hj, hx, hy = _climb(levels, table, geo, nt, hint[0], hint[1], hint[2])
-        # just below its score, so that the search still returns the first pose it meets
-        # that scores as much (the same as without a hint)
-        best[0] = np.nextafter(score, -np.inf)
-        found[0] = hj
-        found[1] = hx
-        found[2] = hy
-    stack = (
-        np.empty(4 * depth + 4, dtype=np.int64),
-        np.empty(4 * depth + 4, dtype=np.int64),
-        np.empty(4 * depth + 4, dtype=np.int64),
-        np.empty(4 * depth + 4),
-    )
+                n, size = _open(
+                    pool_b, pool_k, heap_b, heap_n, n, size, out[t], j, depth, xs[t], ys[t]
+                )
+    nodes = n
     zone = np.zeros(5, dtype=np.int64)
-    front = (np.empty(n_roots + 1024), np.empty((n_roots + 1024, 4), dtype=np.int64), 0)
-    order = np.argsort(-root_b, kind="mergesort")
-    for q in range(n_roots):
-        r = order[q]
-        if root_b[r] <= best[0]:
-            front_b, front_k, nf = front
-            for q2 in range(q, n_roots):
-                r2 = order[q2]
-                front_b, front_k, nf = _record(
-                    front_b, front_k, nf, root_b[r2], root_k[r2, 0], depth,
-                    root_k[r2, 2], root_k[r2, 3],
-                )  # fmt: skip
-            front = (front_b, front_k, nf)
-            break
-        more, front = _descend(
-            levels, table, geo, root_k[r], root_b[r], best, found, zone, False, front, stack
-        )
-        nodes += more
-    score, j, ix, iy = best[0], found[0], found[1], found[2]
-    # the rival: the best local maximum outside the winner's zone scoring at least
-    # rival[2] of the winner
-    zone[0] = j
-    zone[1] = ix
-    zone[2] = iy
-    zone[3] = int(rival[0])
-    zone[4] = int(rival[1])
-    floor = max(rival[2] * score, 0.0)
-    best[0] = np.nextafter(floor, -np.inf) if floor > 0 else -1.0
-    found[0] = nt + 1
-    front_b, front_k, nf = front
-    order = np.argsort(-front_b[:nf], kind="mergesort")
-    for q in range(nf):
-        r = order[q]
-        if front_b[r] <= best[0]:
-            break
-        if _in_zone(front_k[r, 0], front_k[r, 2], front_k[r, 3], 1 << front_k[r, 1], zone):
+    score = -1.0
+    bj = nt + 1
+    bx = 0
+    by = 0
+    floor = -np.inf
+    rival_score = -1.0
+    rj = nt + 1
+    rx = 0
+    ry = 0
+    phase = 0
+    while size > 0:
+        q = _heap_pop(heap_b, heap_n, size)
+        size -= 1
+        b = pool_b[q]
+        j = pool_k[q, 0]
+        h = pool_k[q, 1]
+        ix = pool_k[q, 2]
+        iy = pool_k[q, 3]
+        if phase == 1:
+            if b <= floor:
+                break
+            if _in_zone(j, ix, iy, 1 << h, zone):
+                continue
+        if h == 0:
+            if phase == 0:
+                # the first leaf popped scores at least every bound left: the optimum
+                score, bj, bx, by = b, j, ix, iy
+                zone[0] = j
+                zone[1] = ix
+                zone[2] = iy
+                zone[3] = int(rival[0])
+                zone[4] = int(rival[1])
+                low = max(rival[2] * score, 0.0)
+                floor = np.nextafter(low, -np.inf) if low > 0 else -1.0
+                phase = 1
+                continue
+            if _local_maximum(levels, table, j + nh, b, ix, iy, rows, cols, stride):
+                rival_score, rj, rx, ry = b, j, ix, iy
+                break
             continue
-        more, _ = _descend(
-            levels, table, geo, front_k[r], front_b[r], best, found, zone, True, front, stack
-        )
-        nodes += more
-    return score, j, ix, iy, best[0], found[0], found[1], found[2], nodes
+        half = 1 << (h - 1)
+        m = 0
+        for a in range(2):
+            for c in range(2):
+                cx = ix + a * half
+                cy = iy + c * half
+                if cx > nx or cy > nx:
+                    continue
+                if phase == 1 and _in_zone(j, cx, cy, half, zone):
+                    continue
+                xs[m] = cx
+                ys[m] = cy
+                m += 1
+        if m == 0:
+            continue
+        _node_bounds4(levels, h - 1, table, j + nh, xs, ys, m, out, rows, cols, stride)
+        nodes += m
+        pool_b, pool_k, heap_b, heap_n = _grown(pool_b, pool_k, heap_b, heap_n, n + m)
+        for t in range(m):
+            if phase == 0 or out[t] > floor:
+                n, size = _open(
+                    pool_b, pool_k, heap_b, heap_n, n, size, out[t], j, h - 1, xs[t], ys[t]
+                )
+    return score, bj, bx, by, rival_score, rj, rx, ry, nodes
 
 
 @numba.njit(cache=True)
@@ -752,10 +685,9 @@ class WideBasinMatcher:
         self, points: ArrayLike, centre: ArrayLike, hint: ArrayLike | None = None
     ) -> WideMatch:
         """The best lattice pose of sensor-frame ``points`` (N, 2) within the window around
-        ``centre`` (x, y, theta; map frame), and its best distinct rival. A ``hint`` (a pose
-        believed good, e.g. a match from the prediction) only speeds the search up: the
-        lattice's local maximum next to it is scored first, and nodes that cannot beat it
-        are cut at once; the result is the same."""
+        ``centre`` (x, y, theta; map frame), and its best distinct rival. ``hint`` (a pose
+        believed good) is accepted for callers that have one; the best-first search needs
+        none (it expands the same nodes whatever it meets first), so it is not used."""
         pts, centre = self._prepare(points, centre)
         nt, nx, args = self._lattice(pts, centre)
         lattice = (2 * nt + 1, 2 * nx + 1)
@@ -765,9 +697,7 @@ class WideBasinMatcher:
         levels, dims = self._flat_levels()
         c = self.config
         rival = (int(c.rival_distance / args[6]), int(c.rival_angle / args[3]), c.min_rival_ratio)
-        best, j, ix, iy, score, rj, rx, ry, nodes = _search(
-            levels, pts, args, nt, nx, dims, self._hint_cell(args, nt, nx, hint), rival
-        )
+        best, j, ix, iy, score, rj, rx, ry, nodes = _search(levels, pts, args, nt, nx, dims, rival)
         found = rj <= nt
         return WideMatch(
             pose=self._pose(args, j, ix, iy),
@@ -777,20 +707,6 @@ class WideBasinMatcher:
             nodes=int(nodes),
             lattice=lattice,
         )
-
-    def _hint_cell(self, args: tuple, nt: int, nx: int, hint: ArrayLike | None) -> tuple:
-        """(j, ix, iy) of the lattice pose nearest ``hint``; j = nt + 1 (none) without a
-        hint inside the window."""
-        none = (nt + 1, 0, 0)
-        if hint is None:
-            return none
-        x, y, th, step, _, _, res = args
-        h = np.asarray(hint, dtype=np.float64).reshape(3)
-        j = round(math.remainder(h[2] - th, 2 * math.pi) / step)
-        ix, iy = round((h[0] - x) / res), round((h[1] - y) / res)
-        if abs(j) > nt or abs(ix) > nx or abs(iy) > nx:
-            return none
-        return (j, ix, iy)
 
     def score_at(self, points: ArrayLike, pose: ArrayLike) -> float:
         """The mean map value of sensor-frame ``points`` placed by ``pose`` (any pose, not
