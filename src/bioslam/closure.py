@@ -141,6 +141,9 @@ class SeenArea:
         for rel, pts in scans:
             grid.insert_scan(rel, pts)
         self.origin = grid.origin
+        # and the cells next to them: a point just behind a wall the submap saw counts against
+        # a pose (without them, a scan of a thin wall's far faces, seen from the other side,
+        # was pulled 19 cm onto the near faces and accepted in the identical-rooms test)
         self.mask = binary_dilation(grid.known_mask(), np.ones((3, 3), dtype=bool))
 
     def covers(self, world: FloatArray) -> NDArray[np.bool_]:
@@ -324,19 +327,22 @@ def verify(
     # level's blur would let it slide along a corridor, away from what the search found.
     level = min(config.search_level, len(pyramid.grids) - 1)
     pose, report = refine(pyramid, found.pose, query, _levels_up_to(reg.max_iterations, level))
-    score = seen_hit_fraction(judge, pose, query, reg.hit_level, seen, config.min_seen)
     # The map's own prediction, refined where it stands. Along a corridor the window's best
     # may lie on a plateau the scan barely constrains, far from the truth and with no
     # distinct lattice rival (Gauss-Newton may also slide along it): a correction away from
-    # the prediction must fit clearly better than the prediction itself.
+    # the prediction must fit clearly better than the prediction itself. The two are
+    # compared on every point: judged only where the submap looked, a pose that pushes
+    # points out of its sight would gain by it.
     kept, kept_report = refine(pyramid, predicted, query, _levels_up_to(reg.max_iterations, 0))
-    kept_score = seen_hit_fraction(judge, kept, query, reg.hit_level, seen, config.min_seen)
+    fit, kept_fit = (seen_hit_fraction(judge, p, query, reg.hit_level) for p in (pose, kept))
     agree = within(between(kept, pose), config.rival_distance, config.rival_angle)
-    if agree and kept_score >= score - config.prior_tie:
+    if agree and kept_fit >= fit - config.prior_tie:
         # Near the prediction, the prediction refined fits as well: the window's best is
         # then another point of the same plateau (along a corridor), not a measured
         # correction, and moving the map there would inject its error.
-        pose, score, report = kept, kept_score, kept_report
+        pose, fit, report = kept, kept_fit, kept_report
+    score = seen_hit_fraction(judge, pose, query, reg.hit_level, seen, config.min_seen)
+    kept_score = seen_hit_fraction(judge, kept, query, reg.hit_level, seen, config.min_seen)
     slid = not within(between(found.pose, pose), 2.0 * matcher.resolution, config.rival_angle)
     reason = ""
     if score < config.min_score:
@@ -344,7 +350,7 @@ def verify(
     elif config.reject_degenerate and report.degenerate:
         reason = "degenerate"
     elif found.ambiguity >= config.max_ambiguity or (
-        not agree and kept_score >= score - config.prior_margin
+        not agree and kept_fit >= fit - config.prior_margin
     ):
         reason = "ambiguous"
     elif slid and not agree:
@@ -378,8 +384,9 @@ def seen_hit_fraction(
     min_seen: float = 0.0,
 ) -> float:
     """The registration score: of the query's points inside the submap's grid that the
-    submap's scans saw (``seen``; all of them without it), the share that land within about a
-    cell of its walls (the map function at least ``level``), as ``register_scans`` scores.
+    submap's scans saw (``seen``; all of them without it) or that land on its walls, the share
+    that land within about a cell of its walls (the map function at least ``level``), as
+    ``register_scans`` scores.
     At least ``min_seen`` of the points inside count (as misses when unseen), so a pose that
     puts most of the scan where the submap never looked cannot pass on the few left."""
     far = grid.origin + grid.resolution * np.array(grid.shape[::-1])
@@ -388,8 +395,13 @@ def seen_hit_fraction(
     share, _, inside = map_hits(grid, world, extent, level)
     if seen is None or inside == 0:
         return share
-    judged_share, _, judged = map_hits(grid, world[seen.covers(world)], extent, level)
-    return judged_share * judged / max(judged, min_seen * inside)
+    covered = seen.covers(world)
+    seen_share, _, seen_count = map_hits(grid, world[covered], extent, level)
+    # a point on a wall of the submap is judged (a hit) wherever it lies
+    other_share, _, other_count = map_hits(grid, world[~covered], extent, level)
+    hits = seen_share * seen_count + other_share * other_count
+    judged = seen_count + other_share * other_count
+    return hits / max(judged, min_seen * inside)
 
 
 def within(correction: FloatArray, distance: float, angle: float) -> bool:
