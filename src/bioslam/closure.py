@@ -29,11 +29,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
-from scipy.ndimage import binary_dilation
 
 from bioslam.config import LoopClosureConfig
 from bioslam.geometry import between, transform_points, wrap_angle
 from bioslam.matching.branch_and_bound import WideBasinConfig, WideBasinMatcher, refine
+from bioslam.matching.correlative import neighbourhood_max
 from bioslam.matching.registration import RegistrationConfig, densify_scan, map_hits
 from bioslam.occupancy_grid import NORMAL_MAX_GAP, LogOddsConfig, MapPyramid, OccupancyGrid
 
@@ -141,7 +141,7 @@ class SeenArea:
         for rel, pts in scans:
             grid.insert_scan(rel, pts)
         self.origin = grid.origin
-        self.mask = binary_dilation(grid.known_mask(), np.ones((3, 3), dtype=bool))
+        self.mask = neighbourhood_max(grid.known_mask())  # dilated by one cell
 
     def covers(self, world: FloatArray) -> NDArray[np.bool_]:
         """Whether each anchor-frame point lies in a seen cell (or next to one)."""
