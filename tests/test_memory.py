@@ -139,3 +139,29 @@ def test_releasing_the_working_memory_writes_the_same_results(tmp_path, odometry
     figures = sorted(p.name for p in (tmp_path / "kept" / "figures").iterdir())
     assert figures == sorted(p.name for p in (tmp_path / "released" / "figures").iterdir())
     assert len(figures) >= (1 if odometry_only else 3)
+
+
+def test_the_submap_cache_keeps_at_most_its_bytes_and_rebuilds_the_same():
+    from bioslam.closure import SubmapCache
+    from bioslam.config import LoopClosureConfig
+
+    side = np.linspace(-3.0, 3.0, 120)
+    room = np.concatenate([np.column_stack([side, np.full_like(side, v)]) for v in (-3, 3)]
+                          + [np.column_stack([np.full_like(side, v), side]) for v in (-3, 3)])
+    poses = np.array([(0.3 * k, 0.1 * k, 0.05 * k) for k in range(6)])
+    rng = np.random.default_rng(4)
+    payloads = [(room - p[:2] + rng.normal(0, 0.01, room.shape)).astype(np.float32)
+                for p in poses]  # fmt: skip
+    config = LoopClosureConfig()
+    unbounded = SubmapCache(max_bytes=2**40)
+    one = unbounded.get(poses, payloads, 1, range(3), config)
+    size = unbounded._bytes
+    assert size > 0
+    cache = SubmapCache(max_bytes=int(1.5 * size))
+    first = cache.get(poses, payloads, 1, range(3), config)
+    cache.get(poses, payloads, 4, range(3, 6), config)  # evicts the first
+    assert len(cache._items) == 1 and cache._bytes <= 1.5 * size
+    again = cache.get(poses, payloads, 1, range(3), config)
+    assert again is not first and cache.builds == 3 and cache.hits == 0
+    np.testing.assert_array_equal(again.points, one.points)
+    np.testing.assert_array_equal(again.seen.mask, one.seen.mask)

@@ -171,12 +171,19 @@ class Submap:
 class SubmapCache:
     """The last ``size`` submaps built, reused while their members keep their relative poses
     (to ``tolerance`` metres / radians: the map's relaxation may bend a pass, and a submap
-    fused along the old bend would not fit the new one)."""
+    fused along the old bend would not fit the new one). At most ``max_bytes`` are kept
+    (each submap's registration pyramid is a few megabytes: 2.3 MB on the simulated maze),
+    the most recently used first; a submap rebuilt is the same, so the limits change only
+    the time."""
 
-    def __init__(self, size: int = 32, tolerance: float = 0.01) -> None:
+    def __init__(
+        self, size: int = 32, tolerance: float = 0.01, max_bytes: int = 24 * 2**20
+    ) -> None:
         self.size = size
         self.tolerance = tolerance
+        self.max_bytes = max_bytes
         self._items: OrderedDict[tuple[int, tuple[int, ...]], Submap] = OrderedDict()
+        self._bytes = 0
         self.hits = 0
         self.builds = 0
 
@@ -200,12 +207,22 @@ class SubmapCache:
         seen = SeenArea(poses, payloads, anchor, key[1], reg.resolution * 2**reg.score_level)
         pyramid = _submap_pyramid(points, reg) if points.shape[0] >= 3 else None
         built = Submap(anchor, key[1], layout, points, seen, pyramid)
+        if known is not None:
+            self._bytes -= _submap_bytes(known)
         self._items[key] = built
         self._items.move_to_end(key)
-        while len(self._items) > self.size:
-            self._items.popitem(last=False)
+        self._bytes += _submap_bytes(built)
+        while len(self._items) > 1 and (
+            len(self._items) > self.size or self._bytes > self.max_bytes
+        ):
+            self._bytes -= _submap_bytes(self._items.popitem(last=False)[1])
         self.builds += 1
         return built
+
+
+def _submap_bytes(submap: Submap) -> int:
+    pyramid = submap.pyramid.nbytes if submap.pyramid is not None else 0
+    return pyramid + submap.points.nbytes + submap.seen.mask.nbytes
 
 
 def _same_layout(a: FloatArray, b: FloatArray, tolerance: float) -> bool:
