@@ -414,9 +414,10 @@ class LidarOdometry:
         between scans)."""
         c = self.config
         options = [self._option(level_pts, start, normals)]
-        forward = compose(previous, np.array([self._typical_step, 0.0, 0.0]))
-        motion = (start, predicted, compose(previous, self._last_delta), forward)
+        motion: tuple[FloatArray, ...] = (start,)  # only compared when the search ran
         if c.search_distance > 0 and self._untrusted(options[0][2], dt, previous, start):
+            forward = compose(previous, np.array([self._typical_step, 0.0, 0.0]))
+            motion = (start, predicted, compose(previous, self._last_delta), forward)
             # the next level's endpoints (twice as far apart) on the search level's grid
             points = level_pts[min(c.search_level + 1, c.levels - 1)]
             centre, distance, angle = self._search_window(start, previous)
