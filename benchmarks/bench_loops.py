@@ -171,7 +171,8 @@ def report(case: SimCase, duration: float, seed: int, gap: float, config: SLAMCo
     odo = evaluate(slam.odometry_trajectory(), gt)["ate_rmse_m"]
     med_err = (
         f"{100 * np.median([e[2] for e in true]):.1f} cm / "
-        f"{np.median([e[3] for e in true]):.2f} deg"
+        f"{np.median([e[3] for e in true]):.2f} deg, largest "
+        f"{100 * max(e[2] for e in true):.1f} cm / {max(e[3] for e in true):.2f} deg"
         if true else "-"
     )
     lines = [

@@ -16,7 +16,10 @@ RSS. Reported per input:
   with the cache it filled.
 
     python benchmarks/bench_memory.py [--cases sim-600,sim-3600,freiburg-079,...]
-        [--odometry-only] [--peer] [--interval 0.25]
+        [--odometry-only] [--peer [CASES]] [--interval 0.25] [--no-cold-start]
+
+``--peer`` alone times MRPT icp-slam on every case; with a list, on those cases only (on the
+60 min route icp-slam takes about half an hour).
 
 Writes ``benchmarks/.work/memory/`` (bags, outputs, the RSS series as JSON) and prints a table.
 """
@@ -165,6 +168,19 @@ def peer_realtime(input_path: Path, work: Path) -> float:
     return (stamps[-1] - stamps[0]) / (time.perf_counter() - t0)
 
 
+def rss_over_data(samples, progress, parts: int = 10) -> list[float]:
+    """RSS (MB) when each tenth of the scans had been processed: RSS over the log's time."""
+    if not progress or not samples:
+        return []
+    pt = np.array([p[0] for p in progress])
+    done = np.array([p[1] for p in progress], dtype=float)
+    t = np.array([s[0] for s in samples])
+    rss = np.array([s[1] for s in samples])
+    wanted = np.linspace(0.0, done[-1], parts + 1)
+    at = np.interp(wanted, done, pt)  # wall time at which each share was reached
+    return [round(float(rss[min(np.searchsorted(t, w), t.size - 1)])) for w in at]
+
+
 def measure(name: str, input_path: Path, args: argparse.Namespace) -> dict:
     out = WORK / "runs" / name
     cmd = [*bioslam_cli(), "run", str(input_path), "--out", str(out), "--overwrite"]
@@ -188,8 +204,9 @@ def measure(name: str, input_path: Path, args: argparse.Namespace) -> dict:
         "wall_rt_factor": round(duration / r["wall_s"], 2),
         "wall_over_per_scan_sum": round(r["wall_s"] / compute, 2) if compute else None,
         "ms_per_scan_median": summary.get("ms_per_scan_median"),
+        "rss_by_tenth_mb": rss_over_data(r["samples"], r["progress"]),
     }
-    if args.peer:
+    if args.peer == "all" or name in (args.peer or "").split(","):
         try:
             peer = peer_realtime(input_path, WORK / "peer" / name)
             row["peer_wall_rt_factor"] = round(peer, 2)
@@ -210,6 +227,7 @@ def cold_start(interval: float) -> dict:
         cold = watch(cmd, interval, env)
         warm = watch(cmd, interval, env)
     return {"cold_wall_s": round(cold["wall_s"], 2), "warm_wall_s": round(warm["wall_s"], 2),
+            "compile_s": round(cold["wall_s"] - warm["wall_s"], 2),
             "cold_peak_rss_mb": round(cold["peak_rss_mb"], 1),
             "warm_peak_rss_mb": round(warm["peak_rss_mb"], 1)}  # fmt: skip
 
@@ -218,7 +236,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", default=",".join([*SIM, *LOGS]))
     parser.add_argument("--odometry-only", action="store_true")
-    parser.add_argument("--peer", action="store_true", help="also time MRPT icp-slam")
+    parser.add_argument("--peer", nargs="?", const="all", default=None, metavar="CASES",
+                        help="also time MRPT icp-slam (on these cases only, if given)")
     parser.add_argument("--no-cold-start", action="store_true")
     parser.add_argument("--interval", type=float, default=0.25, help="RSS sampling, seconds")
     args = parser.parse_args()
@@ -243,6 +262,8 @@ def main() -> None:
     print("|" + "---|" * len(keys))
     for row in rows:
         print("| " + " | ".join(str(row.get(k, "")) for k in keys) + " |")
+    for row in rows:
+        print(f"{row['case']}: RSS (MB) at each tenth of the scans {row['rss_by_tenth_mb']}")
     if startup:
         print(f"start-up (bioslam demo --duration 10): {json.dumps(startup)}")
     print(f"load average {os.getloadavg()[0]:.1f}")

@@ -15,10 +15,11 @@ from bioslam.occupancy_grid import MapPyramid, OccupancyGrid, subsample_by_spaci
 from bioslam.sim.warehouse import aisle_centres, warehouse_world
 
 
-def _brute_force_reference(matcher, points, centre):
-    """The lattice optimum and the best distinct local maximum, from every lattice score."""
+def _brute_force_reference(matcher, points, centre, with_pose=False):
+    """The lattice optimum and the best distinct local maximum, from every lattice score
+    (and the optimum's pose: the first maximum in (heading, x, y) order)."""
     cfg = matcher.config
-    scores, (_, _, _, step, _, _, res) = matcher.brute_force_scores(points, centre, pad=1)
+    scores, (x, y, th, step, _, _, res) = matcher.brute_force_scores(points, centre, pad=1)
     # a rival must be a local maximum among all 26 neighbours, also those past the window
     local = scores >= ndimage.maximum_filter(scores, size=3, mode="constant", cval=-1.0)
     inner = scores[1:-1, 1:-1, 1:-1]
@@ -34,7 +35,8 @@ def _brute_force_reference(matcher, points, centre):
         (ix - bx) ** 2 + (iy - by) ** 2 <= zone_cells**2
     )
     rivals = local & ~zone & (inner >= cfg.min_rival_ratio * inner.max())
-    return inner.max(), (inner[rivals].max() if rivals.any() else 0.0)
+    found = inner.max(), (inner[rivals].max() if rivals.any() else 0.0)
+    return (*found, np.array([x + bx * res, y + by * res, th + bj * step])) if with_pose else found
 
 
 def test_branch_and_bound_equals_brute_force_on_random_maps_and_windows():
@@ -61,8 +63,8 @@ def test_branch_and_bound_equals_brute_force_on_random_maps_and_windows():
         crop = (*(centre[:2] - half), *(centre[:2] + half[::-1]))
         matcher.set_map(grid, crop if rng.random() < 0.5 else None)
         found = matcher.search(points, centre)
-        best, rival = _brute_force_reference(matcher, points, centre)
-        assert found.score == best
+        best, rival, pose = _brute_force_reference(matcher, points, centre, with_pose=True)
+        assert found.score == best and np.array_equal(found.pose, pose)
         assert found.rival_score == rival
         assert (found.rival_pose is None) == (rival == 0.0)
         # a hint (a pose believed good) does not change the answer
@@ -104,6 +106,31 @@ def test_branch_and_bound_equals_brute_force_in_a_repetitive_warehouse(beams, fo
         assert found.nodes < 0.2 * np.prod(found.lattice) * found.lattice[1]
         hinted = matcher.search(points, start, truth)
         assert hinted.score == best and hinted.rival_score == rival
+
+
+def test_equal_scores_give_the_brute_force_first_maximum_and_its_rival():
+    # A plateau: uniform wall blocks and no blur, so that many poses score exactly alike.
+    # Which of them wins decides where the rival may be; the search keeps the first in
+    # (heading, x, y) order, as a brute force's first maximum, whatever order it met them in.
+    rng = np.random.default_rng(11)
+    for _ in range(30):
+        grid = OccupancyGrid(0.1, 8.0)
+        for _ in range(int(rng.integers(1, 4))):
+            r, c = rng.integers(0, 70, 2)
+            grid.weights[r : r + rng.integers(2, 10), c : c + rng.integers(2, 10)] = 0.5
+        points = rng.uniform(-2, 2, (int(rng.integers(1, 12)), 2))
+        centre = np.array([*rng.uniform(-1, 1, 2), rng.uniform(-math.pi, math.pi)])
+        cfg = WideBasinConfig(
+            distance=rng.uniform(0.1, 0.6), angle=rng.uniform(0.0, 0.4), blur=0,
+            rival_distance=rng.uniform(0.0, 0.4), rival_angle=rng.uniform(0.0, 0.2),
+            min_rival_ratio=rng.uniform(0.0, 0.9), depth=int(rng.integers(0, 4)),
+        )  # fmt: skip
+        matcher = WideBasinMatcher(cfg)
+        matcher.set_map(grid)
+        found = matcher.search(points, centre)
+        best, rival, pose = _brute_force_reference(matcher, points, centre, with_pose=True)
+        assert found.score == best and np.array_equal(found.pose, pose)
+        assert found.rival_score == rival
 
 
 def _mapped(world, poses, beams=361, fov=1.5 * np.pi, size=24.0):

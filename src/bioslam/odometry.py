@@ -174,15 +174,17 @@ class OdometryConfig:
             fixed 0.5 m limit turns every correct step into a "jump" (intel: RPE 75 -> 46 cm
             with the through-wall evidence below); a 40 Hz scanner's misses are millimetres
             and the fixed limits hold.
-        wall_logodds, through_margin: where the odometry compares matches (the search
-            ran), each is also charged the fraction of its beams that cross a cell above
-            ``wall_logodds`` (about one hit more than misses) before ``through_margin``
-            metres short of their endpoint (range noise, the endpoint's own wall): a scan
-            placed a metre off along a corridor sees through the walls around a side door or
-            past the corridor's end, while its endpoints still score as well as at the true
-            pose (:meth:`bioslam.occupancy_grid.OccupancyGrid.fraction_through_walls`).
-            More than ``recovery_free_fraction`` of them rejects a match like endpoints in
-            free space do.
+        wall_logodds, through_margin, recovery_through_fraction: where the odometry
+            compares matches (the search ran), each is also charged the fraction of its
+            beams that cross a cell above ``wall_logodds`` (hit more often than missed)
+            before ``through_margin`` metres short of their endpoint (range noise, beams
+            grazing the endpoint's own wall): a scan placed a metre off along a corridor
+            sees through the walls around a side door or past the corridor's end, while its
+            endpoints still score as well as at the true pose
+            (:meth:`bioslam.occupancy_grid.OccupancyGrid.fraction_through_walls`). More than
+            ``recovery_through_fraction`` rejects a match as endpoints in free space do (at
+            the reference poses: median 0.05-0.09, 99th percentile 0.34 on freiburg-079
+            thinned to 0.5 m; wrong matches on intel 0.3-0.9).
         log_odds: hit/miss increments of the map cells.
     """
 
@@ -226,8 +228,9 @@ class OdometryConfig:
     overwhelming_ratio: float = 0.7
     jump_factor: float = 2.0
     miss_percentile: float = 90.0
-    wall_logodds: float = 1.5
-    through_margin: float = 0.3
+    wall_logodds: float = 3.0
+    through_margin: float = 0.5
+    recovery_through_fraction: float = 0.4
     score_window: int = 100
     log_odds: LogOddsConfig = field(default_factory=LogOddsConfig)
 
@@ -286,8 +289,9 @@ class LidarOdometry:
         self._last_stamp: float | None = None
         self._history: deque[tuple[float, FloatArray]] = deque()
         self._scores: deque[float] = deque(maxlen=self.config.score_window)
-        self._misses: deque[tuple[float, float]] = deque(maxlen=self.config.score_window)
+        self._misses: deque[tuple[float, float, float]] = deque(maxlen=self.config.score_window)
         self._typical_miss = (0.0, 0.0)
+        self._typical_step = 0.0
         self._typical_score = 0.0
         self._num_scores = 0
         self._last_inserted: FloatArray | None = None
@@ -401,17 +405,24 @@ class LidarOdometry:
     ) -> tuple[FloatArray, MatchReport]:
         """Eq. 3 from ``start`` (the motion model's prior, :meth:`_best_start`); when that
         cannot be trusted (:meth:`_untrusted`), also from the wide-basin search's winner and
-        its rival, keeping the plausible match nearest ``start`` (:meth:`_choose`). When
+        its rival and from the other motion hypotheses (the constant-velocity prediction,
+        the last step repeated, the typical step straight on: after a turn on the spot in
+        a log thinned to a scan per metre the first two say "turning", the last "a metre
+        on"), keeping the plausible match nearest ``start`` (:meth:`_choose`). When
         every match so found sees through walls, the search is repeated for a turn of about
         ``2 * search_angle`` either way from ``previous`` (thinned logs turn up to 80°
         between scans)."""
         c = self.config
         options = [self._option(level_pts, start, normals)]
+        motion: tuple[FloatArray, ...] = (start,)  # only compared when the search ran
         if c.search_distance > 0 and self._untrusted(options[0][2], dt, previous, start):
+            forward = compose(previous, np.array([self._typical_step, 0.0, 0.0]))
+            motion = (start, predicted, compose(previous, self._last_delta), forward)
             # the next level's endpoints (twice as far apart) on the search level's grid
             points = level_pts[min(c.search_level + 1, c.levels - 1)]
             centre, distance, angle = self._search_window(start, previous)
             seeds = self._search_seeds(points, centre, distance, angle, options[0][0])
+            seeds += self._distinct_hypotheses(motion)
             options += [self._option(level_pts, seed, normals) for seed in seeds]
             self._weigh_walls(options, level_pts[0])
             if all(o[2] or self._rejected(o[1]) for o in options):
@@ -422,9 +433,8 @@ class LidarOdometry:
                 self._weigh_walls(options, level_pts[0])
         jump = self._jump_limits()
         reach = (jump[0] + c.max_speed * dt, jump[1] + c.max_turn_rate * dt)
-        motion = (start, predicted, compose(previous, self._last_delta))
         pose, report = self._choose(options, motion, previous, reach, jump)
-        self._remember_miss(between(start, pose))
+        self._remember_miss(between(start, pose), between(previous, pose))
 
         report.iterations = sum(option[1].iterations for option in options)
         self._remember_score(report.score)
@@ -450,10 +460,20 @@ class LidarOdometry:
                 )
 
     def _rejected(self, report: MatchReport) -> bool:
-        """More endpoints in known free space, or more beams through known walls, than
-        ``recovery_free_fraction``: a wrong pose, whatever its score."""
-        limit = self.config.recovery_free_fraction
-        return report.free_fraction > limit or report.through_fraction > limit
+        """More endpoints in known free space than ``recovery_free_fraction``, or more
+        beams through known walls than ``recovery_through_fraction``: a wrong pose,
+        whatever its score."""
+        c = self.config
+        return (
+            report.free_fraction > c.recovery_free_fraction
+            or report.through_fraction > c.recovery_through_fraction
+        )
+
+    def _clean(self, report: MatchReport) -> bool:
+        """Little negative evidence of either kind: at most ``recovery_free_fraction`` of
+        endpoints in free space and beams through walls together."""
+        c = self.config
+        return report.free_fraction + report.through_fraction <= c.recovery_free_fraction
 
     def _untrusted(self, failed: bool, dt: float, previous: FloatArray, start: FloatArray) -> bool:
         """The match failed, the scan came after a gap, or the predicted step is large."""
@@ -512,16 +532,19 @@ class LidarOdometry:
         must be overwhelming (``overwhelming_ratio``). Flags the report ambiguous
         when a plausible match lies elsewhere, recovered when it is not the first match."""
         c = self.config
-        prior = motion[0]
         first = options[0]
         if len(options) == 1:
             return first[0], first[1]
         quality = {id(o): _match_quality(o[1]) for o in options}
-        pool = [o for o in options if not self._rejected(o[1])] or options
+        pool = (
+            [o for o in options if not (o[2] or self._rejected(o[1]))]
+            or [o for o in options if not self._rejected(o[1])]
+            or options
+        )
         best = max(quality[id(o)] for o in pool)
         floor = best - (1.0 - c.plausible_ratio) * abs(best)  # quality can be negative
         plausible = [o for o in pool if quality[id(o)] >= floor]
-        nearest = min(plausible, key=lambda o: self._pose_distance(o[0], prior))
+        nearest = min(plausible, key=lambda o: self._pose_distance(o[0], motion[0]))
         basin = [o for o in plausible if not self._distinct(o[0], nearest[0])]
         chosen = max(basin, key=lambda o: quality[id(o)])
         ambiguous = len(basin) < len(plausible)
@@ -530,15 +553,24 @@ class LidarOdometry:
             if not first[2] and q_first > c.overwhelming_ratio * quality[id(chosen)]:
                 chosen, ambiguous = first, True  # a look-alike, not overwhelming evidence
             elif self._beyond(chosen[0], previous, reach) and not (
-                self._rejected(first[1]) and not self._rejected(chosen[1])
+                self._rejected(first[1]) and self._clean(chosen[1])
             ):
                 # farther than the robot can have moved since the last scan (logged stamps
-                # jitter: a clean match against a prediction that sees through walls wins)
+                # jitter: a clean match wins over a prediction rejected by the map)
                 chosen = first
         pose, report = chosen[0], chosen[1]
         report.recovered = chosen is not first
         report.ambiguous = ambiguous
         return pose, report
+
+    def _distinct_hypotheses(self, motion: tuple[FloatArray, ...]) -> list[FloatArray]:
+        """The motion hypotheses after the first (the start, already matched from) that
+        are distinct from it and from each other: Gauss-Newton starts from each too."""
+        kept = [motion[0]]
+        for m in motion[1:]:
+            if all(self._distinct(m, k) for k in kept):
+                kept.append(m)
+        return kept[1:]
 
     def _pose_distance(self, a: FloatArray, b: FloatArray) -> float:
         d = between(a, b)
@@ -593,14 +625,20 @@ class LidarOdometry:
         step = max(self.config.score_window // 10, 1)
         return self._num_scores <= step or self._num_scores % step == 0
 
-    def _remember_miss(self, miss: FloatArray) -> None:
+    def _remember_miss(self, miss: FloatArray, step: FloatArray) -> None:
         """Keep the last ``score_window`` differences between the motion model's start and
-        the match kept (metres, radians): their ``miss_percentile``-th percentiles are the
-        motion model's typical error (refreshed as the scores' median is)."""
-        self._misses.append((math.hypot(miss[0], miss[1]), abs(miss[2])))
+        the match kept (metres, radians), and steps: the misses' ``miss_percentile``-th
+        percentiles are the motion model's typical error, the median of the steps longer
+        than half that percentile of the step lengths the typical step forward (a thinned
+        log keeps a scan per metre or per tens of degrees of turn: its steps are about a
+        metre or about none). Refreshed as the scores' median is."""
+        self._misses.append((math.hypot(miss[0], miss[1]), abs(miss[2]), math.hypot(*step[:2])))
         if self._refresh_due():
-            misses = np.percentile(np.array(self._misses), self.config.miss_percentile, axis=0)
+            record = np.array(self._misses)
+            misses = np.percentile(record, self.config.miss_percentile, axis=0)
             self._typical_miss = (float(misses[0]), float(misses[1]))
+            lengths = record[:, 2]
+            self._typical_step = float(np.median(lengths[lengths >= 0.5 * misses[2]]))
 
     def _score_at(self, pose: FloatArray, points: FloatArray) -> float:
         """Mean M* of ``points`` at ``pose`` on the finest level (the first scan's score on

@@ -29,6 +29,7 @@ from bioslam.io.jsonio import write_json
 from bioslam.io.mapfile import OccupancyImage, write_map
 from bioslam.io.outdir import OutputDir
 from bioslam.io.tum import write_tum
+from bioslam.memory import release_free_memory
 from bioslam.occupancy_grid import OccupancyGrid
 from bioslam.odometry import LidarOdometry, register_scans
 from bioslam.scan import LaserScan
@@ -63,6 +64,10 @@ class RunOptions:
             scans, so that Numba's compilation (first run after installing) or loading of
             its cache is not billed to the first scans of the log (``startup_s`` in the
             summary says what it took).
+        release: once :func:`write_results` has the trajectories and the summary, it drops
+            the system's per-scan working memory (``BioSLAM.release``) and, once the map is
+            drawn, the kept scans, so that the figures are drawn in that much less memory;
+            for commands that are done with the system after writing.
     """
 
     odometry_only: bool = False
@@ -74,6 +79,7 @@ class RunOptions:
     map_point_spacing: float = 0.025
     snapshot_tolerance: float = 1.0
     warm_up: bool = True
+    release: bool = False
 
 
 class OdometryOnly:
@@ -84,6 +90,7 @@ class OdometryOnly:
         self._stamps = GrowingArray(np.float64)
         self._poses = GrowingArray(np.float64, 3)
         self.records: list[StepRecord] = []
+        self._released: dict[str, int] | None = None
 
     @property
     def odometry(self) -> LidarOdometry:
@@ -110,7 +117,15 @@ class OdometryOnly:
         """Nothing to settle: the odometry is final as it goes."""
 
     def summary(self) -> dict[str, int]:
+        if self._released is not None:
+            return dict(self._released)
         return {"views": 0, "experiences": 0, "loop_closures": 0, **self.odometry.summary()}
+
+    def release(self) -> None:
+        """After the last scan: drop the odometry's local map (see :meth:`BioSLAM.release`)."""
+        if self._released is None:
+            self._released = self.summary()
+        self.self_motion.odometry = None  # type: ignore[assignment]
 
 
 class KeyframeScans:
@@ -199,12 +214,11 @@ def cognitive_map_snapshot(system: BioSLAM, elapsed: float) -> Snapshot:
 def warm_up(config: SLAMConfig, odometry_only: bool = False) -> float:
     """Run every compiled kernel once: the system on a second of the simulated maze, then
     what a loop closure adds; returns the seconds it took."""
-    from bioslam.sim import LIDAR_PRESETS, make_route, maze_world, simulate_scans
+    from bioslam.sim import LIDAR_PRESETS, maze_world, simulate_scans
 
     started = time.perf_counter()
     world = maze_world()
-    route = make_route(world, duration=1.0, seed=0)
-    scans = [scan for scan, _ in simulate_scans(world, LIDAR_PRESETS["utm30lx"], route)]
+    scans = [scan for scan, _ in simulate_scans(world, LIDAR_PRESETS["utm30lx"], _drive(world))]
     system = OdometryOnly(config) if odometry_only else BioSLAM(config)
     try:
         for scan in scans:
@@ -218,6 +232,20 @@ def warm_up(config: SLAMConfig, odometry_only: bool = False) -> float:
     except Exception:
         pass  # a configuration the maze does not suit: the run then compiles as it goes
     return time.perf_counter() - started
+
+
+def _drive(world: Any, seconds: float = 1.0, speed: float = 0.5) -> Any:
+    """A straight drive along the first corridor of ``world``'s roadmap (a hand-made route:
+    the route planner would import SciPy, which a run without loop closures never needs)."""
+    from bioslam.sim import Route
+
+    nodes = world.roadmap.nodes
+    a, b = world.roadmap.edges[0]
+    along = nodes[b] - nodes[a]
+    heading = math.atan2(along[1], along[0])
+    end = nodes[a] + along * min(1.0, speed * seconds / float(np.hypot(*along)))
+    poses = np.array([[*nodes[a], heading], [*end, heading]])
+    return Route(np.array([0.0, seconds]), poses)
 
 
 def _close_a_square(config: SLAMConfig) -> None:
@@ -392,6 +420,8 @@ def write_results(
             out.save("cognitive_map.json", write_json, system.cognitive_map.to_dict())
         if gt is not None and len(trajectory) > 1:
             gt = _evaluate_into(summary, trajectory, odometry, gt)
+    if options.release:
+        system.release()
     if len(trajectory):
         _write_map_and_figures(result, out, trajectory, odometry, gt, options, summary)
     if result.interrupted or signals.received() is not None:
@@ -437,6 +467,9 @@ def _write_map_and_figures(
     try:
         with signals.interruptible():
             image = render_map(result, trajectory, options.map_resolution)
+            if options.release:
+                result.keyframes = KeyframeScans(result.map_max_range)
+                release_free_memory()
             out.write(["map.pgm", "map.yaml"], lambda: write_map(out.path, image))
             _write_figures(result, out, trajectory, odometry, gt, image)
     except KeyboardInterrupt:
@@ -460,6 +493,7 @@ def _write_figures(
 
     def draw(name: str, plot: Any, *args: Any) -> None:
         out.save(f"figures/{name}", plot, *args)
+        release_free_memory()  # the next figure is drawn on what this one left (module doc)
 
     draw("map.png", figures.plot_occupancy, image, trajectory.poses[:, :2])
     if not isinstance(system, BioSLAM):

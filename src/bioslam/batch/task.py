@@ -190,7 +190,9 @@ def _run(task: Task, log_path: Path, out_path: Path) -> dict[str, Any]:
     out = OutputDir(out_path, command=["bioslam", "batch", task.log_path, point.config_id])
     out.prepare()
     scans = source if point.max_scans is None else islice(source, point.max_scans)
-    options = RunOptions(odometry_only=point.mode == "odometry-only", progress=False)
+    options = RunOptions(
+        odometry_only=point.mode == "odometry-only", progress=False, release=True
+    )
     result = run_slam(scans, config, options)
     if task.reference is not None:
         reference, reference_name = task.reference, task.reference_name

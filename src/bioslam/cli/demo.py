@@ -112,7 +112,7 @@ def demo_command(args: argparse.Namespace) -> dict[str, Any]:
             stopped = True  # no run: write the (empty) results, marked interrupted
         options = RunOptions(
             progress=not args.no_progress and not stopped, warm_up=not stopped,
-            snapshot_times=snapshot_times(route.duration),
+            snapshot_times=snapshot_times(route.duration), release=True,
         )
         scans = (scan for scan, _ in simulate_scans(world, lidar, route, seed=args.seed))
         with session:

@@ -83,7 +83,9 @@ def run_command(args: argparse.Namespace) -> dict[str, Any]:
     needed = expected_output_bytes(input_bytes=path_bytes(args.input))
     out = open_output(args.out, args.overwrite, needed, getattr(args, "argv", []))
     with signals.protected():
-        options = RunOptions(odometry_only=args.odometry_only, progress=not args.no_progress)
+        options = RunOptions(
+            odometry_only=args.odometry_only, progress=not args.no_progress, release=True
+        )
         with session:
             result = run_slam(source, config, options, observer=session.observer)
             session.finish(result.system)

@@ -56,7 +56,9 @@ TRUNCATED = "truncated or corrupt part of the file (reading stopped there, or re
 DAMAGED = "scan record lost in a damaged part of the file"
 
 #: Range bytes of a log kept from the planning pass for the first iteration (above: parsed twice).
-REPLAY_BUDGET_BYTES = 256 * 2**20
+#: Small, because what is kept stays resident until the run has read it: the 600 s simulated
+#: route (24,000 scans of 1081 beams) would keep 106 MB; reading it twice costs about 1 s.
+REPLAY_BUDGET_BYTES = 32 * 2**20
 _SCAN, _SKIP, _ODOMETRY = 0, 1, 2
 
 

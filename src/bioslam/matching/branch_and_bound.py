@@ -121,7 +121,10 @@ class WideMatch:
     """The result of :meth:`WideBasinMatcher.search`.
 
     Attributes:
-        pose: the best lattice pose (x, y, theta) in the map frame.
+        pose: the best lattice pose (x, y, theta) in the map frame; among poses scoring
+            exactly alike the first in (heading, x, y) order, as a brute force's first
+            maximum (the rival, defined relative to it, then does not depend on the order
+            the search met them in).
         score: its mean map value over the endpoints (1: every endpoint on a certain wall).
         rival_pose: the best local maximum farther than the rival distance/angle from
             ``pose``, or ``None`` when none scores at least ``min_rival_ratio * score``.
@@ -467,7 +470,8 @@ def _search(levels, pts, args, nt, nx, dims, rival):
     winner covers the whole window): nodes wholly inside the winner's zone (``rival[0]``
     cells, ``rival[1]`` headings) are dropped, and the first leaf on top that is a local
     maximum outside it is the best rival, if it scores more than the floor (``rival[2]``
-    of the winner).
+    of the winner). Of leaves scoring exactly alike, each phase keeps the first in
+    (j, ix, iy) order.
 
     Returns (score, j, ix, iy, rival score, rj, rx, ry, nodes); rj is ``nt + 1`` without a
     rival."""
@@ -502,45 +506,62 @@ def _search(levels, pts, args, nt, nx, dims, rival):
                 )
     nodes = n
     zone = np.zeros(5, dtype=np.int64)
-    score = -1.0
-    bj = nt + 1
-    bx = 0
-    by = 0
+    found = np.full((2, 4), -1.0)  # (score, j, ix, iy) of the winner, then of the rival
     floor = -np.inf
-    rival_score = -1.0
-    rj = nt + 1
-    rx = 0
-    ry = 0
+    chosen = -1  # the leaf of the phase, the first in (j, ix, iy) order among its equals
+    held = np.empty(16, dtype=np.int64)  # the winner's equals, pushed back for the rival
+    n_held = 0
     phase = 0
-    while size > 0:
+    while phase < 2:
+        if size == 0 or (chosen >= 0 and heap_b[0] < pool_b[chosen]) or heap_b[0] <= floor:
+            # no node left can hold a leaf scoring as much as the chosen one
+            if chosen >= 0:
+                found[phase, 0] = pool_b[chosen]
+                found[phase, 1:] = pool_k[chosen, 0], pool_k[chosen, 2], pool_k[chosen, 3]
+            if phase == 1 or chosen < 0:
+                break
+            for t in range(n_held):
+                size = _heap_push(heap_b, heap_n, size, pool_b[held[t]], held[t])
+            zone[0] = pool_k[chosen, 0]
+            zone[1] = pool_k[chosen, 2]
+            zone[2] = pool_k[chosen, 3]
+            zone[3] = int(rival[0])
+            zone[4] = int(rival[1])
+            low = max(rival[2] * pool_b[chosen], 0.0)
+            floor = np.nextafter(low, -np.inf) if low > 0 else -1.0
+            chosen = -1
+            phase = 1
+            continue
         q = _heap_pop(heap_b, heap_n, size)
         size -= 1
-        b = pool_b[q]
         j = pool_k[q, 0]
         h = pool_k[q, 1]
         ix = pool_k[q, 2]
         iy = pool_k[q, 3]
-        if phase == 1:
-            if b <= floor:
-                break
-            if _in_zone(j, ix, iy, 1 << h, zone):
-                continue
+        if phase == 1 and _in_zone(j, ix, iy, 1 << h, zone):
+            continue
         if h == 0:
-            if phase == 0:
-                # the first leaf popped scores at least every bound left: the optimum
-                score, bj, bx, by = b, j, ix, iy
-                zone[0] = j
-                zone[1] = ix
-                zone[2] = iy
-                zone[3] = int(rival[0])
-                zone[4] = int(rival[1])
-                low = max(rival[2] * score, 0.0)
-                floor = np.nextafter(low, -np.inf) if low > 0 else -1.0
-                phase = 1
+            # a leaf on top scores at least every bound left: the best (or, outside the
+            # winner's zone and a local maximum, the best rival); its equals still on the
+            # heap are taken too, and the first in (j, ix, iy) order is kept, as a brute
+            # force's first maximum, whatever order the search met them in
+            if phase == 1 and not _local_maximum(
+                levels, table, j + nh, pool_b[q], ix, iy, rows, cols, stride
+            ):
                 continue
-            if _local_maximum(levels, table, j + nh, b, ix, iy, rows, cols, stride):
-                rival_score, rj, rx, ry = b, j, ix, iy
-                break
+            if chosen < 0 or (j, ix, iy) < (
+                pool_k[chosen, 0],
+                pool_k[chosen, 2],
+                pool_k[chosen, 3],
+            ):
+                q, chosen = chosen, q
+            if q >= 0 and phase == 0:
+                if n_held == held.shape[0]:
+                    more = np.empty(2 * n_held, dtype=np.int64)
+                    more[:n_held] = held
+                    held = more
+                held[n_held] = q
+                n_held += 1
             continue
         half = 1 << (h - 1)
         m = 0
@@ -561,10 +582,14 @@ def _search(levels, pts, args, nt, nx, dims, rival):
         nodes += m
         pool_b, pool_k, heap_b, heap_n = _grown(pool_b, pool_k, heap_b, heap_n, n + m)
         for t in range(m):
-            if phase == 0 or out[t] > floor:
+            if out[t] > floor:
                 n, size = _open(
                     pool_b, pool_k, heap_b, heap_n, n, size, out[t], j, h - 1, xs[t], ys[t]
                 )
+    score, bj, bx, by = found[0, 0], int(found[0, 1]), int(found[0, 2]), int(found[0, 3])
+    rival_score, rj, rx, ry = found[1, 0], int(found[1, 1]), int(found[1, 2]), int(found[1, 3])
+    if rival_score < 0.0:
+        rj = nt + 1
     return score, bj, bx, by, rival_score, rj, rx, ry, nodes
 
 

@@ -11,10 +11,25 @@ import math
 
 import numba
 import numpy as np
-from scipy import ndimage
 
 from bioslam.matching.gauss_newton import FloatArray, grid_args, summed_map
 from bioslam.occupancy_grid import OccupancyGrid
+
+
+def neighbourhood_max(values: FloatArray) -> FloatArray:
+    """The largest value of each element's 3 x 3 (x 3 ...) neighbourhood, edges repeated
+    outwards: SciPy's ``maximum_filter(size=3, mode="nearest")``, one axis at a time (a
+    maximum is exact in any order), without importing SciPy for it. On booleans it is a
+    dilation by one cell (SciPy's ``binary_dilation`` with a 3 x 3 structure)."""
+    out = values
+    for axis in range(values.ndim):
+        n = values.shape[axis]
+        padded = np.concatenate(
+            [out.take([0], axis=axis), out, out.take([n - 1], axis=axis)], axis=axis
+        )
+        left, mid, right = (padded.take(np.arange(k, k + n), axis=axis) for k in range(3))
+        out = np.maximum(np.maximum(left, mid), right)
+    return out
 
 
 @numba.njit(cache=True)
@@ -57,7 +72,7 @@ def lattice_search(
     if peaks == 1:
         best = np.array([np.argmax(scores)])
     else:
-        local = scores == ndimage.maximum_filter(scores, size=3, mode="nearest")
+        local = scores == neighbourhood_max(scores)
         flat = np.flatnonzero(local)
         best = flat[np.argsort(-scores.ravel()[flat], kind="stable")[:peaks]]
     it, ix, iy = np.unravel_index(best, scores.shape)

@@ -15,7 +15,6 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
-from scipy.ndimage import gaussian_filter1d
 
 from bioslam.geometry import wrap_angle
 from bioslam.sim.world import Roadmap, World
@@ -285,6 +284,8 @@ def _speed_profile(
 
 def smoothed_path(dense: NDArray, cfg: RouteConfig) -> NDArray:
     """The path low-pass filtered (continuous curvature), repeated samples dropped."""
+    from scipy.ndimage import gaussian_filter1d  # SciPy only when a route is planned
+
     xy = gaussian_filter1d(dense, cfg.smoothing / cfg.step, axis=0, mode="nearest")
     seg = np.hypot(*np.diff(xy, axis=0).T)
     keep = np.concatenate([[True], seg > 1e-9])

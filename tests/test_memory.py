@@ -1,0 +1,167 @@
+"""What keeps a run's memory small: the modules it imports, the log it keeps, the figure's
+working copies. (How much memory a run takes is measured by benchmarks/bench_memory.py.)"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+import bioslam.io.logs as logs
+from bioslam.matching.correlative import neighbourhood_max
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+
+@pytest.mark.parametrize("shape", [(7,), (1, 5), (4, 1), (3, 4, 5), (1, 1, 1), (2, 9, 6)])
+def test_neighbourhood_max_is_scipys_maximum_filter(shape):
+    rng = np.random.default_rng(len(shape) * 10 + shape[-1])
+    # few distinct values: ties everywhere, the case where a local maximum is ambiguous
+    values = rng.integers(0, 4, size=shape).astype(np.float64)
+    expected = ndimage.maximum_filter(values, size=3, mode="nearest")
+    np.testing.assert_array_equal(neighbourhood_max(values), expected)
+    smooth = rng.normal(size=shape)
+    np.testing.assert_array_equal(
+        neighbourhood_max(smooth), ndimage.maximum_filter(smooth, size=3, mode="nearest")
+    )
+
+
+def test_neighbourhood_max_of_booleans_is_a_binary_dilation():
+    rng = np.random.default_rng(3)
+    for shape in [(1, 1), (5, 1), (12, 17)]:
+        mask = rng.random(shape) < 0.1
+        expected = ndimage.binary_dilation(mask, np.ones((3, 3), dtype=bool))
+        got = neighbourhood_max(mask)
+        assert got.dtype == bool
+        np.testing.assert_array_equal(got, expected)
+
+
+def test_a_run_without_loop_closures_imports_neither_scipy_nor_matplotlib():
+    """The odometry's warm-up and scan loop, then what a loop closure adds: SciPy arrives
+    only with the map's first solve (20-25 MB that a run never closing a loop does not pay)."""
+    script = """
+import json, sys
+from bioslam.config import SLAMConfig
+from bioslam.pipeline import RunOptions, run_slam, warm_up
+from bioslam.sim import LIDAR_PRESETS, maze_world, simulate_scans
+from bioslam.pipeline import _drive
+warm_up(SLAMConfig(), odometry_only=True)
+world = maze_world()
+scans = [s for s, _ in simulate_scans(world, LIDAR_PRESETS["sick"], _drive(world, 2.0))]
+result = run_slam(scans, SLAMConfig(), RunOptions(odometry_only=True, progress=False,
+                                                  warm_up=False))
+HEAVY = ("scipy.sparse", "scipy.ndimage", "matplotlib")  # Numba loads scipy.linalg's BLAS
+def heavy():
+    return sorted({m.split(".")[0] for m in sys.modules if m.startswith(HEAVY)})
+before = heavy()
+warm_up(SLAMConfig())
+after = heavy()
+print(json.dumps([result.system.num_scans, before, after]))
+"""
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         env=env, check=True)  # fmt: skip
+    scans, before, after = json.loads(out.stdout.strip().splitlines()[-1])
+    assert scans > 10
+    assert before == []
+    assert after == ["scipy"]  # the full warm-up closes a loop
+
+
+def _carmen_log(path: Path) -> Path:
+    """Scans with odometry between them, one late stamp (repaired) and a malformed record."""
+    lines = []
+    for k in range(30):
+        stamp = 100.0 + 0.1 * k + (5.0 if k == 12 else 0.0)
+        ranges = " ".join(f"{2.0 + 0.01 * ((k + b) % 7):.3f}" for b in range(9))
+        lines.append(f"FLASER 9 {ranges} 0 0 0 0 0 0 {stamp:.3f} host {stamp:.3f}\n")
+        lines.append(f"ODOM {0.05 * k:.3f} 0 0 0 0 0 {stamp + 0.05:.3f} host {stamp + 0.05:.3f}\n")
+        if k == 20:
+            lines.append("FLASER 9 1 2 3\n")
+    path.write_text("".join(lines))
+    return path
+
+
+def _read(path: Path) -> tuple:
+    source = logs.open_log(path)
+    scans = [(scan.stamp, scan.ranges.tobytes()) for scan in source]
+    return scans, source.skipped, source.odometry, source.time_source
+
+
+@pytest.mark.parametrize("budget", [0, 2000])
+def test_a_log_longer_than_the_replay_budget_reads_the_same(tmp_path, monkeypatch, budget):
+    """A log whose planning pass is not kept (all of it, or past the first records) is parsed
+    again: the scans, stamps, repairs, skips and odometry are those of the replayed read."""
+    path = _carmen_log(tmp_path / "a.log")
+    scans, skipped, odometry, source = _read(path)
+    assert len(scans) == 30 and skipped and "repaired" in source
+    monkeypatch.setattr(logs, "REPLAY_BUDGET_BYTES", budget)
+    again, skipped_again, odometry_again, source_again = _read(path)
+    assert again == scans
+    assert skipped_again == skipped and source_again == source
+    np.testing.assert_array_equal(odometry_again.stamps, odometry.stamps)
+    np.testing.assert_array_equal(odometry_again.poses, odometry.poses)
+
+
+TIMING = {"wall_s", "startup_s", "realtime_factor", "ms_per_scan_median", "ms_per_scan_p99"}
+
+
+@pytest.mark.parametrize("odometry_only", [False, True])
+def test_releasing_the_working_memory_writes_the_same_results(tmp_path, odometry_only):
+    """``RunOptions.release`` drops the system's per-scan state before the map and figures:
+    every output is that of a run that kept it."""
+    from loop_world import ring_route, ring_world
+
+    from bioslam.pipeline import RunOptions, run_slam, write_results
+    from bioslam.sim import LIDAR_PRESETS, simulate_scans
+
+    pairs = simulate_scans(ring_world(), LIDAR_PRESETS["urg04lx"], ring_route(laps=0.6), seed=1)
+    scans = [scan for scan, _ in pairs]
+    options = RunOptions(progress=False, odometry_only=odometry_only)
+    result = run_slam(scans, options=options)
+    kept = write_results(result, tmp_path / "kept", options=options)
+    released_options = RunOptions(progress=False, odometry_only=odometry_only, release=True)
+    released = write_results(result, tmp_path / "released", options=released_options)
+    assert result.system.self_motion.odometry is None and len(result.keyframes) == 0
+    assert {k: v for k, v in released.items() if k not in TIMING} == {
+        k: v for k, v in kept.items() if k not in TIMING
+    }
+    names = ["trajectory.tum", "odometry.tum", "map.pgm", "map.yaml"]
+    names += [] if odometry_only else ["cognitive_map.json"]
+    for name in names:
+        released_bytes = (tmp_path / "released" / name).read_bytes()
+        assert released_bytes == (tmp_path / "kept" / name).read_bytes(), name
+    figures = sorted(p.name for p in (tmp_path / "kept" / "figures").iterdir())
+    assert figures == sorted(p.name for p in (tmp_path / "released" / "figures").iterdir())
+    assert len(figures) >= (1 if odometry_only else 3)
+
+
+def test_the_submap_cache_keeps_at_most_its_bytes_and_rebuilds_the_same():
+    from bioslam.closure import SubmapCache
+    from bioslam.config import LoopClosureConfig
+
+    side = np.linspace(-3.0, 3.0, 120)
+    room = np.concatenate([np.column_stack([side, np.full_like(side, v)]) for v in (-3, 3)]
+                          + [np.column_stack([np.full_like(side, v), side]) for v in (-3, 3)])
+    poses = np.array([(0.3 * k, 0.1 * k, 0.05 * k) for k in range(6)])
+    rng = np.random.default_rng(4)
+    payloads = [(room - p[:2] + rng.normal(0, 0.01, room.shape)).astype(np.float32)
+                for p in poses]  # fmt: skip
+    config = LoopClosureConfig()
+    unbounded = SubmapCache(max_bytes=2**40)
+    one = unbounded.get(poses, payloads, 1, range(3), config)
+    size = unbounded._bytes
+    assert size > 0
+    cache = SubmapCache(max_bytes=int(1.5 * size))
+    first = cache.get(poses, payloads, 1, range(3), config)
+    cache.get(poses, payloads, 4, range(3, 6), config)  # evicts the first
+    assert len(cache._items) == 1 and cache._bytes <= 1.5 * size
+    again = cache.get(poses, payloads, 1, range(3), config)
+    assert again is not first and cache.builds == 3 and cache.hits == 0
+    np.testing.assert_array_equal(again.points, one.points)
+    np.testing.assert_array_equal(again.seen.mask, one.seen.mask)
