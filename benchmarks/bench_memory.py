@@ -226,7 +226,8 @@ def measure(name: str, input_path: Path, args: argparse.Namespace) -> dict:
 def cold_start(interval: float) -> dict:
     """``bioslam demo --duration 10`` with an empty Numba cache, then with the one it filled."""
     with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as out:
-        cmd = [*bioslam_cli(), "demo", "--duration", "10", "--no-progress", "--out", out]
+        cmd = [*bioslam_cli(), "demo", "--duration", "10", "--no-progress", "--overwrite",
+               "--out", out]
         env = {"NUMBA_CACHE_DIR": cache}
         cold = watch(cmd, interval, env)
         warm = watch(cmd, interval, env)
