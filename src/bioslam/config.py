@@ -81,7 +81,8 @@ class LoopClosureConfig:
             4.06 / 3.45, warehouse 5.09 / 5.17, the 20 min heading-drift route 2.71 cm,
             freiburg-079 7.15 / 7.21 cm; without a dead band 0.58, 1.84, 4.13, 4.40, 2.59 and
             7.53 (worse than its odometry); with 5 cm / 0.01 rad 0.85, 2.55, 4.20, 5.17, 3.11
-            and 6.73. The figures move by a few tenths with any setting (which closures are
+            and 6.73 (freiburg-079 at 7.4-7.6 with each since the verification's latest
+            changes). The figures move by a few tenths with any setting (which closures are
             accepted changes), so the middle one is kept.
         registration_interval: at most one registration per this many metres of travel;
             it bounds the cost of place recognition where views keep matching but
