@@ -165,3 +165,36 @@ def test_the_submap_cache_keeps_at_most_its_bytes_and_rebuilds_the_same():
     assert again is not first and cache.builds == 3 and cache.hits == 0
     np.testing.assert_array_equal(again.points, one.points)
     np.testing.assert_array_equal(again.seen.mask, one.seen.mask)
+
+
+_CHURN = """
+import re, sys
+import numpy as np
+from bioslam.memory import map_large_blocks
+if sys.argv[1] == "mapped":
+    assert map_large_blocks()
+def rss():
+    return int(re.search(r"VmRSS:\\s+(\\d+)", open("/proc/self/status").read()).group(1)) / 1024
+first = np.ones(40_000)
+del first  # a freed 320 kB mapping: glibc then raises its threshold above that
+kept, arrays = [], []
+before = rss()
+for _ in range(200):  # large arrays between long-lived small ones, as a run makes them
+    arrays.append(np.ones(40_000))
+    kept.append(bytearray(2000))
+del arrays
+print(rss() - before)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's allocator")
+def test_large_blocks_freed_between_living_ones_go_back_to_the_system():
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+
+    def resident_after_free(mode: str) -> float:
+        out = subprocess.run([sys.executable, "-c", _CHURN, mode], capture_output=True,
+                             text=True, env=env, check=True)  # fmt: skip
+        return float(out.stdout.strip())
+
+    assert resident_after_free("heap") > 40.0  # 64 MB made and freed, most still resident
+    assert resident_after_free("mapped") < 10.0

@@ -92,6 +92,9 @@ def _message(exc: BaseException) -> str:
 
 def console_main() -> None:
     """The ``bioslam`` program."""
+    from bioslam.memory import map_large_blocks
+
+    map_large_blocks()  # a process of its own: the allocator's settings are ours to choose
     sys.exit(main(exiting=True))
 
 
