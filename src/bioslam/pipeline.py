@@ -64,10 +64,10 @@ class RunOptions:
             scans, so that Numba's compilation (first run after installing) or loading of
             its cache is not billed to the first scans of the log (``startup_s`` in the
             summary says what it took).
-        release: once :func:`write_results` has the trajectories and the summary, it drops
-            the system's per-scan working memory (``BioSLAM.release``) and, once the map is
-            drawn, the kept scans, so that the figures are drawn in that much less memory;
-            for commands that are done with the system after writing.
+        release: :func:`write_results` first drops the system's per-scan working memory
+            (``BioSLAM.release``) and, once the map is drawn, the kept scans, so that the
+            outputs are made in that much less memory; for commands that are done with the
+            system after writing.
     """
 
     odometry_only: bool = False
@@ -409,6 +409,11 @@ def write_results(
     out = out_dir if isinstance(out_dir, OutputDir) else OutputDir(out_dir, marker=False)
     out.path.mkdir(parents=True, exist_ok=True)
     system = result.system
+    if options.release:
+        # before the outputs are made: the trajectories, the map's JSON and the figures
+        # are built in the memory this frees (read-outs and summary stay)
+        system.release()
+        release_free_memory()
     with signals.protected():
         trajectory = system.trajectory()
         odometry = system.odometry_trajectory()
@@ -420,8 +425,6 @@ def write_results(
             out.save("cognitive_map.json", write_json, system.cognitive_map.to_dict())
         if gt is not None and len(trajectory) > 1:
             gt = _evaluate_into(summary, trajectory, odometry, gt)
-    if options.release:
-        system.release()
     if len(trajectory):
         _write_map_and_figures(result, out, trajectory, odometry, gt, options, summary)
     if result.interrupted or signals.received() is not None:
