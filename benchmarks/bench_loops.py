@@ -19,7 +19,7 @@ For each case (world, scanner, route):
   same scans (ratios of medians and of means).
 
     python benchmarks/bench_loops.py [--cases maze-tour,rooms-adversarial,...] [--duration 600]
-        [--set view_distance=0.2 --set loop_closure.min_score=0.9 ...]
+        [--set view_distance=0.2 --set loop_closure.min_score=0.9 ...] [--log LOG --cases ""]
 """
 
 from __future__ import annotations
@@ -198,6 +198,39 @@ def report(case: SimCase, duration: float, seed: int, gap: float, config: SLAMCo
     return "\n".join(lines)
 
 
+def report_log(path: str, config: SLAMConfig) -> str:
+    """The same figures on a real log against the corrected poses it carries (closure errors
+    against them are an upper bound: the reference is itself a SLAM system's output)."""
+    from bioslam.io.logs import open_log
+
+    source = open_log(path)
+    scans = list(source)
+    reference = source.reference
+    if reference is None:
+        raise SystemExit(f"{path}: the log carries no corrected poses to measure against")
+    slam, full_ms = timed_run(scans, config)
+    odo_ms = odometry_ms(scans, config)
+    errors = closure_errors(slam, reference)
+    metres = np.array([e[2] for e in errors])
+    full = evaluate(slam.trajectory(), reference)["ate_rmse_m"]
+    odo = evaluate(slam.odometry_trajectory(), reference)["ate_rmse_m"]
+    spread = (
+        f"median {100 * np.median(metres):.1f} cm, 90th percentile "
+        f"{100 * np.percentile(metres, 90):.1f} cm, largest {100 * metres.max():.1f} cm"
+        if metres.size else "-"
+    )
+    return "\n".join([
+        f"{path} ({len(scans)} scans)",
+        f"  accepted closures {len(errors)} of {len(slam.checks)} checks; error against the "
+        f"reference {spread}",
+        f"  ATE RMSE full {100 * full:.2f} cm, odometry {100 * odo:.2f} cm",
+        f"  per-scan ms full median {np.median(full_ms):.2f} p99 {np.percentile(full_ms, 99):.2f};"
+        f" odometry median {np.median(odo_ms):.2f} p99 {np.percentile(odo_ms, 99):.2f};"
+        f" ratio of medians {np.median(full_ms) / np.median(odo_ms):.2f}; means "
+        f"{np.mean(full_ms) / np.mean(odo_ms):.2f}",
+    ])
+
+
 def overrides(items: list[str]) -> dict:
     """``key=value`` settings (dotted keys nest; a key that is no top-level setting is a
     ``loop_closure`` one, as before) as the nested dict ``config_from_dict`` takes."""
@@ -222,12 +255,16 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=600.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--gap", type=float, default=10.0, help="metres of travel before a revisit")
+    ap.add_argument("--log", action="append", default=[],
+                    help="also a real log with corrected poses (e.g. freiburg-079)")
     ap.add_argument("--set", action="append", default=[],
                     help="setting override, e.g. --set loop_closure.deadband=0 (a bare name "
                          "is a loop_closure setting)")
     args = ap.parse_args()
     config = config_from_dict(overrides(args.set), "--set")
-    for name in args.cases.split(","):
+    for path in args.log:
+        print(report_log(path, config), flush=True)
+    for name in args.cases.split(",") if args.cases else ():
         world, lidar, route = name.split("-")
         print(report(SimCase(world, lidar, route), args.duration, args.seed, args.gap, config),
               flush=True)

@@ -159,15 +159,18 @@ class SLAMConfig:
     """Configuration of :class:`bioslam.slam.BioSLAM`.
 
     Attributes:
-        view_distance, view_angle: the view cells, pose cells and cognitive map take a new
-            look after the robot has moved this far (m) or turned this much (rad) since the
-            last; in between only the odometry runs (and, while a registration is due, the
-            map's proximity cue, which forces a look when it has a candidate). The paper looks
-            at every scan; at 40 Hz consecutive scans are 1 cm apart and say nothing new,
-            while a look costs 2-3 times the odometry's median scan. Default 0.2 m / 0.15 rad:
-            with a 10 Hz scanner every look at 0.05 m made the full system's median scan
-            3.5 times the odometry's, at 0.2 m 1.2-1.6 times (``benchmarks/bench_loops.py``;
-            recall of revisits -2 to -11 points on some worlds, +13 on one). 0 looks at every
+        view_distance, view_angle, view_min_scans: the view cells, pose cells and
+            cognitive map take a new look after the robot has moved this far (m) or turned
+            this much (rad) since the last, and at least ``view_min_scans`` scans later; in
+            between only the odometry runs (and, while a registration is due, the map's
+            proximity cue, which forces a look when it has a candidate). The paper looks at
+            every scan; at 40 Hz consecutive scans are 1 cm apart and say nothing new, while
+            a look costs 2-3 times the odometry's median scan. Every 0.05 m with a 10 Hz
+            scanner meant a look at nearly every scan (median scan 3.5 times the
+            odometry's); every 0.2 m cost the 600 s maze tour a tenth of its recall (views
+            are recognised within a few centimetres of where they were learned, so sparse
+            looks miss them). A look at most every third scan keeps the distance where the
+            scanner is fast and bounds the cost where it is slow. 0 / 0 / 1 looks at every
             scan.
         heading_bias: an artificial gyro-like heading drift (rad/s) added to every odometry
             step before it reaches the pose cells and the map; 0 in normal use. It exists for
@@ -180,8 +183,9 @@ class SLAMConfig:
     pose_cells: PoseCellConfig = field(default_factory=PoseCellConfig)
     cognitive_map: CognitiveMapConfig = field(default_factory=CognitiveMapConfig)
     loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
-    view_distance: float = 0.2
-    view_angle: float = 0.15
+    view_distance: float = 0.05
+    view_angle: float = 0.05
+    view_min_scans: int = 3
     heading_bias: float = 0.0
 
 

@@ -114,6 +114,8 @@ class BioSLAM:
         self._proposed: int | None = None
         self._stamp = 0.0
         self.submaps = SubmapCache()
+        self._scans_since_look = 0
+        self._last_forced = -np.inf
         self._released: dict[str, int] | None = None
 
     # --- the per-scan update ---------------------------------------------------------------
@@ -122,26 +124,35 @@ class BioSLAM:
         """Feed one scan; return the robot's current pose in the cognitive map's frame."""
         dp = self.self_motion.step(scan)
         self._pending = compose(self._pending, dp)
+        self._scans_since_look += 1
         if self._due():
             self._perceive(scan, self._pending)
             self._pending = np.zeros(3)
+            self._scans_since_look = 0
         self._record(scan.stamp)
         return Pose2D(*compose(self.cognitive_map.pose(), self._pending))
 
     def _due(self) -> bool:
-        """Whether to look again: the robot has moved or turned enough since the last look,
-        or the map puts it near an old experience while a registration is due (so that the
-        path-integration cue is checked as often as registrations are allowed, however
-        sparse the looks). Between two looks only the odometry runs; its motion reaches the
-        pose cells and the map at the next look (path integration takes steps of any size)."""
+        """Whether to look again: the robot has moved or turned enough since the last look
+        (and ``view_min_scans`` scans have passed), or the map puts it near an old
+        experience while a registration is due (so that the path-integration cue is checked
+        as often as registrations are allowed, however sparse the looks). Between two looks
+        only the odometry runs; its motion reaches the pose cells and the map at the next
+        look (path integration takes steps of any size)."""
         cfg = self.config
         if len(self.cognitive_map) == 0:
             return True
         moved = float(np.hypot(self._pending[0], self._pending[1]))
-        if moved >= cfg.view_distance or abs(self._pending[2]) >= cfg.view_angle:
+        far = moved >= cfg.view_distance or abs(self._pending[2]) >= cfg.view_angle
+        if far and self._scans_since_look >= cfg.view_min_scans:
             return True
+        if self._travelled + moved - self._last_forced < cfg.loop_closure.registration_interval:
+            return False  # a candidate forces one look per registration interval at most
         here = compose(self.cognitive_map.pose(), self._pending)
-        return self._nearby(here, self._travelled + moved) is not None
+        if self._nearby(here, self._travelled + moved) is None:
+            return False
+        self._last_forced = self._travelled + moved
+        return True
 
     def _perceive(self, scan: LaserScan, dp: FloatArray) -> None:
         """The view cells, pose cells and cognitive map for one scan, after motion ``dp``."""
