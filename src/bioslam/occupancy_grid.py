@@ -87,25 +87,39 @@ def _count_not_above_near(logodds, pts, x, y, theta, ox, oy, res, level):
     return n
 
 
+@numba.njit(cache=True, inline="always")
+def _bresenham_start(r0, c0, r1, c1):
+    """Bresenham's line from cell (r0, c0) to (r1, c1): row and column deltas, steps and the
+    initial error term, for ``_bresenham_step``."""
+    dc = abs(c1 - c0)
+    dr = -abs(r1 - r0)
+    sc = 1 if c0 < c1 else -1
+    sr = 1 if r0 < r1 else -1
+    return dr, dc, sr, sc, dc + dr
+
+
+@numba.njit(cache=True, inline="always")
+def _bresenham_step(r, c, err, dr, dc, sr, sc):
+    """One cell further along the line ``_bresenham_start`` began."""
+    e2 = 2 * err
+    if e2 >= dr:
+        err += dr
+        c += sc
+    if e2 <= dc:
+        err += dc
+        r += sr
+    return r, c, err
+
+
 @numba.njit(cache=True)
 def _ray_blocked(logodds, r0, c0, r1, c1, level):
     """Whether a cell above ``level`` lies on the Bresenham line from (r0, c0) to (r1, c1),
     both ends excluded (cells outside the grid count as unknown, not blocked)."""
     rows, cols = logodds.shape
-    dc = abs(c1 - c0)
-    dr = -abs(r1 - r0)
-    sc = 1 if c0 < c1 else -1
-    sr = 1 if r0 < r1 else -1
-    err = dc + dr
+    dr, dc, sr, sc, err = _bresenham_start(r0, c0, r1, c1)
     r, c = r0, c0
     while not (r == r1 and c == c1):
-        e2 = 2 * err
-        if e2 >= dr:
-            err += dr
-            c += sc
-        if e2 <= dc:
-            err += dc
-            r += sr
+        r, c, err = _bresenham_step(r, c, err, dr, dc, sr, sc)
         if (r != r1 or c != c1) and 0 <= r < rows and 0 <= c < cols and logodds[r, c] > level:
             return True
     return False
@@ -175,11 +189,7 @@ def _insert_scan_kernel(
     for k in range(n):
         r1, c1 = _cell_of(world_pts[k, 0], world_pts[k, 1], ox, oy, res)
         # Bresenham from the sensor cell to the endpoint cell, the endpoint excluded.
-        dc = abs(c1 - c0)
-        dr = -abs(r1 - r0)
-        sc = 1 if c0 < c1 else -1
-        sr = 1 if r0 < r1 else -1
-        err = dc + dr
+        dr, dc, sr, sc, err = _bresenham_start(r0, c0, r1, c1)
         r, c = r0, c0
         while not (r == r1 and c == c1):
             if 0 <= r < rows and 0 <= c < cols:
@@ -192,13 +202,7 @@ def _insert_scan_kernel(
                 c >= cols and sc > 0
             ):
                 break  # left the grid for good
-            e2 = 2 * err
-            if e2 >= dr:
-                err += dr
-                c += sc
-            if e2 <= dc:
-                err += dc
-                r += sr
+            r, c, err = _bresenham_step(r, c, err, dr, dc, sr, sc)
 
 
 # Surface normals average the endpoints within this radius, enough to turn 1-3 cm range
