@@ -45,3 +45,19 @@ def test_a_signal_in_plain_python_code_raises_at_once():
         signal.raise_signal(signal.SIGINT)
         log.append("not reached")
     assert log == [] and signals.received() == signal.SIGINT
+
+
+def test_an_interrupt_wrapped_by_python_is_still_an_interrupt() -> None:
+    # Python 3.11 wraps an exception raised in __set_name__ (a signal landing while a lazily
+    # imported module defines a class) in a RuntimeError: the section must still report the
+    # signal, and an unrelated error must pass through unchanged.
+    class Descriptor:
+        def __set_name__(self, owner: type, name: str) -> None:
+            raise signals.Interrupted(signal.SIGINT)
+
+    with pytest.raises(signals.Interrupted) as caught, signals.interruptible():
+        type("Lazy", (), {"field": Descriptor()})
+    assert caught.value.exit_code == 130
+    with pytest.raises(ValueError), signals.interruptible():
+        raise ValueError("not a signal")
+    assert signals.wrapped_interrupt(RuntimeError("plain")) is None

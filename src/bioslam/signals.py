@@ -144,6 +144,26 @@ def interruptible() -> Iterator[None]:
         if _State.pending and _State.installed and _State.received is not None:
             _State.pending = False
             raise Interrupted(_State.received)
-        yield
+        try:
+            yield
+        except Exception as exc:
+            interrupt = wrapped_interrupt(exc)
+            if interrupt is None:
+                raise
+            raise interrupt from None
     finally:
         _State.protected = saved
+
+
+def wrapped_interrupt(exc: BaseException) -> Interrupted | None:
+    """The :class:`Interrupted` behind ``exc``, if a signal raised it somewhere Python wraps
+    what is raised (Python 3.11 turns an exception in a class body's ``__set_name__``, e.g.
+    while a lazily imported module defines its classes, into a ``RuntimeError``), else None."""
+    seen: set[int] = set()
+    cause: BaseException | None = exc
+    while cause is not None and id(cause) not in seen:
+        if isinstance(cause, Interrupted):
+            return cause
+        seen.add(id(cause))
+        cause = cause.__cause__ or cause.__context__
+    return None

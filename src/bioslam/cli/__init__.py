@@ -69,6 +69,9 @@ def _main(argv: Sequence[str] | None) -> int:
     except CommandError as exc:
         summary, code, message = exc.summary, exc.code, str(exc)
     except (OSError, ValueError, RuntimeError) as exc:
+        interrupt = signals.wrapped_interrupt(exc)
+        if interrupt is not None:
+            raise interrupt from None
         print(f"bioslam {args.command}: error: {_message(exc)}", file=sys.stderr)
         return EXIT_INVALID
     with signals.protected():
