@@ -202,3 +202,13 @@ def test_robotlaser_with_counts_that_do_not_fit_the_line(tmp_path):
     source = open_log(log)
     assert [s.num_beams for s in source] == [2]
     assert source.skip_examples[WRONG_BEAM_COUNT].startswith("line 3: wrong beam count")
+
+
+@pytest.mark.filterwarnings("error::RuntimeWarning")
+@pytest.mark.parametrize("line", [flaser, robotlaser])
+def test_a_range_beyond_float32_is_an_invalid_beam_without_a_warning(tmp_path, line):
+    # A corrupt digit run (1e50) overflows float32: the beam is invalid, the others kept.
+    log = write(tmp_path / "a.log", [line([1.0, 1e50, 3.0], 1.0)])
+    (scan,) = list(open_log(log))
+    np.testing.assert_array_equal(scan.valid_mask, [True, False, True])
+    np.testing.assert_allclose(scan.ranges[[0, 2]], [1.0, 3.0])

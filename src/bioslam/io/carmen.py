@@ -44,6 +44,14 @@ _ROBOTLASER_TAIL = 14
 _RAWLASER_TAIL = 3
 
 
+def _ranges(fields: list[str]) -> NDArray[np.float32]:
+    """A line's ranges as float32. A value beyond float32 (a corrupt digit run) becomes
+    infinite, which the scan's validity mask rejects and counts like any other bad range, so
+    the overflow is expected here and not worth a warning on the user's terminal."""
+    with np.errstate(over="ignore"):
+        return np.array(fields, dtype=np.float32)
+
+
 @dataclass(frozen=True)
 class CarmenConfig:
     """Options of the CARMEN reader.
@@ -209,7 +217,7 @@ class CarmenLog(LogSource):
                 f"(expected {n + 11})",
             )
             return None
-        ranges = np.array(fields[2 : 2 + n], dtype=np.float32)
+        ranges = _ranges(fields[2 : 2 + n])
         tail = [float(v) for v in fields[2 + n : 2 + n + 7]]
         scan = LaserScan(
             tail[6], ranges, self._flaser_angles_for(n), 0.0, self.config.flaser_max_range_m
@@ -237,7 +245,7 @@ class CarmenLog(LogSource):
             )
             return None
         start, _fov, resolution, max_range = (float(v) for v in fields[2:6])
-        ranges = np.array(fields[9 : 9 + n], dtype=np.float32)
+        ranges = _ranges(fields[9 : 9 + n])
         # CARMEN writes max_range for "no return": make such beams invalid.
         ranges[ranges >= max_range] = np.inf
         angles = start + resolution * np.arange(n, dtype=np.float64)
