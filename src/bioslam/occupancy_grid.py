@@ -14,6 +14,7 @@ No file or terminal I/O here.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numba
@@ -565,13 +566,7 @@ class OccupancyGrid:
     def fraction_not_above_near(self, pose: ArrayLike, points: ArrayLike, level: float) -> float:
         """:meth:`above_near`'s complement as a fraction, for sensor-frame ``points`` placed
         by ``pose`` (x, y, theta); 0 for no points."""
-        pts = _as_points(points)
-        if pts.shape[0] == 0:
-            return 0.0
-        x, y, theta = (float(v) for v in np.asarray(pose, dtype=np.float64).reshape(3))
-        ox, oy = self.origin.tolist()
-        n = _count_not_above_near(self.logodds, pts, x, y, theta, ox, oy, self.resolution, level)
-        return n / pts.shape[0]
+        return self._fraction_placed(_count_not_above_near, pose, points, level)
 
     def fraction_through_walls(
         self, pose: ArrayLike, points: ArrayLike, level: float, margin: float
@@ -581,15 +576,20 @@ class OccupancyGrid:
         endpoint: a scan placed there would have seen through a known wall (free-space
         consistency, the evidence a pose off along a corridor leaves that the endpoints'
         map values do not). 0 for no points."""
+        return self._fraction_placed(_count_through_walls, pose, points, level, margin)
+
+    def _fraction_placed(
+        self, count: Callable[..., int], pose: ArrayLike, points: ArrayLike, *args: float
+    ) -> float:
+        """``count``'s share of the sensor-frame ``points`` placed by ``pose`` on this grid
+        (a kernel taking the log-odds, points, pose, origin, resolution, then ``args``); 0
+        for no points."""
         pts = _as_points(points)
         if pts.shape[0] == 0:
             return 0.0
         x, y, theta = (float(v) for v in np.asarray(pose, dtype=np.float64).reshape(3))
         ox, oy = self.origin.tolist()
-        n = _count_through_walls(
-            self.logodds, pts, x, y, theta, ox, oy, self.resolution, level, margin
-        )
-        return n / pts.shape[0]
+        return count(self.logodds, pts, x, y, theta, ox, oy, self.resolution, *args) / pts.shape[0]
 
     def world_to_cell(self, points: ArrayLike) -> NDArray[np.int64]:
         """``(N, 2)`` world points to integer ``(row, col)`` indices (possibly out of range)."""

@@ -426,11 +426,12 @@ class LidarOdometry:
             options += [self._option(level_pts, seed, normals) for seed in seeds]
             self._weigh_walls(options, level_pts[0])
             if all(o[2] or self._rejected(o[1]) for o in options):
+                weighed = len(options)
                 for side in (-1.0, 1.0):
                     turn = compose(previous, np.array([0.0, 0.0, 2.0 * side * c.search_angle]))
                     seeds = self._search_seeds(points, turn, c.search_distance, c.search_angle)
                     options += [self._option(level_pts, seed, normals) for seed in seeds]
-                self._weigh_walls(options, level_pts[0])
+                self._weigh_walls(options[weighed:], level_pts[0])
         jump = self._jump_limits()
         reach = (jump[0] + c.max_speed * dt, jump[1] + c.max_turn_rate * dt)
         pose, report = self._choose(options, motion, previous, reach, jump)
@@ -450,14 +451,13 @@ class LidarOdometry:
     def _weigh_walls(
         self, options: list[tuple[FloatArray, MatchReport, bool]], points: FloatArray
     ) -> None:
-        """Each match's fraction of beams through known walls (once per match), the evidence
-        that tells a pose a metre off along a corridor from the true one."""
+        """Each match's fraction of beams through known walls, the evidence that tells a pose
+        a metre off along a corridor from the true one."""
         c = self.config
         for pose, report, _ in options:
-            if report.through_fraction == 0.0:
-                report.through_fraction = self.pyramid.finest.fraction_through_walls(
-                    pose, points, c.wall_logodds, c.through_margin
-                )
+            report.through_fraction = self.pyramid.finest.fraction_through_walls(
+                pose, points, c.wall_logodds, c.through_margin
+            )
 
     def _rejected(self, report: MatchReport) -> bool:
         """More endpoints in known free space than ``recovery_free_fraction``, or more
