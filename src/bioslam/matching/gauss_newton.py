@@ -41,6 +41,9 @@ class MatchReport:
         degenerate_direction: unit vector (x, y, theta * length_scale) in the map frame of the
             least constrained direction (zeros when not degenerate).
         condition: smallest / largest curvature (scaled Hessian eigenvalues), 1 = isotropic.
+        weakest_direction: unit vector (x, y, theta * length_scale) in the sensor frame of the
+            least constrained direction of the scan's geometry, degenerate or not (zeros when
+            the match was given no normals): the motion model keeps its velocity along it.
         score: mean M* over the matched endpoints at the finest level (1 = all on walls).
         num_points: endpoints used for matching (after subsampling).
         inserted: the scan was fused into the map.
@@ -55,12 +58,15 @@ class MatchReport:
             better one.
         ambiguous: the search found a distinct pose that fits about as well as the match
             kept (a look-alike); the match nearest the prediction was kept.
+        restarted: the pyramid's descent ended worse on the finest level than its start,
+            and the finest level was matched again from the start (:func:`match_scan_to_map`).
     """
 
     iterations: int = 0
     degenerate: bool = False
     degenerate_direction: FloatArray = field(default_factory=lambda: np.zeros(3))
     condition: float = 1.0
+    weakest_direction: FloatArray = field(default_factory=lambda: np.zeros(3))
     score: float = 0.0
     num_points: int = 0
     inserted: bool = False
@@ -70,6 +76,7 @@ class MatchReport:
     through_fraction: float = 0.0
     recovered: bool = False
     ambiguous: bool = False
+    restarted: bool = False
 
 
 # --------------------------------------------------------------------------------------------
@@ -404,6 +411,7 @@ def match_scan_to_map(
     subcell_sigma: float | None = 1.0,
     normals: FloatArray | None = None,
     prior_weight: float | None = None,
+    mapped_level: float | None = None,
 ) -> tuple[FloatArray, MatchReport]:
     """Eq. 3: the pose maximising Σ M*(R_p e_i + T_p) (Eq. 4 transform), by Gauss-Newton.
 
@@ -423,14 +431,28 @@ def match_scan_to_map(
     away what little the scan has (a warehouse aisle's uprights), and the estimate drifted
     with the prediction (simulated warehouse, SICK: ATE 5.9 m). Pairwise registration,
     whose start is a search's guess and not a motion prior, holds.
+
+    With ``mapped_level``, only the endpoints that the initial pose puts on a wall the map
+    already holds (M* at least ``mapped_level`` on the coarsest level,
+    :func:`mapped_endpoints`) count for that check: a surface the scan sees for the first
+    time (a corridor's end coming into range) cannot fix the pose against the map, and
+    counted, it hid that the pose along the corridor was held by nothing but the map's
+    edge ahead (simulated URG-04LX, 5.6 m: the pose stalled while the robot drove on).
     """
     pose = np.asarray(initial_pose, dtype=np.float64).copy()
     report = MatchReport(num_points=int(level_points[0].shape[0]))
     hold = np.zeros(3)
     weight = 0.0
     if normals is not None:
-        cond, weakest = geometric_conditioning(level_points[0], normals, length_scale)
+        points, used = level_points[0], normals
+        if mapped_level is not None:
+            on_map = mapped_endpoints(
+                grid_args(pyramid.grids[-1], subcell_sigma), points, pose, mapped_level
+            )
+            used = np.where(on_map[:, None], normals, 0.0)
+        cond, weakest = geometric_conditioning(points, used, length_scale)
         report.condition = cond
+        report.weakest_direction = np.asarray(weakest, dtype=np.float64)
         if cond < degeneracy_ratio:
             c, s = math.cos(pose[2]), math.sin(pose[2])
             hold = np.array([c * weakest[0] - s * weakest[1], s * weakest[0] + c * weakest[1],
@@ -443,6 +465,7 @@ def match_scan_to_map(
     if prior_weight is not None:
         hold = np.zeros(3)
     iters = max_iterations[::-1]
+    start = pose.copy()
     for k in range(len(pyramid.grids) - 1, -1, -1):
         pose, H, mean, n, converged = _gauss_newton_level(
             grid_args(pyramid.grids[k], subcell_sigma), level_points[k], pose,
@@ -450,6 +473,15 @@ def match_scan_to_map(
             length_scale, degeneracy_ratio, hold, prior,
         )  # fmt: skip
         report.iterations += int(n)
+    finest = grid_args(pyramid.finest, subcell_sigma)
+    if len(pyramid.grids) > 1 and _worse_than_start(finest, level_points[0], start, pose):
+        # the coarse levels led the finest one out of the basin it started in
+        pose, H, mean, n, converged = _gauss_newton_level(
+            finest, level_points[0], start, iters[-1], step_tolerance * pyramid.finest.resolution,
+            length_scale, degeneracy_ratio, hold, prior,
+        )  # fmt: skip
+        report.iterations += int(n)
+        report.restarted = True
     pose[2] = wrap_angle(pose[2])
     if normals is None:
         _, cond, weakest, degenerate = _guarded_step(
@@ -462,6 +494,39 @@ def match_scan_to_map(
     report.converged = bool(converged)
     report.score = float(mean)
     return pose, report
+
+
+@numba.njit(cache=True)
+def mapped_endpoints(g, pts, pose, level):
+    """Whether each sensor-frame endpoint, placed by ``pose``, falls where the map function
+    on the map ``g`` (:func:`grid_args`) is at least ``level``: on a wall the map holds."""
+    kind, logodds, means, weights, ox, oy, res, sigma = g
+    c = math.cos(pose[2])
+    s = math.sin(pose[2])
+    out = np.empty(pts.shape[0], dtype=np.bool_)
+    for k in range(pts.shape[0]):
+        wx = c * pts[k, 0] - s * pts[k, 1] + pose[0]
+        wy = s * pts[k, 0] + c * pts[k, 1] + pose[1]
+        if kind == 0:
+            m = interpolate_point(logodds, ox, oy, res, wx, wy)[0]
+        else:
+            m = subcell_point(means, weights, ox, oy, res, sigma, wx, wy)[0]
+        out[k] = m >= level
+    return out
+
+
+def _worse_than_start(
+    finest: tuple, points: FloatArray, start: FloatArray, pose: FloatArray
+) -> bool:
+    """The finest level's cost Σ (1 - M*)² is higher at ``pose``, where the pyramid's descent
+    ended, than at ``start``. A coarse level's optimum can lie a cell off the true one (in a
+    corridor longer than the range, the coarse map's edge ahead pulls the pose back: simulated
+    URG-04LX, a 19 cm slip backwards from a start 1 cm off), and the finer levels then
+    converge in a neighbouring basin; matched again from the start on the finest level, the
+    pose can only end better than both (Gauss-Newton with damping never raises the cost, and
+    the motion prior is nil at the start)."""
+    costs = pose_costs(finest, points, np.stack([start, pose]))
+    return bool(costs[0] < costs[1])
 
 
 def geometric_conditioning(
