@@ -133,8 +133,8 @@ class LoopClosureConfig:
     link_angle_floor: float = 0.03
     chain_distance: float = 2.0
     recognition_radius: float = 1.0
-    deadband: float = 0.03
-    deadband_angle: float = 0.006
+    deadband: float = 0.0
+    deadband_angle: float = 0.0
     registration_interval: float = 0.25
     payload_spacing: float = 0.02
     proximity: bool = True
