@@ -86,7 +86,8 @@ def view_similarity(B1: ArrayLike, B2: ArrayLike) -> float:
 
 def view_cell_activity(S: ArrayLike, s_t: float) -> FloatArray | float:
     """Eq. 9: ``V_i = 1 - min(s_t, S_i) / s_t``, clamped and inverted into ``[0, 1]``."""
-    v = 1.0 - np.minimum(s_t, np.asarray(S, dtype=np.float64)) / s_t
+    # S >= 0, but the closed-form fractional shift can leave -1e-16 for an exact repeat
+    v = 1.0 - np.clip(np.asarray(S, dtype=np.float64), 0.0, s_t) / s_t
     return float(v) if v.ndim == 0 else v
 
 
