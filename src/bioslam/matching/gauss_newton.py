@@ -287,7 +287,7 @@ def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, hold, prior)
     heading, and a token damping of 0.001 only wasted iterations (maze: 1.0 vs 1.3 ms per
     scan, RPE 0.38 cm / 0.085° vs 0.40 cm / 0.106°). ``hold`` is a direction kept fixed
     (:func:`_guarded_step`), ``prior`` :func:`_add_prior`'s (direction, pose, weight). Returns
-    ``(pose, H, mean M*, iterations, converged)``."""
+    ``(pose, H, mean M*, iterations, converged, cost)``, the cost with the prior's."""
     pose = pose.copy()
     trial = np.empty(3)
     H = np.zeros((3, 3))
@@ -301,7 +301,7 @@ def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, hold, prior)
     iterations = 0
     converged = False
     if inside < 3:
-        return pose, H, mean, iterations, converged
+        return pose, H, mean, iterations, converged, cost
     for _ in range(max_iter):
         iterations += 1
         step = _newton_step(H, b, length, ratio, damping, hold)
@@ -336,7 +336,7 @@ def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, hold, prior)
         if small:
             converged = True
             break
-    return pose, H, mean, iterations, converged
+    return pose, H, mean, iterations, converged, cost
 
 @numba.njit(cache=True)
 def summed_map(g, pts, c, s, tx, ty, residual):
@@ -467,16 +467,16 @@ def match_scan_to_map(
     iters = max_iterations[::-1]
     start = pose.copy()
     for k in range(len(pyramid.grids) - 1, -1, -1):
-        pose, H, mean, n, converged = _gauss_newton_level(
+        pose, H, mean, n, converged, cost = _gauss_newton_level(
             grid_args(pyramid.grids[k], subcell_sigma), level_points[k], pose,
             iters[len(pyramid.grids) - 1 - k], step_tolerance * pyramid.grids[k].resolution,
             length_scale, degeneracy_ratio, hold, prior,
         )  # fmt: skip
         report.iterations += int(n)
     finest = grid_args(pyramid.finest, subcell_sigma)
-    if len(pyramid.grids) > 1 and _worse_than_start(finest, level_points[0], start, pose):
+    if len(pyramid.grids) > 1 and _worse_than_start(finest, level_points[0], start, cost):
         # the coarse levels led the finest one out of the basin it started in
-        pose, H, mean, n, converged = _gauss_newton_level(
+        pose, H, mean, n, converged, cost = _gauss_newton_level(
             finest, level_points[0], start, iters[-1], step_tolerance * pyramid.finest.resolution,
             length_scale, degeneracy_ratio, hold, prior,
         )  # fmt: skip
@@ -515,18 +515,16 @@ def mapped_endpoints(g, pts, pose, level):
     return out
 
 
-def _worse_than_start(
-    finest: tuple, points: FloatArray, start: FloatArray, pose: FloatArray
-) -> bool:
-    """The finest level's cost Σ (1 - M*)² is higher at ``pose``, where the pyramid's descent
-    ended, than at ``start``. A coarse level's optimum can lie a cell off the true one (in a
-    corridor longer than the range, the coarse map's edge ahead pulls the pose back: simulated
-    URG-04LX, a 19 cm slip backwards from a start 1 cm off), and the finer levels then
-    converge in a neighbouring basin; matched again from the start on the finest level, the
-    pose can only end better than both (Gauss-Newton with damping never raises the cost, and
-    the motion prior is nil at the start)."""
-    costs = pose_costs(finest, points, np.stack([start, pose]))
-    return bool(costs[0] < costs[1])
+def _worse_than_start(finest: tuple, points: FloatArray, start: FloatArray, cost: float) -> bool:
+    """The finest level's cost Σ (1 - M*)² at ``start`` is below ``cost``, where the pyramid's
+    descent ended (with the motion prior's, which is nil at the start). A coarse level's
+    optimum can lie a cell off the true one (in a corridor longer than the range, the coarse
+    map's edge ahead pulls the pose back: simulated URG-04LX, a 19 cm slip backwards from a
+    start 1 cm off), and the finer levels then converge in a neighbouring basin; matched
+    again from the start on the finest level, the pose can only end better than both
+    (Gauss-Newton with damping never raises the cost)."""
+    c, s = math.cos(start[2]), math.sin(start[2])
+    return bool(summed_map(finest, points, c, s, start[0], start[1], True) < cost)
 
 
 def geometric_conditioning(
