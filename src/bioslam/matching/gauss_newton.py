@@ -411,7 +411,6 @@ def match_scan_to_map(
     subcell_sigma: float | None = 1.0,
     normals: FloatArray | None = None,
     prior_weight: float | None = None,
-    mapped_level: float | None = None,
 ) -> tuple[FloatArray, MatchReport]:
     """Eq. 3: the pose maximising Σ M*(R_p e_i + T_p) (Eq. 4 transform), by Gauss-Newton.
 
@@ -432,25 +431,13 @@ def match_scan_to_map(
     with the prediction (simulated warehouse, SICK: ATE 5.9 m). Pairwise registration,
     whose start is a search's guess and not a motion prior, holds.
 
-    With ``mapped_level``, only the endpoints that the initial pose puts on a wall the map
-    already holds (M* at least ``mapped_level`` on the coarsest level,
-    :func:`mapped_endpoints`) count for that check: a surface the scan sees for the first
-    time (a corridor's end coming into range) cannot fix the pose against the map, and
-    counted, it hid that the pose along the corridor was held by nothing but the map's
-    edge ahead (simulated URG-04LX, 5.6 m: the pose stalled while the robot drove on).
     """
     pose = np.asarray(initial_pose, dtype=np.float64).copy()
     report = MatchReport(num_points=int(level_points[0].shape[0]))
     hold = np.zeros(3)
     weight = 0.0
     if normals is not None:
-        points, used = level_points[0], normals
-        if mapped_level is not None:
-            on_map = mapped_endpoints(
-                grid_args(pyramid.grids[-1], subcell_sigma), points, pose, mapped_level
-            )
-            used = np.where(on_map[:, None], normals, 0.0)
-        cond, weakest = geometric_conditioning(points, used, length_scale)
+        cond, weakest = geometric_conditioning(level_points[0], normals, length_scale)
         report.condition = cond
         report.weakest_direction = np.asarray(weakest, dtype=np.float64)
         if cond < degeneracy_ratio:
@@ -494,6 +481,19 @@ def match_scan_to_map(
     report.converged = bool(converged)
     report.score = float(mean)
     return pose, report
+
+
+def mapped_conditioning(
+    grid: OccupancyGrid, subcell_sigma: float | None, points: FloatArray, normals: FloatArray,
+    pose: FloatArray, level: float, length_scale: float,
+) -> tuple[float, FloatArray]:
+    """:func:`geometric_conditioning` of the endpoints that ``pose`` puts on a wall the map
+    already holds (M* at least ``level`` on ``grid``): a surface the scan sees for the first
+    time (a corridor's end coming into range) does not fix the pose against the map, and
+    counted, it hid that the pose along the corridor was held by nothing but the map's edge
+    ahead (simulated URG-04LX, 5.6 m: the pose stalled while the robot drove on)."""
+    on_map = mapped_endpoints(grid_args(grid, subcell_sigma), points, pose, level)
+    return geometric_conditioning(points, np.where(on_map[:, None], normals, 0.0), length_scale)
 
 
 @numba.njit(cache=True)
