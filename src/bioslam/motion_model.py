@@ -57,11 +57,12 @@ def translation_part(weakest: ArrayLike | None) -> FloatArray | None:
     would carry on turning (and leak into the speed through the mixed direction)."""
     if weakest is None:
         return None
-    u = np.asarray(weakest, dtype=np.float64)
-    norm2 = float(u[0] * u[0] + u[1] * u[1])
-    if norm2 < 0.5 * float(u @ u):
+    x, y, t = (float(v) for v in weakest)
+    norm2 = x * x + y * y
+    if norm2 < 0.5 * (norm2 + t * t):
         return None
-    return np.array([u[0], u[1], 0.0]) / math.sqrt(norm2)
+    norm = math.sqrt(norm2)
+    return np.array([x / norm, y / norm, 0.0])
 
 
 def kalman_along(
@@ -149,7 +150,9 @@ class ConstantVelocityModel:
             return
         measured = se2_log(between(p0, p)) / (stamp - t0)
         gain = 1.0
-        direction = translation_part(weakest)
+        direction = None
+        if weakest is not None and condition < self.constrained_ratio:
+            direction = translation_part(weakest)
         if direction is not None:
             gain = weak_direction_gain(condition, self.degeneracy_ratio, self.constrained_ratio)
         if gain >= 1.0:

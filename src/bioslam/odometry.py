@@ -108,10 +108,11 @@ class OdometryConfig:
             warehouse aisle's uprights (ATE 41 cm on 300 s; 1.4 cm at 0.2).
             ``search_prior_weight`` replaces it for a match from a search's seed and after a
             gap (``gap_time``), where the start is no motion prediction worth the name.
-        mapped_level: the motion model learns its velocity along a direction from the
-            endpoints the matched pose puts on walls the map holds (M* at least this on the
-            coarsest level) only: a corridor's end just come into range is not in the map yet
-            and fixes nothing against it. None: from every endpoint.
+        mapped_logodds: the motion model learns its velocity along a direction from the
+            endpoints the matched pose puts on walls the map holds (a finest cell or one of
+            its 8 neighbours above this log-odds: hit more often than seen through) only: a
+            corridor's end just come into range is not in the map yet and fixes nothing
+            against it. None: from every endpoint.
         matched_range_margin: endpoints within this many metres of the usable range (the
             smaller of ``max_range`` and the scanner's) are fused into the map but not
             matched: the map holds a wall only as far as earlier scans reached, and the
@@ -233,7 +234,7 @@ class OdometryConfig:
     accel_noise: float = 0.5
     velocity_noise: float = 0.05
     velocity_spread: float = 0.1
-    mapped_level: float | None = 0.3
+    mapped_logodds: float | None = 0.0
     matched_range_margin: float = 0.6
     start_margin: float = 0.1
     subcell_sigma: float | None = 1.0
@@ -752,14 +753,18 @@ class LidarOdometry:
         self, points: FloatArray, normals: FloatArray
     ) -> tuple[float, FloatArray | None]:
         """The conditioning and weakest direction (sensor frame) of the scan's endpoints that
-        the matched pose puts on walls the map holds (``mapped_level``): what the motion
-        model may learn its velocity from (:mod:`bioslam.motion_model`). A new surface, not
-        yet in the map, did not fix the pose. None as the direction when ``mapped_level``
-        is None: the velocity is then the plain measurement."""
+        the matched pose puts on walls the map holds (a finest cell or one of its neighbours
+        above ``mapped_logodds``): what the motion model may learn its velocity from
+        (:mod:`bioslam.motion_model`). A surface the scan sees for the first time (a
+        corridor's end coming into range) does not fix the pose against the map; counted,
+        it hid that along the corridor the pose was held by nothing but the map's edge
+        ahead. Direction None when ``mapped_logodds`` is None: the velocity is then the
+        plain measurement."""
         c = self.config
-        if c.mapped_level is None:
+        if c.mapped_logodds is None:
             return 1.0, None
+        # every other endpoint: the conditioning is a ratio, and this runs on every scan
         return mapped_conditioning(
-            self.pyramid.grids[-1], c.subcell_sigma, points, normals, self.pose,
-            c.mapped_level, c.length_scale,
+            self.pyramid.finest, points[::2], normals[::2], self.pose, c.mapped_logodds,
+            c.length_scale,
         )

@@ -22,6 +22,7 @@ from bioslam.occupancy_grid import (
     NORMAL_RADIUS,
     MapPyramid,
     OccupancyGrid,
+    above_near_point,
     interpolate_point,
     scan_normals,
     subcell_point,
@@ -461,7 +462,8 @@ def match_scan_to_map(
         )  # fmt: skip
         report.iterations += int(n)
     finest = grid_args(pyramid.finest, subcell_sigma)
-    if len(pyramid.grids) > 1 and _worse_than_start(finest, level_points[0], start, cost):
+    weak = report.condition < 10.0 * degeneracy_ratio  # else the coarse optimum is pinned
+    if len(pyramid.grids) > 1 and weak and _worse_than_start(finest, level_points[0], start, cost):
         # the coarse levels led the finest one out of the basin it started in
         pose, H, mean, n, converged, cost = _gauss_newton_level(
             finest, level_points[0], start, iters[-1], step_tolerance * pyramid.finest.resolution,
@@ -483,38 +485,6 @@ def match_scan_to_map(
     return pose, report
 
 
-def mapped_conditioning(
-    grid: OccupancyGrid, subcell_sigma: float | None, points: FloatArray, normals: FloatArray,
-    pose: FloatArray, level: float, length_scale: float,
-) -> tuple[float, FloatArray]:
-    """:func:`geometric_conditioning` of the endpoints that ``pose`` puts on a wall the map
-    already holds (M* at least ``level`` on ``grid``): a surface the scan sees for the first
-    time (a corridor's end coming into range) does not fix the pose against the map, and
-    counted, it hid that the pose along the corridor was held by nothing but the map's edge
-    ahead (simulated URG-04LX, 5.6 m: the pose stalled while the robot drove on)."""
-    on_map = mapped_endpoints(grid_args(grid, subcell_sigma), points, pose, level)
-    return geometric_conditioning(points, np.where(on_map[:, None], normals, 0.0), length_scale)
-
-
-@numba.njit(cache=True)
-def mapped_endpoints(g, pts, pose, level):
-    """Whether each sensor-frame endpoint, placed by ``pose``, falls where the map function
-    on the map ``g`` (:func:`grid_args`) is at least ``level``: on a wall the map holds."""
-    kind, logodds, means, weights, ox, oy, res, sigma = g
-    c = math.cos(pose[2])
-    s = math.sin(pose[2])
-    out = np.empty(pts.shape[0], dtype=np.bool_)
-    for k in range(pts.shape[0]):
-        wx = c * pts[k, 0] - s * pts[k, 1] + pose[0]
-        wy = s * pts[k, 0] + c * pts[k, 1] + pose[1]
-        if kind == 0:
-            m = interpolate_point(logodds, ox, oy, res, wx, wy)[0]
-        else:
-            m = subcell_point(means, weights, ox, oy, res, sigma, wx, wy)[0]
-        out[k] = m >= level
-    return out
-
-
 def _worse_than_start(finest: tuple, points: FloatArray, start: FloatArray, cost: float) -> bool:
     """The finest level's cost Σ (1 - M*)² at ``start`` is below ``cost``, where the pyramid's
     descent ended (with the motion prior's, which is nil at the start). A coarse level's
@@ -522,7 +492,10 @@ def _worse_than_start(finest: tuple, points: FloatArray, start: FloatArray, cost
     map's edge ahead pulls the pose back: simulated URG-04LX, a 19 cm slip backwards from a
     start 1 cm off), and the finer levels then converge in a neighbouring basin; matched
     again from the start on the finest level, the pose can only end better than both
-    (Gauss-Newton with damping never raises the cost)."""
+    (Gauss-Newton with damping never raises the cost). Checked where the scan's geometry
+    constrains some direction weakly (conditioning below ten times the degeneracy ratio): a
+    well-conditioned scan pins the coarse levels' optimum, and the check would cost a dense
+    scan a tenth of its match."""
     c, s = math.cos(start[2]), math.sin(start[2])
     return bool(summed_map(finest, points, c, s, start[0], start[1], True) < cost)
 
@@ -540,6 +513,37 @@ def geometric_conditioning(
         np.ascontiguousarray(normals, dtype=np.float64),
         float(length_scale),
     )
+
+
+def mapped_conditioning(
+    grid: OccupancyGrid, points: FloatArray, normals: FloatArray, pose: ArrayLike,
+    level: float, length_scale: float,
+) -> tuple[float, FloatArray]:
+    """:func:`geometric_conditioning` of the endpoints that ``pose`` puts on a wall the map
+    already holds (a cell of ``grid``, or one of its 8 neighbours, with a log-odds above
+    ``level``): a surface seen for the first time (a corridor's end coming into range) does
+    not fix the pose against the map."""
+    p = np.asarray(pose, dtype=np.float64).reshape(3)
+    ox, oy = grid.origin.tolist()
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    used = _mapped_normals(grid.logodds, ox, oy, grid.resolution, pts, normals, p, level)
+    return _conditioning_kernel(pts, used, float(length_scale))
+
+
+@numba.njit(cache=True)
+def _mapped_normals(logodds, ox, oy, res, pts, normals, pose, level):
+    """``normals`` with those of the points ``pose`` does not place next to a cell above
+    ``level`` zeroed (no normal: no constraint)."""
+    out = np.zeros_like(normals)
+    c = math.cos(pose[2])
+    s = math.sin(pose[2])
+    for k in range(pts.shape[0]):
+        wx = c * pts[k, 0] - s * pts[k, 1] + pose[0]
+        wy = s * pts[k, 0] + c * pts[k, 1] + pose[1]
+        if above_near_point(logodds, wx, wy, ox, oy, res, level):
+            out[k, 0] = normals[k, 0]
+            out[k, 1] = normals[k, 1]
+    return out
 
 
 @numba.njit(cache=True)
