@@ -84,11 +84,13 @@ def test_angles_wrap():
     assert prior.cost((0.0, 0.0, -math.pi + 0.01)) < 0.01
 
 
-@pytest.mark.parametrize(
-    "kwargs",
-    [{"window": 0}, {"min_steps": 0}, {"sigma_distance": 0.0}, {"sigma_angle": -1.0},
-     {"floor": 0.0}, {"floor": 1.5}],  # fmt: skip
-)
+BAD_CONFIGS = [
+    {"window": 0}, {"min_steps": 0}, {"sigma_distance": 0.0}, {"sigma_angle": -1.0},
+    {"floor": 0.0}, {"floor": 1.5},
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("kwargs", BAD_CONFIGS)
 def test_bad_configs_are_refused(kwargs):
     with pytest.raises(ValueError):
         StepPriorConfig(**kwargs)
