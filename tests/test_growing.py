@@ -53,3 +53,33 @@ def test_keyframe_scans_of_a_long_range_sensor_keep_their_far_points() -> None:
     unbounded = KeyframeScans(max_range=np.inf)
     unbounded.add(0, np.array([[1e3, 0.125]], dtype=np.float32))
     np.testing.assert_array_equal(unbounded.points(0), [[1e3, 0.125]])
+
+
+def test_keyframe_scans_past_their_budget_double_the_spacing_and_keep_every_other_place():
+    """A long run's kept scans stay within the budget: the spacing doubles and the scans
+    already kept are thinned to it, each survivor's points untouched."""
+    rng = np.random.default_rng(2)
+    clouds = [rng.uniform(-5, 5, size=(200, 2)).astype(np.float32) for _ in range(60)]
+    store = KeyframeScans(max_range=30.0, distance=0.125, angle=0.25, max_bytes=20000)
+    offered = 0
+    for k, cloud in enumerate(clouds):
+        pose = np.array([0.125 * k, 0.0, 0.0])  # a straight drive, a scan every 12.5 cm
+        if store.wants(pose):
+            store.add(k, cloud, pose)
+            offered += 1
+    assert store.distance == 0.5 and offered < len(clouds)  # thinned twice
+    kept = store.index.view()
+    assert kept[0] == 0 and len(store) * 200 * 4 <= 20000
+    assert np.all(np.diff(store.poses.view()[:, 0]) >= store.distance - 1e-9)
+    for k, scan in enumerate(kept):
+        np.testing.assert_allclose(store.points(k), clouds[scan], atol=0.0005 + 4e-6, rtol=0)
+
+
+def test_keyframe_scans_thin_turns_by_the_doubled_angle():
+    store = KeyframeScans(distance=0.125, angle=0.0625, max_bytes=10**9)
+    for k in range(10):  # turning on the spot, the whole angle a scan
+        store.add(k, np.ones((1, 2), dtype=np.float32), (0.0, 0.0, 0.0625 * k))
+    store.thin()
+    assert store.index.view().tolist() == [0, 2, 4, 6, 8]
+    assert not store.wants(np.array([0.125, 0.0, 0.5 + 0.0625]))
+    assert store.wants(np.array([0.0, 0.0, 0.5 + 0.125]))

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
 from bioslam import signals
@@ -58,6 +58,9 @@ class RunOptions:
         keyframe_distance, keyframe_angle: a scan is kept for rendering the output map when
             the robot has moved this far (m) or turned this much (rad) since the last kept one;
             this bounds memory on long logs while every place still gets drawn.
+        keyframe_bytes: at most this many bytes of kept scan points; beyond, the two
+            spacings double and the kept scans are thinned to them
+            (:class:`KeyframeScans`).
         map_resolution: cell size of the output map, metres.
         map_point_spacing: the kept scans are thinned to one point per this many metres.
         warm_up: before the timed run, run a throwaway system on a second of simulated
@@ -75,6 +78,7 @@ class RunOptions:
     snapshot_times: tuple[float, ...] = ()
     keyframe_distance: float = 0.1
     keyframe_angle: float = math.radians(5.0)
+    keyframe_bytes: int = 12 * 2**20
     map_resolution: float = 0.05
     map_point_spacing: float = 0.025
     snapshot_tolerance: float = 1.0
@@ -129,49 +133,112 @@ class OdometryOnly:
 
 
 class KeyframeScans:
-    """The scans kept for the output map: their scan numbers and thinned sensor-frame
-    endpoints, all in growing arrays rather than one array per keyframe.
+    """The scans kept for the output map: their scan numbers, the odometry pose each was
+    taken at and their thinned sensor-frame endpoints, all in growing arrays rather than one
+    array per keyframe.
 
-    They are kept for the whole run (the map is drawn at the final, corrected poses), so the
-    endpoints within ``max_range`` (the only ones the map draws) are stored as 16-bit integers
-    of ``quantum`` metres (1 mm for ranges up to 32 m: 4 bytes a point instead of 8, about
-    40 MB less an hour of 40 Hz data); each keyframe's reach (the map's extent) is taken
-    before, from the points as they came.
+    A scan is kept when the robot has moved ``distance`` metres or turned ``angle`` radians
+    since the last kept one (:meth:`wants`). They are kept for the whole run (the map is
+    drawn at the final, corrected poses), so the endpoints within ``max_range`` (the only
+    ones the map draws) are stored as 16-bit integers of ``quantum`` metres (1 mm for ranges
+    up to 32 m: 4 bytes a point instead of 8); each keyframe's reach (the map's extent) is
+    taken before, from the points as they came.
+
+    At 40 Hz every 10 cm that is still 45 MB an hour: once the points pass ``max_bytes``
+    the spacing doubles and the keyframes already kept are thinned to it (:meth:`thin`), so
+    a run of any length keeps at most about ``max_bytes`` (a scanner sees metres around it:
+    a map of walls drawn from every 20-40 cm of a long run differs little from every 10).
     """
 
-    def __init__(self, max_range: float = 30.0, quantum: float = 0.001) -> None:
+    def __init__(
+        self,
+        max_range: float = 30.0,
+        quantum: float = 0.001,
+        distance: float = 0.1,
+        angle: float = math.radians(5.0),
+        max_bytes: int = 12 * 2**20,
+    ) -> None:
         self.max_range = float(max_range)
         self.quantum = max(quantum, self.max_range / 32000.0)
-        dtype = np.int16 if math.isfinite(self.quantum) else np.float32
-        self.index = GrowingArray(np.int64)
-        self.reach = GrowingArray(np.float64)
-        self._starts = GrowingArray(np.int64)
-        self._points = GrowingArray(dtype, 2, capacity=1 << 16)
+        self.distance, self.angle = float(distance), float(angle)
+        self.max_bytes = int(max_bytes)
+        self._dtype = np.int16 if math.isfinite(self.quantum) else np.float32
+        self._reset()
 
-    def add(self, scan_index: int, points: NDArray[np.float32]) -> None:
+    def _reset(self, capacity: int = 1024, points: int = 1 << 16) -> None:
+        self.index = GrowingArray(np.int64, capacity=capacity)
+        self.reach = GrowingArray(np.float64, capacity=capacity)
+        self.poses = GrowingArray(np.float64, 3, capacity=capacity)
+        self._starts = GrowingArray(np.int64, capacity=capacity)
+        self._points = GrowingArray(self._dtype, 2, capacity=points)
+
+    def wants(self, pose: FloatArray) -> bool:
+        """Whether a scan taken at odometry ``pose`` is to be kept: far enough from the
+        last kept one (the first always is)."""
+        if not len(self.index):
+            return True
+        return _apart(self.poses[-1], pose, self.distance, self.angle)
+
+    def add(
+        self, scan_index: int, points: NDArray[np.float32], pose: ArrayLike = (0.0, 0.0, 0.0)
+    ) -> None:
+        """Keep scan ``scan_index``'s ``points`` (taken at odometry ``pose``)."""
         pts = np.asarray(points, dtype=np.float32)
         self.index.append(scan_index)
+        self.poses.append(pose)
         self.reach.append(np.max(np.abs(pts), initial=0.0))
         wide = pts.astype(np.float64)
         pts = pts[np.einsum("ij,ij->i", wide, wide) <= self.max_range * self.max_range]
-        if self._points.view().dtype == np.int16:
+        if self._dtype == np.int16:
             pts = np.rint(pts / np.float32(self.quantum))
         self._starts.append(len(self._points))
         self._points.extend(pts)
+        if len(self._points) * self._points.view().itemsize * 2 > self.max_bytes:
+            self.thin()
+
+    def thin(self) -> None:
+        """Double the spacing and keep, of the keyframes so far, those it would have kept."""
+        self.distance *= 2.0
+        self.angle *= 2.0
+        keep = [0]
+        for k in range(1, len(self)):
+            if _apart(self.poses[keep[-1]], self.poses[k], self.distance, self.angle):
+                keep.append(k)
+        index, reach, poses = self.index.view(), self.reach.view(), self.poses.view()
+        parts = [self._stored(k) for k in keep]
+        old = (index[keep], reach[keep], poses[keep])
+        total = sum(len(p) for p in parts)
+        self._reset(capacity=max(2 * len(keep), 1024), points=max(2 * total, 1 << 16))
+        for k, part in enumerate(parts):
+            self.index.append(old[0][k])
+            self.reach.append(old[1][k])
+            self.poses.append(old[2][k])
+            self._starts.append(len(self._points))
+            self._points.extend(part)
 
     def __len__(self) -> int:
         return len(self.index)
 
+    def _stored(self, k: int) -> NDArray:  # type: ignore[type-arg]
+        stop = self._starts[k + 1] if k + 1 < len(self) else len(self._points)
+        return self._points.view()[self._starts[k] : stop]
+
     def points(self, k: int) -> FloatArray:
         """Keyframe ``k``'s endpoints (within ``max_range``), metres."""
-        stop = self._starts[k + 1] if k + 1 < len(self) else len(self._points)
-        stored = self._points.view()[self._starts[k] : stop].astype(np.float64)
-        return stored * self.quantum if self._points.view().dtype == np.int16 else stored
+        stored = self._stored(k).astype(np.float64)
+        return stored * self.quantum if self._dtype == np.int16 else stored
 
     @property
     def nbytes(self) -> int:
-        parts = (self.index, self.reach, self._starts, self._points)
+        parts = (self.index, self.reach, self.poses, self._starts, self._points)
         return sum(part.nbytes for part in parts)
+
+
+def _apart(a: FloatArray, b: FloatArray, distance: float, angle: float) -> bool:
+    """Whether poses ``a`` and ``b`` are ``distance`` apart or turned ``angle`` (or more)."""
+    moved = math.hypot(b[0] - a[0], b[1] - a[1])
+    turned = abs(math.remainder(b[2] - a[2], 2.0 * math.pi))
+    return moved >= distance or turned >= angle
 
 
 @dataclass
@@ -259,14 +326,6 @@ def _close_a_square(config: SLAMConfig) -> None:
     cmap.relax(iterations=2)
 
 
-def _is_keyframe(pose: FloatArray, last: FloatArray | None, options: RunOptions) -> bool:
-    if last is None:
-        return True
-    moved = math.hypot(pose[0] - last[0], pose[1] - last[1])
-    turned = abs(math.remainder(pose[2] - last[2], 2.0 * math.pi))
-    return moved >= options.keyframe_distance or turned >= options.keyframe_angle
-
-
 def run_slam(
     scans: Iterable[LaserScan],
     config: SLAMConfig | None = None,
@@ -288,7 +347,11 @@ def run_slam(
         OdometryOnly(config) if options.odometry_only else BioSLAM(config)
     )
     max_range = config.odometry.max_range
-    result = RunResult(system, map_max_range=max_range, keyframes=KeyframeScans(max_range))
+    keyframes = KeyframeScans(
+        max_range, distance=options.keyframe_distance, angle=options.keyframe_angle,
+        max_bytes=options.keyframe_bytes,
+    )  # fmt: skip
+    result = RunResult(system, map_max_range=max_range, keyframes=keyframes)
     if options.warm_up:
         try:
             with signals.interruptible():
@@ -332,7 +395,6 @@ def _feed(
     observer: ScanObserver | None,
 ) -> None:
     """The scan loop of :func:`run_slam`: process, time, keep keyframes and snapshots."""
-    last_key: FloatArray | None = None
     for scan in scans:
         t0 = time.thread_time()
         pose = system.process(scan)
@@ -341,11 +403,9 @@ def _feed(
             result.first_stamp = scan.stamp
         result.last_stamp = scan.stamp
         odo_pose = system.self_motion.pose
-        if _is_keyframe(odo_pose, last_key, options):
-            last_key = odo_pose.copy()
-            result.keyframes.add(
-                system.num_scans - 1, thin_points(scan.endpoints(), options.map_point_spacing)
-            )
+        if result.keyframes.wants(odo_pose):
+            points = thin_points(scan.endpoints(), options.map_point_spacing)
+            result.keyframes.add(system.num_scans - 1, points, odo_pose)
         while pending_snapshots and scan.stamp - result.first_stamp >= pending_snapshots[0]:
             if isinstance(system, BioSLAM):
                 result.snapshots.append(cognitive_map_snapshot(system, pending_snapshots[0]))

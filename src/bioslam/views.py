@@ -63,6 +63,9 @@ from bioslam.geometry import wrap_angle
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
+#: How the learned views are stored (``ViewCells._learn``).
+VIEW_DTYPE = np.float32
+
 #: Whole-bin shifts are screened against this multiple of ``s_t`` before the fractional one.
 _COARSE_SLACK = 4.0
 
@@ -83,7 +86,8 @@ def view_similarity(B1: ArrayLike, B2: ArrayLike) -> float:
 
 def view_cell_activity(S: ArrayLike, s_t: float) -> FloatArray | float:
     """Eq. 9: ``V_i = 1 - min(s_t, S_i) / s_t``, clamped and inverted into ``[0, 1]``."""
-    v = 1.0 - np.minimum(s_t, np.asarray(S, dtype=np.float64)) / s_t
+    # S >= 0, but the closed-form fractional shift can leave -1e-16 for an exact repeat
+    v = 1.0 - np.clip(np.asarray(S, dtype=np.float64), 0.0, s_t) / s_t
     return float(v) if v.ndim == 0 else v
 
 
@@ -352,7 +356,7 @@ class ViewCells:
         if cells_per_ring is not None and cells_per_ring < 1:
             raise ValueError(f"cells_per_ring must be >= 1, got {cells_per_ring}")
         self.cells_per_ring = cells_per_ring
-        self._store = np.empty((0, 0))
+        self._store = np.empty((0, 0), dtype=VIEW_DTYPE)
         self._sums = np.empty((0, 0))
         self._cover = np.empty((0, 0), dtype=bool)
         self._keys = np.empty((0, 0))
@@ -371,7 +375,7 @@ class ViewCells:
     def view(self, view_id: int) -> View:
         """The stored view ``<h, B>`` (Eq. 7)."""
         self._check_id(view_id)
-        return View(self._h[view_id], self._store[view_id].copy())
+        return View(self._h[view_id], self._store[view_id].astype(np.float64))
 
     def payload(self, view_id: int) -> Any:
         """Whatever the caller attached when ``view_id`` was learned (None if nothing)."""
@@ -531,7 +535,9 @@ class ViewCells:
         return self._learn(self.coarse_feature(b, cover), b, payload, heading, cover)
 
     def _checked(self, B: ArrayLike) -> FloatArray:
-        b = np.ascontiguousarray(B, dtype=np.float64)
+        """``B`` as the views are stored (:data:`VIEW_DTYPE`), in float64 for the sums: a
+        scan then matches its own view exactly (S = 0)."""
+        b = np.asarray(B).astype(VIEW_DTYPE).astype(np.float64)
         if b.ndim != 1 or b.size == 0:
             raise ValueError(f"boundary activity must be a non-empty 1-D array, got {b.shape}")
         if self.cells_per_ring is not None and b.size % self.cells_per_ring:
@@ -570,10 +576,13 @@ class ViewCells:
         self, h: int, b: FloatArray, payload: Any, heading: float | None, cover: NDArray[np.bool_]
     ) -> int:
         new_id = self.num_views
-        # Per ring with the rotation search: ring sums do not change with a shift.
+        # Stored as float32 (``_checked`` rounded ``b`` to it: half the memory of a run's
+        # largest per-place record; a cell moves by a relative 6e-8, far below any S that
+        # matters). Per ring with the rotation search: ring sums do not change with a shift.
+        stored = b.astype(VIEW_DTYPE)
         sums = block_sums(b, self.cells_per_ring or self.config.bound_block)
         if new_id == 0:
-            self._store = np.empty((16, b.size))
+            self._store = np.empty((16, b.size), dtype=VIEW_DTYPE)
             self._sums = np.empty((16, sums.size))
             self._headings = np.empty(16)
             self._cover = np.empty((16, cover.size), dtype=bool)
@@ -585,7 +594,7 @@ class ViewCells:
             self._headings = _grow(self._headings)
             self._cover = _grow(self._cover)
             self._keys = _grow(self._keys)
-        self._store[new_id] = b
+        self._store[new_id] = stored
         self._sums[new_id] = sums
         self._cover[new_id] = cover
         self._keys[new_id] = self._ring_key(b, cover)
