@@ -8,7 +8,15 @@ import math
 import numpy as np
 import pytest
 
-from bioslam.cognitive_map import CognitiveMap, CognitiveMapConfig, relaxation_correction
+from bioslam.cognitive_map import (
+    ISOTROPIC,
+    CognitiveMap,
+    CognitiveMapConfig,
+    Measurement,
+    _solve_fixed_point,
+    registration_shape,
+    relaxation_correction,
+)
 from bioslam.geometry import between, compose, wrap_angle
 from bioslam.pose_cells import PoseCellConfig, PoseCellNetwork
 
@@ -395,3 +403,90 @@ def test_robust_kernel_demotes_one_corrupted_closure_among_good_ones():
     scales = robust._link_scale.view()
     loops = [k for k, lk in enumerate(robust.links) if lk.kind == "loop"]
     assert scales[loops[9]] < 0.05 and min(scales[k] for k in loops if k != loops[9]) > 0.5
+
+
+def corridor_scan(angle: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Endpoints and normals of a scan between two long walls 2 m apart, the corridor's axis
+    at ``angle`` in the scan's frame: nothing in it pins the position along the axis."""
+    x = np.linspace(-6.0, 6.0, 241)
+    pts = np.concatenate([np.c_[x, np.full_like(x, 1.0)], np.c_[x, np.full_like(x, -1.0)]])
+    nrm = np.concatenate([np.tile([0.0, -1.0], (x.size, 1)), np.tile([0.0, 1.0], (x.size, 1))])
+    c, s = math.cos(angle), math.sin(angle)
+    rot = np.array([[c, -s], [s, c]])
+    return pts @ rot.T, nrm @ rot.T
+
+
+def test_registration_shape_follows_the_scans_geometry():
+    pts, nrm = corridor_scan()
+    # along the corridor only the floor of the clipped eigenvalues is left, across it all
+    np.testing.assert_allclose(registration_shape(pts, nrm, 50.0), (0.02, 0.0, 1.0), atol=1e-9)
+    # the same corridor turned by 30 deg: its weak direction turns with it
+    xx, xy, yy = registration_shape(*corridor_scan(math.radians(30.0)), 50.0)
+    weak = np.linalg.eigh(np.array([[xx, xy], [xy, yy]]))[1][:, 0]
+    assert abs(abs(weak @ (math.cos(math.radians(30.0)), math.sin(math.radians(30.0)))) - 1) < 1e-6
+    # a square room constrains both directions (its far wall less than its near one)
+    side = np.linspace(-2.0, 2.0, 81)
+    wall = np.full_like(side, 1.0)
+    room = np.concatenate(
+        [np.c_[side, 2 * wall], np.c_[side, -2 * wall], np.c_[3 * wall, side], np.c_[-wall, side]]
+    )
+    normals = np.repeat([[0.0, -1.0], [0.0, 1.0], [-1.0, 0.0], [1.0, 0.0]], side.size, axis=0)
+    xx, xy, yy = registration_shape(room, normals, 50.0)
+    assert min(xx, yy) > 0.5 and abs(xy) < 0.1
+    # too few normals to tell: isotropic
+    np.testing.assert_allclose(registration_shape(pts[:2], nrm[:2], 50.0), (1.0, 0.0, 1.0))
+
+
+def corridor_return(measurement_shape: np.ndarray | None, slide: float):
+    """Down an 8 m corridor and back with a heading-drifting odometry (0.35 m off at the end),
+    then a closure onto the first experience measured exactly except ``slide`` metres along
+    the corridor (a registration sliding along it). Returns (odometry, relaxed) position RMS
+    errors of the experiences against the truth."""
+    steps = np.array([(0.2, 0.0, 0.0)] * 40 + [(0.0, 0.0, math.pi)] + [(0.2, 0.0, 0.0)] * 40)
+    truth = integrate(steps)
+    bias = np.array([0.0, 0.0, 0.003])
+    config = CognitiveMapConfig(
+        odometry_var_per_m=0.01, odometry_heading_var_per_m=1e-3, closure_sigma_m=0.01,
+        closure_sigma_rad=1e-3, closure_shape_ratio=1e4, robust_sigmas=0.0,
+    )  # fmt: skip
+    cm = CognitiveMap(config)
+    for k, d in enumerate(steps[:-1]):
+        cm.integrate_odometry(d + bias, stamp=float(k))
+        cm.update(k, True, PC, stamp=float(k))
+    odometry = cm.experience_poses
+    cm.integrate_odometry(steps[-1] + bias)
+    measured = compose(between(truth[0], truth[-1]), (slide, 0.0, 0.0))
+    refined = measured if measurement_shape is None else Measurement(measured, measurement_shape)
+    assert cm.update(0, False, PC, stamp=99.0, refine=lambda e: refined).kind == "loop"
+    cm.relax()
+    rms = lambda p: float(np.sqrt(np.mean(np.sum((p[:, :2] - truth[: len(p), :2]) ** 2, 1))))  # noqa: E731
+    return rms(odometry), rms(cm.experience_poses)
+
+
+def test_a_closure_that_slid_along_a_corridor_corrects_only_across_it():
+    shape = registration_shape(*corridor_scan(), 1e4)  # the robot faces along the corridor
+    odometry, shaped = corridor_return(shape, slide=0.3)
+    _, isotropic = corridor_return(None, slide=0.3)
+    assert odometry > 0.3
+    # weighted as one isotropic measurement, the 30 cm slide drags the whole map along
+    assert isotropic > 0.15
+    # weighted by the scan's geometry, the map takes the closure's sideways correction and
+    # leaves the position along the corridor to the odometry: better than the odometry
+    assert shaped < 0.1 * odometry and shaped < 0.2 * isotropic
+    # an exact registration corrects the map as well whichever way it is weighted
+    assert corridor_return(shape, slide=0.0)[1] < 0.1 * odometry
+    assert corridor_return(shape, slide=0.0)[1] == pytest.approx(corridor_return(None, 0.0)[1])
+
+
+def test_block_solve_with_isotropic_shapes_is_the_scalar_solve():
+    rng = np.random.default_rng(3)
+    n = 30
+    src = np.r_[np.arange(n - 1), rng.integers(0, n, 12)]
+    dst = np.r_[np.arange(1, n), rng.integers(0, n, 12)]
+    dps = rng.normal(0.0, 0.5, (src.size, 3))
+    weights = rng.uniform(1.0, 100.0, (src.size, 2))
+    start = rng.normal(0.0, 1.0, (n, 3))
+    scalar, block = start.copy(), start.copy()
+    _solve_fixed_point(scalar, src, dst, dps, weights, 4)
+    _solve_fixed_point(block, src, dst, dps, weights, 4, np.tile(ISOTROPIC, (src.size, 1)))
+    np.testing.assert_allclose(block, scalar, atol=1e-9)

@@ -53,7 +53,7 @@ from __future__ import annotations
 import heapq
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
@@ -115,6 +115,11 @@ class CognitiveMapConfig:
     closure_sigma_m: float = 0.02
     #: ... and heading (rad; measured 0.07-0.16 deg).
     closure_sigma_rad: float = 0.005
+    #: A registration's position information follows the scan's geometry
+    #: (:func:`registration_shape`): ``closure_sigma_m`` along its best-constrained direction,
+    #: up to this many times that variance along its weakest (along a corridor, where a
+    #: registration slides); 1 makes every closure isotropic.
+    closure_shape_ratio: float = 100.0
     #: Robust kernel (dynamic covariance scaling): a loop link whose residual after the solve
     #: exceeds this many standard deviations has its weight scaled down until it does not,
     #: so that one closure inconsistent with the odometry and the other closures cannot bend
@@ -138,6 +143,8 @@ class CognitiveMapConfig:
         )  # fmt: skip
         if min(variances) < 0.0 or min(self.link_var_floor) <= 0.0:
             raise ValueError("link uncertainties must be >= 0 and their floors > 0")
+        if self.closure_shape_ratio < 1.0:
+            raise ValueError(f"closure_shape_ratio must be >= 1, got {self.closure_shape_ratio}")
         if self.robust_sigmas < 0.0 or self.robust_iterations < 1:
             raise ValueError("robust_sigmas must be >= 0 and robust_iterations >= 1")
 
@@ -165,6 +172,20 @@ class Link:
     dt: float
     stamp: float
     kind: LinkKind
+
+
+#: (xx, xy, yy) of an isotropic position information shape
+ISOTROPIC = np.array([1.0, 0.0, 1.0])
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """What a registration returns to :meth:`CognitiveMap.update`: the robot's ``pose`` in
+    the recognised experience's frame, and the ``shape`` (xx, xy, yy) of its position
+    information in the robot's frame (:func:`registration_shape`)."""
+
+    pose: FloatArray
+    shape: FloatArray = field(default_factory=ISOTROPIC.copy)
 
 
 @dataclass
@@ -274,40 +295,94 @@ def _solve_fixed_point(
     dps: FloatArray,
     weights: FloatArray,
     lo: int,
+    shapes: FloatArray | None = None,
 ) -> None:
     """The weighted Eq. 14's fixed point for experiences ``lo``.. (in place), those before
     held fixed: headings by the weighted Laplacian of the heading residuals, then positions
-    with the headings fixed (see :meth:`CognitiveMap.solve`)."""
+    with the headings fixed (see :meth:`CognitiveMap.solve`). ``shapes`` ((E, 3): xx, xy, yy
+    in each link's source frame) makes a link's position information anisotropic
+    (:func:`registration_shape`); None = isotropic."""
     free = poses.shape[0] - lo
     # Fixed experiences all map to one ground index (the last), dropped from the system.
     ls = np.where(src >= lo, src - lo, free)
     lt = np.where(dst >= lo, dst - lo, free)
-    for column, col_w in ((2, weights[:, 1]), (0, weights[:, 0])):
-        lu = _laplacian_lu(ls, lt, col_w, free + 1)
-        if column == 2:
-            for _ in range(2):  # a second pass settles residuals that wrapped around ±π
-                r = wrap_angle(poses[src, 2] + dps[:, 2] - poses[dst, 2])
-                step = lu.solve(_incidence_t(ls, lt, col_w * r, free + 1)[:free])
-                poses[lo:, 2] = wrap_angle(poses[lo:, 2] + step)
-            continue
-        c, sn = np.cos(poses[src, 2]), np.sin(poses[src, 2])
-        rel = np.stack([c * dps[:, 0] - sn * dps[:, 1], sn * dps[:, 0] + c * dps[:, 1]], 1)
-        # Known positions of fixed ends move to the right-hand side.
-        rel = rel + np.where(src < lo, 1.0, 0.0)[:, None] * poses[src, :2]
-        rel = rel - np.where(dst < lo, 1.0, 0.0)[:, None] * poses[dst, :2]
+    lu = _laplacian_lu(ls, lt, weights[:, 1], free + 1)
+    for _ in range(2):  # a second pass settles residuals that wrapped around ±π
+        r = wrap_angle(poses[src, 2] + dps[:, 2] - poses[dst, 2])
+        step = lu.solve(_incidence_t(ls, lt, weights[:, 1] * r, free + 1)[:free])
+        poses[lo:, 2] = wrap_angle(poses[lo:, 2] + step)
+    c, sn = np.cos(poses[src, 2]), np.sin(poses[src, 2])
+    rel = np.stack([c * dps[:, 0] - sn * dps[:, 1], sn * dps[:, 0] + c * dps[:, 1]], 1)
+    # Known positions of fixed ends move to the right-hand side.
+    rel = rel + np.where(src < lo, 1.0, 0.0)[:, None] * poses[src, :2]
+    rel = rel - np.where(dst < lo, 1.0, 0.0)[:, None] * poses[dst, :2]
+    if shapes is None:
+        lu = _laplacian_lu(ls, lt, weights[:, 0], free + 1)
         rhs = np.stack(
-            [_incidence_t(ls, lt, col_w * rel[:, k], free + 1)[:free] for k in range(2)], 1
+            [_incidence_t(ls, lt, weights[:, 0] * rel[:, k], free + 1)[:free] for k in range(2)],
+            1,
         )
         poses[lo:, :2] = lu.solve(rhs)
+        return
+    omega = _map_frame_information(weights[:, 0], shapes, c, sn)
+    lu = _block_laplacian_lu(ls, lt, omega, free + 1)
+    flow = np.einsum("eij,ej->ei", omega, rel)
+    rhs = np.stack([_incidence_t(ls, lt, flow[:, k], free + 1)[:free] for k in range(2)], 1)
+    poses[lo:, :2] = lu.solve(rhs.reshape(-1)).reshape(-1, 2)
+
+
+def _map_frame_information(
+    weight: FloatArray, shapes: FloatArray, c: FloatArray, s: FloatArray
+) -> FloatArray:
+    """(E, 2, 2) each link's position information ``w R S Rᵀ`` in the map frame, from its
+    shape ``S`` in its source's frame (rotation ``R`` = the source's heading)."""
+    shape = np.empty((shapes.shape[0], 2, 2))
+    shape[:, 0, 0], shape[:, 0, 1], shape[:, 1, 1] = shapes[:, 0], shapes[:, 1], shapes[:, 2]
+    shape[:, 1, 0] = shapes[:, 1]
+    rot = np.empty_like(shape)
+    rot[:, 0, 0], rot[:, 0, 1], rot[:, 1, 0], rot[:, 1, 1] = c, -s, s, c
+    return weight[:, None, None] * (rot @ shape @ rot.transpose(0, 2, 1))
+
+
+def _block_laplacian_lu(
+    src: NDArray[np.int64], dst: NDArray[np.int64], omega: FloatArray, n: int
+) -> Any:
+    """LU of the graph Laplacian with a 2x2 block ``omega[e]`` per link (x and y of node i at
+    rows 2i, 2i+1), without its last node (the fixed ground); as :func:`_laplacian_lu`."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+
+    rows, cols, vals = [], [], []
+    for a in range(2):
+        for b in range(2):
+            w = omega[:, a, b]
+            for u, v, sign in ((src, src, 1.0), (dst, dst, 1.0), (src, dst, -1), (dst, src, -1)):
+                rows.append(2 * u + a)
+                cols.append(2 * v + b)
+                vals.append(sign * w)
+    lap = sp.csc_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(2 * n, 2 * n)
+    )[:-2, :-2]
+    return splu(lap.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
 
 
 def _link_chi2(
     poses: FloatArray, src: NDArray[np.int64], dst: NDArray[np.int64], dps: FloatArray,
-    info: FloatArray,
+    info: FloatArray, shapes: FloatArray | None = None,
 ) -> FloatArray:
-    """Each link's squared residual in units of its own variance (its χ²)."""
-    r = between(compose(poses[src], dps), poses[dst])
-    return (r[:, 0] ** 2 + r[:, 1] ** 2) * info[:, 0] + wrap_angle(r[:, 2]) ** 2 * info[:, 1]
+    """Each link's squared residual in units of its own variance (its χ²); ``shapes`` as
+    :func:`_solve_fixed_point` takes them."""
+    end = compose(poses[src], dps)
+    r = between(end, poses[dst])
+    heading = wrap_angle(r[:, 2]) ** 2 * info[:, 1]
+    if shapes is None:
+        return (r[:, 0] ** 2 + r[:, 1] ** 2) * info[:, 0] + heading
+    # the position residual in the source's frame, where the shape is given
+    c, s = np.cos(poses[src, 2]), np.sin(poses[src, 2])
+    dx, dy = poses[dst, 0] - end[:, 0], poses[dst, 1] - end[:, 1]
+    x, y = c * dx + s * dy, -s * dx + c * dy
+    quad = shapes[:, 0] * x * x + 2.0 * shapes[:, 1] * x * y + shapes[:, 2] * y * y
+    return quad * info[:, 0] + heading
 
 
 def link_information(
@@ -333,6 +408,41 @@ def link_information(
         + registrations * config.closure_sigma_rad**2
     )
     return 1.0 / (floor_xy + var_xy), 1.0 / (floor_th + var_th)
+
+
+def registration_shape(points: ArrayLike, normals: ArrayLike, max_ratio: float) -> FloatArray:
+    """The shape (xx, xy, yy; largest eigenvalue 1) of a registration's position information
+    in the scan's frame, from the scan's geometry: each endpoint with a surface normal n
+    constrains the motion along n and the rotation by ``p x n`` (point-to-line, the
+    Gauss-Newton Hessian's form); the heading is marginalised out. Along a corridor the
+    walls pin the sideways position but hardly the position along it, where a registration
+    slides: one isotropic variance would let such a closure drag the map along the
+    corridor as hard as across it. Eigenvalues are clipped to at least ``1 / max_ratio``
+    (a direction the scan does not constrain keeps some weight, as the verification has
+    refused degenerate registrations); fewer than 3 normals give the isotropic shape."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    nrm = np.asarray(normals, dtype=np.float64).reshape(-1, 2)
+    used = np.any(nrm != 0.0, axis=1)
+    if np.count_nonzero(used) < 3:
+        return ISOTROPIC.copy()
+    p, n = pts[used], nrm[used]
+    jac = np.column_stack([n, p[:, 0] * n[:, 1] - p[:, 1] * n[:, 0]])
+    hessian = jac.T @ jac
+    hessian += 1e-9 * np.trace(hessian) * np.eye(3)
+    position = np.linalg.inv(np.linalg.inv(hessian)[:2, :2])
+    w, v = np.linalg.eigh(0.5 * (position + position.T))
+    w = np.maximum(w / max(w[1], 1e-300), 1.0 / max_ratio)
+    shape = (v * w) @ v.T
+    return np.array([shape[0, 0], shape[0, 1], shape[1, 1]])
+
+
+def rotate_shape(shape: FloatArray, angle: float) -> FloatArray:
+    """``shape`` (xx, xy, yy) given in a frame turned by ``angle``, in the outer frame."""
+    c, s = math.cos(angle), math.sin(angle)
+    m = np.array([[shape[0], shape[1]], [shape[1], shape[2]]])
+    r = np.array([[c, -s], [s, c]])
+    out = r @ m @ r.T
+    return np.array([out[0, 0], out[0, 1], out[1, 1]])
 
 
 def robust_scale(chi2: FloatArray, sigmas: float) -> FloatArray:
@@ -407,6 +517,9 @@ class CognitiveMap:
         # kernel's factor on it (loop links; 1 = fully trusted)
         self._link_info = GrowingArray(np.float64, 2, capacity=64)
         self._link_scale = GrowingArray(np.float64, capacity=64)
+        # each link's position information shape in its source's frame (ISOTROPIC, or a
+        # registration's: registration_shape)
+        self._link_shape = GrowingArray(np.float64, 3, capacity=64)
         self._linked: set[tuple[int, int]] = set()
         # undirected, with each link's length: for the odometry distance between two places
         self._neighbours: dict[int, list[tuple[int, float]]] = {}
@@ -563,7 +676,7 @@ class CognitiveMap:
         pc_centre: ArrayLike,
         stamp: float,
         payload: Any = None,
-        refine: Callable[[Experience], ArrayLike | None] | None = None,
+        refine: Callable[[Experience], Measurement | ArrayLike | None] | None = None,
         nearby: int | None = None,
     ) -> MapEvent:
         """One topological action for the active view (see the module docstring).
@@ -603,7 +716,8 @@ class CognitiveMap:
         return eid
 
     def _add_link(
-        self, source: int, target: int, dp: FloatArray, stamp: float, kind: LinkKind
+        self, source: int, target: int, dp: FloatArray, stamp: float, kind: LinkKind,
+        shape: FloatArray = ISOTROPIC,
     ) -> None:
         """Eq. 13: l_ij = <Δp^ij, Δt^ij>, weighted by the odometry and registrations it
         composes (:func:`link_information`)."""
@@ -615,6 +729,7 @@ class CognitiveMap:
         self._link_kind.append(kind)
         self._link_info.append(link_information(*self._travel, registrations, self.config))
         self._link_scale.append(1.0)
+        self._link_shape.append(shape)
         self._linked.add((source, target))
         length = math.hypot(float(dp[0]), float(dp[1]))
         self._neighbours.setdefault(source, []).append((target, length))
@@ -641,7 +756,7 @@ class CognitiveMap:
         self,
         target: int,
         stamp: float,
-        refine: Callable[[Experience], ArrayLike | None] | None,
+        refine: Callable[[Experience], Measurement | ArrayLike | None] | None,
         here: tuple[int, FloatArray, Any],
     ) -> MapEvent:
         """Move the robot to experience ``target``.
@@ -670,17 +785,24 @@ class CognitiveMap:
         if refined is None:
             self.rejected_closures += 1
             return MapEvent("none", current, rejected=True, matched=target)
+        if not isinstance(refined, Measurement):
+            refined = Measurement(np.asarray(refined, dtype=np.float64).reshape(3))
         if self._offset.any():
             self._new_experience(*here[:2], stamp, here[2])
-        self._close(target, np.asarray(refined, dtype=np.float64).reshape(3), stamp)
+        self._close(target, np.asarray(refined.pose, dtype=np.float64), stamp, refined.shape)
         self._current = target
         return MapEvent("loop", target, matched=target)
 
-    def _close(self, target: int, arrival: FloatArray, stamp: float) -> None:
-        """A loop link to ``target``, the robot being at ``arrival`` in its frame."""
-        # p_base ⊕ offset = p_target ⊕ arrival, so Δp = offset ⊕ arrival⁻¹.
+    def _close(
+        self, target: int, arrival: FloatArray, stamp: float, shape: FloatArray = ISOTROPIC
+    ) -> None:
+        """A loop link to ``target``, the robot being at ``arrival`` in its frame; ``shape``:
+        the measurement's position information in the robot's frame."""
+        # p_base ⊕ offset = p_target ⊕ arrival, so Δp = offset ⊕ arrival⁻¹; a registration's
+        # error moves the robot's end of the link, in the robot's frame (offset from the base)
         dp = compose(self._offset, inverse(arrival))
-        self._add_link(self._base, target, dp, stamp, "loop")
+        shape = rotate_shape(np.asarray(shape, dtype=np.float64), float(self._offset[2]))
+        self._add_link(self._base, target, dp, stamp, "loop", shape)
         self.loop_closures += 1
         if not self._agrees(self._base, target, dp):
             self._dirty = True
@@ -778,16 +900,20 @@ class CognitiveMap:
         loops = np.array([self._link_kind[k] == "loop" for k in keep], dtype=bool)
         info = self._link_info.view()[keep]
         scale = self._link_scale.view()
+        shapes: FloatArray | None = self._link_shape.view()[keep]
+        if np.array_equal(shapes, np.broadcast_to(ISOTROPIC, shapes.shape)):
+            shapes = None  # the scalar solve: two small Laplacians instead of one twice as big
         for _ in range(self.config.robust_iterations):
             self._poses.view()[lo:] = start
             _solve_fixed_point(
                 self._poses.view(), src[keep], dst[keep], self._link_dp.view()[keep],
-                info * scale[keep][:, None], lo,
+                info * scale[keep][:, None], lo, shapes,
             )  # fmt: skip
             if not loops.any() or self.config.robust_sigmas <= 0.0:
                 break
             chi2 = _link_chi2(
-                self._poses.view(), src[keep], dst[keep], self._link_dp.view()[keep], info
+                self._poses.view(), src[keep], dst[keep], self._link_dp.view()[keep], info,
+                shapes,
             )
             wanted = robust_scale(chi2[loops], self.config.robust_sigmas)
             changed = np.abs(wanted - scale[keep[loops]]) > 0.05 * np.maximum(wanted, 1e-3)

@@ -72,18 +72,16 @@ class LoopClosureConfig:
             before any registration (the pose cells wrap, so their packet alone cannot tell
             two places a network-width apart).
         deadband, deadband_angle: a registration that corrects the map's prediction by less
-            than this (m, rad), about 1.5 standard deviations of the registration's own error
-            (``CognitiveMapConfig.closure_sigma_m`` / ``closure_sigma_rad``), confirms the
-            place but leaves the map's estimate as it is: such a correction is hardly evidence
-            that the odometry drifted. Measured with Eq. 14 weighted by link information
-            (``bioslam.cognitive_map``), 300 s per world, ATE against the odometry's: with
-            3 cm / 0.006 rad the maze tour 0.63 / 0.49 cm, weaving route 1.62 / 2.03, rooms
-            4.06 / 3.45, warehouse 5.09 / 5.17, the 20 min heading-drift route 2.71 cm,
-            freiburg-079 7.15 / 7.21 cm; without a dead band 0.58, 1.84, 4.13, 4.40, 2.59 and
-            7.53 (worse than its odometry); with 5 cm / 0.01 rad 0.85, 2.55, 4.20, 5.17, 3.11
-            and 6.73 (freiburg-079 at 7.4-7.6 with each since the verification's latest
-            changes). The figures move by a few tenths with any setting (which closures are
-            accepted changes), so the middle one is kept.
+            than this (m, rad) enters the map as that prediction instead of as measured. Off
+            (0) by default: the prediction then becomes a loop link weighted as a
+            registration, which holds the map at its drifted state (the maze tour's loop links
+            were 1.2 cm off the truth with 3 cm / 0.006 rad against 0.7 cm without, their
+            registrations 0.7 cm). Measured with loop links weighted by their scan's geometry
+            (``bioslam.cognitive_map.registration_shape``), 300 s per world, ATE full /
+            odometry: without a dead band maze tour 0.59 / 0.49 cm, weaving 1.95 / 2.03,
+            RPLIDAR weaving 2.62 / 2.80, rooms 3.60 / 3.45 (SICK) and 7.76 / 9.43, warehouse
+            1.63 / 2.12 and 4.19 / 5.17, freiburg-079 6.67 / 7.21; with 3 cm / 0.006 rad
+            (isotropic weights) 1.03, 2.21, 2.65, 4.13, 7.28, 1.61, 5.11 and 6.71.
         registration_interval: at most one registration per this many metres of travel;
             it bounds the cost of place recognition where views keep matching but
             registrations keep failing (noisy sensors, clutter): consecutive scans that
@@ -133,8 +131,8 @@ class LoopClosureConfig:
     link_angle_floor: float = 0.03
     chain_distance: float = 2.0
     recognition_radius: float = 1.0
-    deadband: float = 0.03
-    deadband_angle: float = 0.006
+    deadband: float = 0.0
+    deadband_angle: float = 0.0
     registration_interval: float = 0.25
     payload_spacing: float = 0.02
     proximity: bool = True

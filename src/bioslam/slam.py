@@ -31,11 +31,11 @@ from bioslam.closure import (
     verify,
     within,
 )
-from bioslam.cognitive_map import CognitiveMap, Experience
+from bioslam.cognitive_map import CognitiveMap, Experience, Measurement, registration_shape
 from bioslam.config import SLAMConfig
 from bioslam.geometry import Pose2D, between, compose
 from bioslam.growing import GrowingArray
-from bioslam.occupancy_grid import subsample_by_spacing
+from bioslam.occupancy_grid import NORMAL_MAX_GAP, NORMAL_RADIUS, scan_normals, subsample_by_spacing
 from bioslam.odometry import LidarOdometry
 from bioslam.pose_cells import PoseCellNetwork
 from bioslam.scan import LaserScan
@@ -265,13 +265,19 @@ class BioSLAM:
             return None
         return found
 
-    def _refiner(self, points: FloatArray) -> Callable[[Experience], FloatArray | None]:
+    def _refiner(
+        self, points: FloatArray
+    ) -> Callable[[Experience], Measurement | FloatArray | None]:
         """A callable for the cognitive map that refines a move to a recognised experience."""
         return functools.partial(self._refine, points=points)
 
-    def _refine(self, experience: Experience, points: FloatArray) -> FloatArray | None:
+    def _refine(
+        self, experience: Experience, points: FloatArray
+    ) -> Measurement | FloatArray | None:
         """The robot's pose in ``experience``'s frame, from registering this scan against the
-        scan stored with it, or None to reject the recognition."""
+        scan stored with it, with the shape of its information (the scan's geometry,
+        :func:`bioslam.cognitive_map.registration_shape`), or None to reject the
+        recognition."""
         cfg = self.config.loop_closure
         if experience.payload is None or points.shape[0] < 3:
             return None
@@ -302,7 +308,10 @@ class BioSLAM:
             # The map already agrees with the registration to within the registration's own
             # error: keep the map's estimate rather than inject that error into the map.
             return predicted
-        return verdict.pose
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        normals = scan_normals(pts, NORMAL_RADIUS, NORMAL_MAX_GAP)
+        ratio = self.config.cognitive_map.closure_shape_ratio
+        return Measurement(verdict.pose, registration_shape(pts, normals, ratio))
 
     def _submap(self, candidate: int) -> Submap:
         """The scans around ``candidate`` on its own pass, fused in the frame of the pass's
