@@ -344,6 +344,7 @@ class LidarOdometry:
         self._last_inserted: FloatArray | None = None
         self._step_prior = StepPrior(c.step_prior)
         self._searched: deque[bool] = deque(maxlen=c.score_window)
+        self._num_searched = 0  # of those in _searched
         self._directions: tuple[FloatArray, FloatArray, FloatArray] | None = None
 
     # -- steps of one update ------------------------------------------------------------------
@@ -469,7 +470,10 @@ class LidarOdometry:
         options = [self._option(level_pts, start, normals)]
         motion: tuple[FloatArray, ...] = (start,)  # only compared when the search ran
         searched = c.search_distance > 0 and self._untrusted(options[0][2], dt, previous, start)
+        if len(self._searched) == self._searched.maxlen:
+            self._num_searched -= self._searched[0]
         self._searched.append(searched)
+        self._num_searched += searched
         if searched:
             forward = compose(previous, np.array([self._typical_step, 0.0, 0.0]))
             motion = (start, predicted, compose(previous, self._last_delta), forward)
@@ -523,7 +527,7 @@ class LidarOdometry:
         of at least ``sparse_scans``): a thinned log or a low scan rate, where the motion
         model's prediction is no better than a guess."""
         c = self.config
-        return sum(self._searched) >= c.sparse_share * max(len(self._searched), c.sparse_scans)
+        return self._num_searched >= c.sparse_share * max(len(self._searched), c.sparse_scans)
 
     def _hopeless(self, option: tuple[FloatArray, MatchReport, bool], previous: FloatArray) -> bool:
         """A match failed or rejected by the map, or, on sparse scans, a step unlike the
