@@ -13,6 +13,9 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
 - ``mapfunc``: Hector's bilinear M* against the sub-cell map function, maze 120 s.
 - ``thinned``: the maze run keeping one scan in 20 or 40 (0.25 / 0.5 m and up to 25 / 50
   degrees apart), beside the same with the close recovery search only.
+- ``sickthinned``: the SICK preset (181 beams at 1°) in the rooms off a corridor, the
+  warehouse and the maze, a third of the run's duration, thinned along the true path to a
+  scan per 1 m / 0.6 rad as the public "corrected" logs are, two seeds each.
 - ``freiburg``: freiburg-079 (LiDAR only), RPE over 1 m against the log's corrected poses,
   and how much of it is the reference's own: its jitter, the local map's sharpness, and a
   three-cornered hat with the log's raw wheel odometry as the third trajectory.
@@ -61,6 +64,7 @@ from bioslam.sim import (
     people_on_roadmap,
     simulate_scans,
 )
+from bioslam.thinning import thin_indices
 from bioslam.trajectory import Trajectory
 
 REPO = Path(__file__).resolve().parents[1]
@@ -121,13 +125,18 @@ def summary(name: str, est: Trajectory, gt: Trajectory, ms: np.ndarray, extra: d
 
 
 def sim_case(name, lidar, duration, config=None, fast_turns=False, obstacles=(), seed=0,
-             every=1, world="maze"):  # fmt: skip
+             every=1, world="maze", thin=None):  # fmt: skip
     """One simulated run (the maze by default); ``every`` > 1 keeps one scan in ``every``
-    (a thinned log)."""
+    (a thinned log); ``thin=(metres, radians)`` keeps a scan per distance or angle travelled
+    along the true path, as the public "corrected" logs were thinned."""
     world = load_world(world)
     route = make_route(world, duration=duration, seed=seed, fast_turns=fast_turns)
     obstacles = obstacles(route) if callable(obstacles) else obstacles
     scans = simulate_scans(world, lidar, route, seed=seed, obstacles=obstacles)
+    if thin is not None:
+        items = list(scans)
+        keep = thin_indices(np.array([true for _, true in items]), *thin)
+        scans = iter([items[k] for k in keep])
     scans = itertools.islice(scans, 0, None, every)
     est, gt, ms, extra = run_odometry(scans, config)
     return summary(name, est, gt, ms, extra)
@@ -396,6 +405,12 @@ def main() -> None:
                      duration, config, every=n)
             for n in (20, 40)
             for label, config in (("", None), (", no search", NO_SEARCH))
+        ],
+        "sickthinned": lambda: [
+            sim_case(f"{world} sick, a scan per 1 m / 0.6 rad, seed {seed}", LIDAR_PRESETS["sick"],
+                     duration / 3, world=world, seed=seed, thin=(1.0, 0.6))
+            for world in ("rooms", "warehouse", "maze")
+            for seed in (0, 1)
         ],
         "freiburg": lambda: log_case("freiburg079", "freiburg-079-corrected.log.gz", True),
         "freiburgthinned": lambda: [
