@@ -75,3 +75,90 @@ def test_thin_points_keeps_one_point_per_cell():
     kept = thin_points(pts, 0.05)
     assert kept.shape == (3, 2)
     assert np.allclose(kept[0], pts[0])
+
+
+def test_step_records_are_a_sequence_of_the_records_appended():
+    from bioslam.slam import StepRecord, StepRecords
+
+    made = [StepRecord(0.5 * k, k % 3, k % 2 == 0, StepRecords.EVENTS[k % 4], k - 1)
+            for k in range(2000)]  # fmt: skip
+    records = StepRecords()
+    for record in made:
+        records.append(record)
+    assert len(records) == 2000 and list(records) == made
+    assert records[-1] == made[-1] and records[10:13] == made[10:13]
+    np.testing.assert_array_equal(records.view_ids.view(), [r.view_id for r in made])
+    with pytest.raises(IndexError):
+        records[2000]
+
+
+def _jumping(slam: BioSLAM, at: int, jump: float) -> None:
+    """Make the odometry of ``slam`` jump ``jump`` metres forward at its ``at``-th scan, as a
+    search that replaced a failed match with a look-alike's pose does (flagged recovered)."""
+    odometry = slam.self_motion.odometry
+    update = odometry.update
+
+    def jumping_update(scan):
+        dp = np.array(update(scan), dtype=np.float64)
+        if odometry.num_scans == at:
+            dp[0] += jump
+            odometry.last_report.recovered = True
+        return dp
+
+    odometry.update = jumping_update
+
+
+@pytest.mark.parametrize("refuse", [True, False])
+def test_no_closure_is_measured_across_a_jump_of_the_odometry(ring_drive, refuse):
+    scans, _ = ring_drive
+    config = SLAMConfig()
+    config.loop_closure.refuse_broken_odometry = refuse
+    slam = BioSLAM(config)
+    at = len(scans) // 4  # a quarter into the first lap: places made before and after
+    _jumping(slam, at, 0.6)
+    for scan in scans:
+        slam.process(scan)
+    jumped = scans[at].stamp
+    assert slam.self_motion.breaks == 1
+    across = [c for c in slam.checks if c.experience_stamp < jumped and c.verdict.accepted]
+    later = [c for c in slam.checks if c.experience_stamp > jumped and c.verdict.accepted]
+    if refuse:
+        # the map relates the robot to the places made before the jump only across it
+        assert not across
+        refused = [c for c in slam.checks if c.verdict.reason == "odometry broke"]
+        assert refused and all(c.experience_stamp < jumped for c in refused)
+        assert slam.summary()["closure_refused_odometry_broke"] == len(refused)
+        # the places made after it still close
+        assert later
+    else:
+        assert across, "without the guard closures across the jump are accepted"
+
+
+def test_odometry_break_is_a_jump_between_scans_not_a_search_after_a_gap():
+    from bioslam.closure import odometry_broke
+    from bioslam.odometry import MatchReport
+
+    cfg = SLAMConfig().loop_closure
+    walking = np.array([0.05, 0.0, 0.0])  # 0.5 m/s, scans 0.1 s apart
+    jumped = walking + np.array([0.5, 0.0, 0.0])
+    turned = walking + np.array([0.0, 0.0, np.radians(40.0)])
+    recovered = MatchReport(recovered=True)
+    # a search's pose half a metre from the motion 0.1 s after the last scan: a jump
+    assert odometry_broke(recovered, jumped, walking, 0.1, cfg)
+    assert odometry_broke(recovered, turned, walking, 0.1, cfg)
+    assert odometry_broke(MatchReport(ambiguous=True), jumped, walking, 0.1, cfg)
+    # ... but after 2 s without a scan the robot may have gone there (freiburg-079)
+    assert not odometry_broke(recovered, jumped, walking * 20, 2.0, cfg)
+    # the search confirming the motion is no break, nor is the match from the motion model
+    assert not odometry_broke(recovered, walking + np.array([0.02, 0.0, 0.0]), walking, 0.1, cfg)
+    assert not odometry_broke(MatchReport(), jumped, walking, 0.1, cfg)
+    # a step without a match is a guess
+    assert odometry_broke(MatchReport(predicted_only=True), walking, walking, 0.1, cfg)
+
+
+def test_submap_fuses_no_scan_across_a_break():
+    from bioslam.closure import unbroken
+
+    breaks_at = np.array([0, 0, 1, 1, 1, 2, 2])
+    assert unbroken(breaks_at, 3, [1, 2, 3, 4, 5]) == [2, 3, 4]
+    assert unbroken(breaks_at, 0, [0, 1, 2]) == [0, 1]

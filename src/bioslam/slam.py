@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from typing import overload
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,12 +22,14 @@ from numpy.typing import NDArray
 from bioslam.boundary import BoundaryCells
 from bioslam.closure import (
     Check,
-    Submap,
     SubmapCache,
+    Verdict,
     nearest_experience,
+    odometry_broke,
     pass_neighbours,
     submap_anchor,
     thin_points,
+    unbroken,
     verify,
     within,
 )
@@ -43,7 +46,7 @@ from bioslam.views import ViewCells
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["BioSLAM", "SelfMotion", "StepRecord", "thin_points"]
+__all__ = ["BioSLAM", "SelfMotion", "StepRecord", "StepRecords", "thin_points"]
 
 
 @dataclass(frozen=True)
@@ -63,6 +66,49 @@ def _scan_payload(points: FloatArray, spacing: float) -> NDArray[np.float32]:
     return points[subsample_by_spacing(points, spacing)].astype(np.float32)
 
 
+class StepRecords:
+    """Every look's :class:`StepRecord`, kept as columns (one a look for the whole run: as
+    objects about 250 bytes each, 8 MB an hour at 40 Hz; as columns 26). A sequence of
+    ``StepRecord``; the columns themselves for figures."""
+
+    EVENTS = ("none", "new", "link", "loop")
+
+    def __init__(self) -> None:
+        self.stamps = GrowingArray(np.float64)
+        self.view_ids = GrowingArray(np.int64)
+        self.new_views = GrowingArray(np.bool_)
+        self._events = GrowingArray(np.int8)
+        self.experience_ids = GrowingArray(np.int64)
+
+    def append(self, record: StepRecord) -> None:
+        self.stamps.append(record.stamp)
+        self.view_ids.append(record.view_id)
+        self.new_views.append(record.view_is_new)
+        self._events.append(self.EVENTS.index(record.event))
+        self.experience_ids.append(record.experience_id)
+
+    def __len__(self) -> int:
+        return len(self.stamps)
+
+    @overload
+    def __getitem__(self, index: int) -> StepRecord: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> list[StepRecord]: ...
+
+    def __getitem__(self, index: int | slice) -> StepRecord | list[StepRecord]:
+        if isinstance(index, slice):
+            return [self[k] for k in range(len(self))[index]]
+        k = range(len(self))[index]  # IndexError, negative indices
+        return StepRecord(
+            float(self.stamps[k]), int(self.view_ids[k]), bool(self.new_views[k]),
+            self.EVENTS[int(self._events[k])], int(self.experience_ids[k]),
+        )  # fmt: skip
+
+    def __iter__(self) -> Iterator[StepRecord]:
+        return (self[k] for k in range(len(self)))
+
+
 class SelfMotion:
     """The self-motion cue: the LiDAR odometry's step per scan, integrated into a pose.
 
@@ -72,14 +118,26 @@ class SelfMotion:
     def __init__(self, config: SLAMConfig) -> None:
         self.odometry = LidarOdometry(config.odometry)
         self.heading_bias = config.heading_bias
+        self.closure = config.loop_closure
         self.pose = np.zeros(3)
         self._last_stamp: float | None = None
+        self._last_step = np.zeros(3)
+        self._last_dt = 0.0
+        #: steps so far that broke the odometry's chain (:func:`bioslam.closure.odometry_broke`)
+        self.breaks = 0
 
     def step(self, scan: LaserScan) -> FloatArray:
         """The motion since the previous scan, in the previous robot frame."""
         dp = np.asarray(self.odometry.update(scan), dtype=np.float64).copy()
-        if self.heading_bias and self._last_stamp is not None:
-            dp[2] += self.heading_bias * max(scan.stamp - self._last_stamp, 0.0)
+        if self._last_stamp is not None:
+            dt = max(scan.stamp - self._last_stamp, 0.0)
+            if self._last_dt > 0.0:  # the velocity of the step before is known
+                expected = self._last_step * min(dt / self._last_dt, 1e3)
+                report = self.odometry.last_report
+                self.breaks += odometry_broke(report, dp, expected, dt, self.closure)
+            self._last_step, self._last_dt = dp.copy(), dt
+            if self.heading_bias:
+                dp[2] += self.heading_bias * dt
         self._last_stamp = scan.stamp
         self.pose = compose(self.pose, dp)
         return dp
@@ -101,11 +159,15 @@ class BioSLAM:
         self._anchor_ids = GrowingArray(np.int64)
         self._anchor_offsets = GrowingArray(np.float64, 3)
         self._odometry_poses = GrowingArray(np.float64, 3)
-        self.records: list[StepRecord] = []
+        self.records = StepRecords()
         self._travelled = 0.0
         # odometry distance at which each experience was made, by id (a doubling buffer:
         # the closure cues search it at every look)
         self._made_at = np.empty(1024)
+        # odometry breaks so far (:func:`bioslam.closure.odometry_broke`), and when each
+        # experience was made: a closure is measured only against a place the odometry
+        # relates to the robot without a break
+        self._breaks_at = np.empty(1024, dtype=np.int64)
         self._last_registration = -np.inf
         self._travelled_at_entry = 0.0
         self._pending = np.zeros(3)
@@ -197,7 +259,9 @@ class BioSLAM:
     def _note_made(self, experience_id: int) -> None:
         if experience_id >= self._made_at.size:
             self._made_at = np.concatenate([self._made_at, np.empty_like(self._made_at)])
+            self._breaks_at = np.concatenate([self._breaks_at, np.empty_like(self._breaks_at)])
         self._made_at[experience_id] = self._travelled
+        self._breaks_at[experience_id] = self.self_motion.breaks
 
     def _nearby(self, pose: FloatArray, travelled: float) -> int | None:
         """The path-integration cue: the experience nearest the robot's map ``pose`` (after
@@ -244,7 +308,21 @@ class BioSLAM:
         drift, drift_angle = self._drift_bound(since, linked)
         if np.hypot(predicted[0], predicted[1]) > cfg.recognition_radius + drift:
             return None
-        submap = self._submap(experience.id)
+        anchor, members = self._submap_members(experience.id)
+        since = self._breaks_at[min(anchor, experience.id)]
+        if cfg.refuse_broken_odometry and self.self_motion.breaks > since:
+            # The map relates the robot to the place through a break of the odometry (a
+            # jump to a look-alike, a match it could not tell from one, a step it could not
+            # match): its prediction may be off by metres, and a registration that finds
+            # the place where the map puts it only repeats the break (a corridor seen
+            # along its axis fits anywhere along it). Refused before any registration.
+            self._last_registration = self._travelled
+            self._refuse(experience, predicted, "odometry broke")
+            return None
+        submap = self.submaps.get(
+            self.cognitive_map.experience_poses_view, self.cognitive_map.payloads, anchor,
+            members, cfg,
+        )  # fmt: skip
         if submap.pyramid is None:
             return None
         self._last_registration = self._travelled
@@ -269,21 +347,30 @@ class BioSLAM:
         ratio = self.config.cognitive_map.closure_shape_ratio
         return Measurement(verdict.pose, registration_shape(pts, normals, ratio))
 
-    def _submap(self, candidate: int) -> Submap:
-        """The scans around ``candidate`` on its own pass, fused in the frame of the pass's
-        experience nearest a whole ``submap_step`` of travel (shared by the checks near one
-        old place, :class:`bioslam.closure.SubmapCache`), and where they looked; the last
-        ``submap_reach`` metres of travel, which the current scan would match trivially, are
-        left out."""
+    def _submap_members(self, candidate: int) -> tuple[int, list[int]]:
+        """The experiences whose scans verify ``candidate``: those around it on its own pass,
+        in the frame of the pass's experience nearest a whole ``submap_step`` of travel (the
+        anchor, shared by the checks near one old place, :class:`bioslam.closure.SubmapCache`);
+        the last ``submap_reach`` metres of travel, which the current scan would match
+        trivially, are left out, and so is every scan the odometry relates to the anchor
+        only across a break (:func:`bioslam.closure.unbroken`): fused at a broken relative
+        pose, it would put a wall where the place has none."""
         cfg = self.config.loop_closure
-        cmap = self.cognitive_map
-        made_at = self._made_at[: len(cmap)]
+        made_at = self._made_at[: len(self.cognitive_map)]
         anchor = submap_anchor(made_at, candidate, cfg.submap_step)
         members = pass_neighbours(
             made_at, anchor, cfg.submap_reach, cfg.submap_step,
             self._travelled - cfg.submap_reach,
         )  # fmt: skip
-        return self.submaps.get(cmap.experience_poses_view, cmap.payloads, anchor, members, cfg)
+        if cfg.refuse_broken_odometry:
+            members = unbroken(self._breaks_at, anchor, members)
+        return anchor, members
+
+    def _refuse(self, experience: Experience, predicted: FloatArray, reason: str) -> None:
+        """Record a check refused before its registration ran."""
+        verdict = Verdict(False, np.asarray(predicted, dtype=np.float64), float("nan"), 0.0, reason)
+        cue = "proximity" if experience.id == self._proposed else "view"
+        self.checks.append(Check(self._stamp, experience.id, experience.stamp, cue, verdict))
 
     def _odometry_relation(self, experience_id: int) -> tuple[bool, float]:
         """Whether a short chain of links joins the current experience to
@@ -356,7 +443,9 @@ class BioSLAM:
     def _check_counts(self) -> dict[str, int]:
         """Loop-closure verifications by cue, and refusals by reason (``closure.verify``)."""
         out = {"closure_checks_view": 0, "closure_checks_proximity": 0}
-        for reason in ("score", "degenerate", "ambiguous", "slid", "beyond_drift"):
+        for reason in (
+            "score", "degenerate", "ambiguous", "slid", "beyond_drift", "odometry_broke"
+        ):
             out[f"closure_refused_{reason}"] = 0
         for check in self.checks:
             out[f"closure_checks_{check.cue}"] += 1
