@@ -13,6 +13,9 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
 - ``mapfunc``: Hector's bilinear M* against the sub-cell map function, maze 120 s.
 - ``thinned``: the maze run keeping one scan in 20 or 40 (0.25 / 0.5 m and up to 25 / 50
   degrees apart), beside the same with the close recovery search only.
+- ``sickthinned``: the SICK preset (181 beams at 1°) in the rooms off a corridor, the
+  warehouse and the maze, a third of the run's duration, thinned along the true path to a
+  scan per 1 m / 0.6 rad as the public "corrected" logs are, two seeds each.
 - ``freiburg``: freiburg-079 (LiDAR only), RPE over 1 m against the log's corrected poses,
   and how much of it is the reference's own: its jitter, the local map's sharpness, and a
   three-cornered hat with the log's raw wheel odometry as the third trajectory.
@@ -20,7 +23,9 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
   the reference's motion (as the SLAM benchmark's logs are thinned), beside the close
   recovery search alone.
 - ``intel``: the thinned Intel log (0.67 m and 22 degrees apart at the median), with and
-  without the wide search.
+  without the wide search, from each scan of ``--starts`` (a wrong step changes the map
+  every later scan is matched against, so the result depends on where the run starts);
+  ``--figure PNG`` draws each run's step errors.
 - ``warehouse``: the warehouse of identical aisles, 600 s, SICK (181 beams, 10 Hz) and
   UTM-30LX, with and without the wide-basin search: ATE, and jumps (the position error
   changing by more than 0.3 m between consecutive scans).
@@ -30,7 +35,8 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
 Per-scan time is the CPU time of ``LidarOdometry.update`` in this thread (matching plus the
 amortised map update), so other processes on the machine do not inflate it.
 
-Usage: ``python benchmarks/bench_odometry.py [--quick] [--only maze,freiburg,...]``
+Usage: ``python benchmarks/bench_odometry.py [--quick] [--only maze,freiburg,...]
+[--starts 0,3,7] [--figure intel-steps.png]``
 """
 
 from __future__ import annotations
@@ -58,6 +64,7 @@ from bioslam.sim import (
     people_on_roadmap,
     simulate_scans,
 )
+from bioslam.thinning import thin_indices
 from bioslam.trajectory import Trajectory
 
 REPO = Path(__file__).resolve().parents[1]
@@ -118,13 +125,18 @@ def summary(name: str, est: Trajectory, gt: Trajectory, ms: np.ndarray, extra: d
 
 
 def sim_case(name, lidar, duration, config=None, fast_turns=False, obstacles=(), seed=0,
-             every=1, world="maze"):  # fmt: skip
+             every=1, world="maze", thin=None):  # fmt: skip
     """One simulated run (the maze by default); ``every`` > 1 keeps one scan in ``every``
-    (a thinned log)."""
+    (a thinned log); ``thin=(metres, radians)`` keeps a scan per distance or angle travelled
+    along the true path, as the public "corrected" logs were thinned."""
     world = load_world(world)
     route = make_route(world, duration=duration, seed=seed, fast_turns=fast_turns)
     obstacles = obstacles(route) if callable(obstacles) else obstacles
     scans = simulate_scans(world, lidar, route, seed=seed, obstacles=obstacles)
+    if thin is not None:
+        items = list(scans)
+        keep = thin_indices(np.array([true for _, true in items]), *thin)
+        scans = iter([items[k] for k in keep])
     scans = itertools.islice(scans, 0, None, every)
     est, gt, ms, extra = run_odometry(scans, config)
     return summary(name, est, gt, ms, extra)
@@ -175,32 +187,73 @@ def occupancy_png(name: str, est: Trajectory, scans: list[np.ndarray], resolutio
     return path
 
 
-def log_case(name: str, filename: str, make_png: bool, config=None, select=None) -> dict | None:
+def log_case(name: str, filename: str, make_png: bool, config=None, select=None,
+             start: int = 0) -> dict | None:  # fmt: skip
     """The odometry on a log, against its corrected poses if it has them. ``select(scans,
-    reference)`` picks the scans fed to it (all by default)."""
+    reference)`` picks the scans fed to it (all by default), from the ``start``-th on. With
+    a reference the row also counts the wrong steps (the step between consecutive scans off
+    by more than 0.2 m from the reference's) and keeps each step's error (``_step_errors``,
+    not printed)."""
     path = DATA / filename
     if not path.exists():
         print(f"{name}: skipped, {path} not found", flush=True)
         return None
     source = open_log(path)
     ref = getattr(source, "reference", None)
-    scans = iter(source) if select is None else iter(select(list(source), ref))
-    est, _, ms, extra = run_odometry(scans, config, keep_scans=make_png)
+    scans = list(source) if select is None else select(list(source), ref)
+    est, _, ms, extra = run_odometry(iter(scans[start:]), config, keep_scans=make_png)
     row = {"case": name, "scans": len(est), "path_m": round(est.path_length(), 1),
            "ms_median": round(float(np.median(ms)), 3),
            "ms_p99": round(float(np.percentile(ms, 99)), 3),
            "degenerate_scans": extra["odometry_degenerate"]}  # fmt: skip
     if ref is not None and len(ref):
         rpe = rpe_distance(est, ref, 1.0)
+        errors = step_errors(est, ref)
         row.update(rpe1m_cm=round(100 * rpe["trans_rmse_m"], 2),
                    rpe1m_deg=round(rpe["rot_rmse_deg"], 3), pairs=rpe["pairs"],
-                   recovered=extra["odometry_recovered"])  # fmt: skip
+                   recovered=extra["odometry_recovered"],
+                   wrong_steps=int(np.sum(errors > 0.2)), _step_errors=errors)  # fmt: skip
         if make_png:
             row.update(reference_check(est, ref, extra["scans"], source.odometry))
-    print("  ".join(f"{k}={v}" for k, v in row.items()), flush=True)
+    print("  ".join(f"{k}={v}" for k, v in row.items() if not k.startswith("_")), flush=True)
     if make_png:
         occupancy_png(name, est, extra["scans"])
     return row
+
+
+def step_errors(est: Trajectory, ref: Trajectory) -> np.ndarray:
+    """Translation error (m) of each step between consecutive estimated poses against the
+    reference's step between the same stamps."""
+    truth = ref.at(est.stamps).poses
+    miss = between(between(truth[:-1], truth[1:]), between(est.poses[:-1], est.poses[1:]))
+    return np.hypot(miss[:, 0], miss[:, 1])
+
+
+def step_error_png(rows: list[dict], path: Path) -> None:
+    """Each run's step errors against the scan index (one panel per run): where the wrong
+    steps are, and whether they come alone or in cascades."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [r for r in rows if r and "_step_errors" in r]
+    fig, axes = plt.subplots(len(rows), 1, figsize=(9, 1.8 * len(rows) + 0.4), sharex=True,
+                             squeeze=False)  # fmt: skip
+    for ax, row in zip(axes[:, 0], rows, strict=True):
+        err = np.maximum(row["_step_errors"], 1e-3)
+        ax.semilogy(np.arange(1, len(err) + 1), err, ".", ms=2)
+        ax.axhline(0.2, color="r", lw=0.6)
+        ax.set_ylim(1e-3, 10)
+        ax.set_ylabel("step error m")
+        ax.set_title(f"{row['case']}: RPE 1 m {row['rpe1m_cm']} cm, "
+                     f"{row['wrong_steps']} steps off > 0.2 m", fontsize=9)  # fmt: skip
+    axes[-1, 0].set_xlabel("scan")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    print(f"figure: {path}", flush=True)
 
 
 def thinned(distance: float, angle: float):
@@ -308,7 +361,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="120 s simulated runs")
     parser.add_argument("--only", default="", help="comma-separated case names")
+    parser.add_argument("--starts", default="0",
+                        help="comma-separated scans to start the intel case at (its result "
+                             "depends on where it starts); the run without search only at "
+                             "the first")  # fmt: skip
+    parser.add_argument("--figure", type=Path, default=None,
+                        help="PNG of the intel runs' step errors against the reference")
     args = parser.parse_args()
+    starts = [int(v) for v in args.starts.split(",")]
     only = set(filter(None, args.only.split(",")))
     duration = 120.0 if args.quick else 600.0
     utm = LIDAR_PRESETS["utm30lx"]
@@ -346,6 +406,12 @@ def main() -> None:
             for n in (20, 40)
             for label, config in (("", None), (", no search", NO_SEARCH))
         ],
+        "sickthinned": lambda: [
+            sim_case(f"{world} sick, a scan per 1 m / 0.6 rad, seed {seed}", LIDAR_PRESETS["sick"],
+                     duration / 3, world=world, seed=seed, thin=(1.0, 0.6))
+            for world in ("rooms", "warehouse", "maze")
+            for seed in (0, 1)
+        ],
         "freiburg": lambda: log_case("freiburg079", "freiburg-079-corrected.log.gz", True),
         "freiburgthinned": lambda: [
             log_case(f"freiburg079 thinned to {d} m / {a} rad{label}",
@@ -354,8 +420,11 @@ def main() -> None:
             for label, config in (("", None), (", no search", NO_SEARCH))
         ],
         "intel": lambda: [
-            log_case(f"intel (thinned){label}", "intel-corrected.log.gz", False, config)
+            log_case(f"intel (thinned){label}" + (f" from scan {start}" if start else ""),
+                     "intel-corrected.log.gz", False, config, start=start)
+            for start in starts
             for label, config in (("", None), (", no search", NO_SEARCH))
+            if start == starts[0] or config is None
         ],
         "warehouse": lambda: [
             sim_case(f"warehouse {lidar}{label}", LIDAR_PRESETS[lidar], duration, config,
@@ -370,7 +439,10 @@ def main() -> None:
     }
     for name, case in cases.items():
         if not only or name in only:
-            case()
+            rows = case()
+            if name == "intel" and args.figure is not None:
+                step_error_png([r for r in rows if r and "no search" not in r["case"]],
+                               args.figure)  # fmt: skip
 
 
 if __name__ == "__main__":
