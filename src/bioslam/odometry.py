@@ -625,13 +625,19 @@ class LidarOdometry:
         times its distance from the nearest motion hypothesis (in ``jump_distance`` /
         ``jump_angle`` units). Where the scan cannot tell places apart, the step like the
         robot's recent ones wins; where it can, the scan does (the prior costs at most
-        ``-log(step_prior.floor)`` times its weight). A match farther than the robot can
-        have moved since the last scan (``reach``) falls back on the first, as in
-        :meth:`_choose`. Flags the report ambiguous when a distinct match is plausible
-        (``plausible_ratio`` of the quality), recovered when it is not the first match."""
+        ``-log(step_prior.floor)`` times its weight). When every match the map does not
+        reject has failed, all compete the same way: a match that slid off the map meets no
+        evidence against it, but none for it either (intel from its 5th scan: a 19.8 m step
+        was so kept). A match farther than the robot can have moved since the last scan
+        (``reach``) falls back on the first, as in :meth:`_choose`, unless the first is
+        rejected and it is clean and did not fail. Flags the report ambiguous when a
+        distinct match is plausible (``plausible_ratio`` of the quality), recovered when it
+        is not the first match."""
         c = self.config
         first = options[0]
-        pool = [o for o in options if not self._rejected(o[1])] or options
+        pool = [o for o in options if not self._rejected(o[1])]
+        if all(o[2] for o in pool):  # no match both fits and is consistent with the map
+            pool = options
         quality = {id(o): _match_quality(o[1]) for o in options}
 
         def merit(option: tuple[FloatArray, MatchReport, bool]) -> float:
@@ -644,7 +650,7 @@ class LidarOdometry:
 
         chosen = max(pool, key=merit)
         if chosen is not first and self._beyond(chosen[0], previous, reach) and not (
-            self._rejected(first[1]) and self._clean(chosen[1])
+            self._rejected(first[1]) and self._clean(chosen[1]) and not chosen[2]
         ):
             chosen = first
         q = quality[id(chosen)]
