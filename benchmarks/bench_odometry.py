@@ -20,7 +20,9 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
   the reference's motion (as the SLAM benchmark's logs are thinned), beside the close
   recovery search alone.
 - ``intel``: the thinned Intel log (0.67 m and 22 degrees apart at the median), with and
-  without the wide search.
+  without the wide search, from each scan of ``--starts`` (a wrong step changes the map
+  every later scan is matched against, so the result depends on where the run starts);
+  ``--figure PNG`` draws each run's step errors.
 - ``warehouse``: the warehouse of identical aisles, 600 s, SICK (181 beams, 10 Hz) and
   UTM-30LX, with and without the wide-basin search: ATE, and jumps (the position error
   changing by more than 0.3 m between consecutive scans).
@@ -30,7 +32,8 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
 Per-scan time is the CPU time of ``LidarOdometry.update`` in this thread (matching plus the
 amortised map update), so other processes on the machine do not inflate it.
 
-Usage: ``python benchmarks/bench_odometry.py [--quick] [--only maze,freiburg,...]``
+Usage: ``python benchmarks/bench_odometry.py [--quick] [--only maze,freiburg,...]
+[--starts 0,3,7] [--figure intel-steps.png]``
 """
 
 from __future__ import annotations
@@ -175,32 +178,73 @@ def occupancy_png(name: str, est: Trajectory, scans: list[np.ndarray], resolutio
     return path
 
 
-def log_case(name: str, filename: str, make_png: bool, config=None, select=None) -> dict | None:
+def log_case(name: str, filename: str, make_png: bool, config=None, select=None,
+             start: int = 0) -> dict | None:  # fmt: skip
     """The odometry on a log, against its corrected poses if it has them. ``select(scans,
-    reference)`` picks the scans fed to it (all by default)."""
+    reference)`` picks the scans fed to it (all by default), from the ``start``-th on. With
+    a reference the row also counts the wrong steps (the step between consecutive scans off
+    by more than 0.2 m from the reference's) and keeps each step's error (``_step_errors``,
+    not printed)."""
     path = DATA / filename
     if not path.exists():
         print(f"{name}: skipped, {path} not found", flush=True)
         return None
     source = open_log(path)
     ref = getattr(source, "reference", None)
-    scans = iter(source) if select is None else iter(select(list(source), ref))
-    est, _, ms, extra = run_odometry(scans, config, keep_scans=make_png)
+    scans = list(source) if select is None else select(list(source), ref)
+    est, _, ms, extra = run_odometry(iter(scans[start:]), config, keep_scans=make_png)
     row = {"case": name, "scans": len(est), "path_m": round(est.path_length(), 1),
            "ms_median": round(float(np.median(ms)), 3),
            "ms_p99": round(float(np.percentile(ms, 99)), 3),
            "degenerate_scans": extra["odometry_degenerate"]}  # fmt: skip
     if ref is not None and len(ref):
         rpe = rpe_distance(est, ref, 1.0)
+        errors = step_errors(est, ref)
         row.update(rpe1m_cm=round(100 * rpe["trans_rmse_m"], 2),
                    rpe1m_deg=round(rpe["rot_rmse_deg"], 3), pairs=rpe["pairs"],
-                   recovered=extra["odometry_recovered"])  # fmt: skip
+                   recovered=extra["odometry_recovered"],
+                   wrong_steps=int(np.sum(errors > 0.2)), _step_errors=errors)  # fmt: skip
         if make_png:
             row.update(reference_check(est, ref, extra["scans"], source.odometry))
-    print("  ".join(f"{k}={v}" for k, v in row.items()), flush=True)
+    print("  ".join(f"{k}={v}" for k, v in row.items() if not k.startswith("_")), flush=True)
     if make_png:
         occupancy_png(name, est, extra["scans"])
     return row
+
+
+def step_errors(est: Trajectory, ref: Trajectory) -> np.ndarray:
+    """Translation error (m) of each step between consecutive estimated poses against the
+    reference's step between the same stamps."""
+    truth = ref.at(est.stamps).poses
+    miss = between(between(truth[:-1], truth[1:]), between(est.poses[:-1], est.poses[1:]))
+    return np.hypot(miss[:, 0], miss[:, 1])
+
+
+def step_error_png(rows: list[dict], path: Path) -> None:
+    """Each run's step errors against the scan index (one panel per run): where the wrong
+    steps are, and whether they come alone or in cascades."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [r for r in rows if r and "_step_errors" in r]
+    fig, axes = plt.subplots(len(rows), 1, figsize=(9, 1.8 * len(rows) + 0.4), sharex=True,
+                             squeeze=False)  # fmt: skip
+    for ax, row in zip(axes[:, 0], rows, strict=True):
+        err = np.maximum(row["_step_errors"], 1e-3)
+        ax.semilogy(np.arange(1, len(err) + 1), err, ".", ms=2)
+        ax.axhline(0.2, color="r", lw=0.6)
+        ax.set_ylim(1e-3, 10)
+        ax.set_ylabel("step error m")
+        ax.set_title(f"{row['case']}: RPE 1 m {row['rpe1m_cm']} cm, "
+                     f"{row['wrong_steps']} steps off > 0.2 m", fontsize=9)  # fmt: skip
+    axes[-1, 0].set_xlabel("scan")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    print(f"figure: {path}", flush=True)
 
 
 def thinned(distance: float, angle: float):
@@ -308,7 +352,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="120 s simulated runs")
     parser.add_argument("--only", default="", help="comma-separated case names")
+    parser.add_argument("--starts", default="0",
+                        help="comma-separated scans to start the intel case at (its result "
+                             "depends on where it starts); the run without search only at "
+                             "the first")  # fmt: skip
+    parser.add_argument("--figure", type=Path, default=None,
+                        help="PNG of the intel runs' step errors against the reference")
     args = parser.parse_args()
+    starts = [int(v) for v in args.starts.split(",")]
     only = set(filter(None, args.only.split(",")))
     duration = 120.0 if args.quick else 600.0
     utm = LIDAR_PRESETS["utm30lx"]
@@ -354,8 +405,11 @@ def main() -> None:
             for label, config in (("", None), (", no search", NO_SEARCH))
         ],
         "intel": lambda: [
-            log_case(f"intel (thinned){label}", "intel-corrected.log.gz", False, config)
+            log_case(f"intel (thinned){label}" + (f" from scan {start}" if start else ""),
+                     "intel-corrected.log.gz", False, config, start=start)
+            for start in starts
             for label, config in (("", None), (", no search", NO_SEARCH))
+            if start == starts[0] or config is None
         ],
         "warehouse": lambda: [
             sim_case(f"warehouse {lidar}{label}", LIDAR_PRESETS[lidar], duration, config,
@@ -370,7 +424,10 @@ def main() -> None:
     }
     for name, case in cases.items():
         if not only or name in only:
-            case()
+            rows = case()
+            if name == "intel" and args.figure is not None:
+                step_error_png([r for r in rows if r and "no search" not in r["case"]],
+                               args.figure)  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -77,6 +77,21 @@ def test_thin_points_keeps_one_point_per_cell():
     assert np.allclose(kept[0], pts[0])
 
 
+def test_step_records_are_a_sequence_of_the_records_appended():
+    from bioslam.slam import StepRecord, StepRecords
+
+    made = [StepRecord(0.5 * k, k % 3, k % 2 == 0, StepRecords.EVENTS[k % 4], k - 1)
+            for k in range(2000)]  # fmt: skip
+    records = StepRecords()
+    for record in made:
+        records.append(record)
+    assert len(records) == 2000 and list(records) == made
+    assert records[-1] == made[-1] and records[10:13] == made[10:13]
+    np.testing.assert_array_equal(records.view_ids.view(), [r.view_id for r in made])
+    with pytest.raises(IndexError):
+        records[2000]
+
+
 def _jumping(slam: BioSLAM, at: int, jump: float) -> None:
     """Make the odometry of ``slam`` jump ``jump`` metres forward at its ``at``-th scan, as a
     search that replaced a failed match with a look-alike's pose does (flagged recovered)."""

@@ -33,7 +33,7 @@ from bioslam.memory import release_free_memory
 from bioslam.occupancy_grid import OccupancyGrid
 from bioslam.odometry import LidarOdometry, register_scans
 from bioslam.scan import LaserScan
-from bioslam.slam import BioSLAM, SelfMotion, StepRecord, thin_points
+from bioslam.slam import BioSLAM, SelfMotion, StepRecords, thin_points
 from bioslam.trajectory import Trajectory
 
 FloatArray = NDArray[np.float64]
@@ -93,7 +93,7 @@ class OdometryOnly:
         self.self_motion = SelfMotion(config)
         self._stamps = GrowingArray(np.float64)
         self._poses = GrowingArray(np.float64, 3)
-        self.records: list[StepRecord] = []
+        self.records = StepRecords()
         self._released: dict[str, int] | None = None
 
     @property
@@ -565,9 +565,8 @@ def _write_figures(
     aligned_gt = _gt_in_map_frame(trajectory, gt) if gt is not None else None
     draw("cognitive_map.png", figures.plot_cognitive_map, final.nodes_xy, final.links, aligned_gt)
     records = system.records
-    stamps = np.array([r.stamp for r in records])
-    view_ids = np.array([r.view_id for r in records])
-    new_mask = np.array([r.view_is_new for r in records])
+    stamps, view_ids = records.stamps.view(), records.view_ids.view()
+    new_mask = records.new_views.view()
     draw("active_view.png", figures.plot_active_view, stamps, view_ids, new_mask)
     if gt is None:
         return

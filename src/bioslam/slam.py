@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from typing import overload
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,7 +46,7 @@ from bioslam.views import ViewCells
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["BioSLAM", "SelfMotion", "StepRecord", "thin_points"]
+__all__ = ["BioSLAM", "SelfMotion", "StepRecord", "StepRecords", "thin_points"]
 
 
 @dataclass(frozen=True)
@@ -63,6 +64,49 @@ def _scan_payload(points: FloatArray, spacing: float) -> NDArray[np.float32]:
     """The scan kept with a place for registration: its endpoints at least ``spacing`` apart
     along the scan (computed at every look, so cheaper than :func:`thin_points`)."""
     return points[subsample_by_spacing(points, spacing)].astype(np.float32)
+
+
+class StepRecords:
+    """Every look's :class:`StepRecord`, kept as columns (one a look for the whole run: as
+    objects about 250 bytes each, 8 MB an hour at 40 Hz; as columns 26). A sequence of
+    ``StepRecord``; the columns themselves for figures."""
+
+    EVENTS = ("none", "new", "link", "loop")
+
+    def __init__(self) -> None:
+        self.stamps = GrowingArray(np.float64)
+        self.view_ids = GrowingArray(np.int64)
+        self.new_views = GrowingArray(np.bool_)
+        self._events = GrowingArray(np.int8)
+        self.experience_ids = GrowingArray(np.int64)
+
+    def append(self, record: StepRecord) -> None:
+        self.stamps.append(record.stamp)
+        self.view_ids.append(record.view_id)
+        self.new_views.append(record.view_is_new)
+        self._events.append(self.EVENTS.index(record.event))
+        self.experience_ids.append(record.experience_id)
+
+    def __len__(self) -> int:
+        return len(self.stamps)
+
+    @overload
+    def __getitem__(self, index: int) -> StepRecord: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> list[StepRecord]: ...
+
+    def __getitem__(self, index: int | slice) -> StepRecord | list[StepRecord]:
+        if isinstance(index, slice):
+            return [self[k] for k in range(len(self))[index]]
+        k = range(len(self))[index]  # IndexError, negative indices
+        return StepRecord(
+            float(self.stamps[k]), int(self.view_ids[k]), bool(self.new_views[k]),
+            self.EVENTS[int(self._events[k])], int(self.experience_ids[k]),
+        )  # fmt: skip
+
+    def __iter__(self) -> Iterator[StepRecord]:
+        return (self[k] for k in range(len(self)))
 
 
 class SelfMotion:
@@ -117,7 +161,7 @@ class BioSLAM:
         self._anchor_ids = GrowingArray(np.int64)
         self._anchor_offsets = GrowingArray(np.float64, 3)
         self._odometry_poses = GrowingArray(np.float64, 3)
-        self.records: list[StepRecord] = []
+        self.records = StepRecords()
         self._travelled = 0.0
         # odometry distance at which each experience was made, by id (a doubling buffer:
         # the closure cues search it at every look)

@@ -96,8 +96,15 @@ def dumps_json(value: Any, indent: int | None = 2) -> str:
 
 
 def write_json(path: str | Path, value: Any, indent: int | None = 2) -> Path:
-    """Write ``value`` as JSON to ``path`` atomically; returns the path."""
-    return atomic_write_text(path, dumps_json(value, indent) + "\n")
+    """Write ``value`` as JSON to ``path`` atomically; returns the path. The text goes to
+    the file as it is encoded (the cognitive map of an hour's run is megabytes of it, and
+    as one string and its UTF-8 copy it would double the memory its objects take)."""
+    path = Path(path)
+    jsonable = to_jsonable(value)
+    with atomic_path(path) as tmp, tmp.open("w", encoding="utf-8") as fh:
+        json.dump(jsonable, fh, indent=indent, allow_nan=False)
+        fh.write("\n")
+    return path
 
 
 def read_json(path: str | Path) -> Any:

@@ -1,0 +1,96 @@
+"""Tests of the step prior: a density of the robot's recent steps between scans."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from bioslam.step_prior import StepPrior, StepPriorConfig
+
+
+def thinned_log_steps(n: int = 100, seed: int = 0) -> np.ndarray:
+    """Steps of a log thinned to a scan per metre or per 30° of turn: mostly about a metre
+    straight on with a few degrees of turn, sometimes a turn on the spot either way."""
+    rng = np.random.default_rng(seed)
+    steps = np.zeros((n, 3))
+    spin = rng.random(n) < 0.3
+    steps[:, 0] = np.where(spin, rng.uniform(0.0, 0.1, n), rng.uniform(0.9, 1.1, n))
+    steps[:, 1] = rng.normal(0.0, 0.03, n)
+    turn = np.where(rng.random(n) < 0.5, -1.0, 1.0) * math.radians(30.0)
+    steps[:, 2] = np.where(spin, turn, rng.normal(0.0, math.radians(5.0), n))
+    return steps
+
+
+def prior_of(steps: np.ndarray, **kwargs: float) -> StepPrior:
+    prior = StepPrior(StepPriorConfig(**kwargs))
+    for s in steps:
+        prior.add(s)
+    return prior
+
+
+def test_a_thinned_logs_own_steps_are_cheap_and_look_alikes_are_not():
+    prior = prior_of(thinned_log_steps())
+    cap = -math.log(prior.config.floor)
+    forward = prior.cost((1.0, 0.0, 0.0))
+    spin = prior.cost((0.05, 0.0, math.radians(-30.0)))
+    assert forward < 1.0 and spin < 2.0
+    # The poses a corridor or a scan's own beam pattern cannot tell from the true one: standing
+    # still, a metre back, a metre sideways, a turn of 90 degrees.
+    for wrong in ((0.0, 0.0, 0.0), (-0.8, 0.0, 0.0), (0.5, -1.0, 0.0), (1.0, 0.0, math.pi / 2)):
+        cost = prior.cost(wrong)
+        assert cost > forward + 1.5, wrong
+        assert cost <= cap + 1e-12
+
+
+def test_a_dense_scanners_steps_make_any_long_step_cost_the_most():
+    rng = np.random.default_rng(1)
+    steps = np.column_stack([rng.uniform(0.01, 0.03, 100), rng.normal(0, 0.002, 100),
+                             rng.normal(0, 0.01, 100)])  # fmt: skip
+    prior = prior_of(steps)
+    assert prior.cost((0.02, 0.0, 0.0)) < 0.05
+    assert prior.cost((1.0, 0.0, 0.0)) == pytest.approx(-math.log(prior.config.floor), abs=0.01)
+
+
+def test_a_few_wrong_steps_among_many_do_not_make_their_kind_typical():
+    steps = thinned_log_steps()
+    steps[[10, 40, 70]] = 0.0  # three standstills accepted by mistake
+    prior = prior_of(steps)
+    assert prior.cost((0.0, 0.0, 0.0)) > -math.log(0.1)  # still implausible
+    assert prior.cost((1.0, 0.0, 0.0)) < 1.0
+
+
+def test_few_steps_give_a_weak_prior_and_none_a_flat_one():
+    prior = StepPrior()
+    assert prior.cost((5.0, 5.0, 3.0)) == 0.0 and prior.density((5.0, 5.0, 3.0)) == 1.0
+    for _ in range(3):
+        prior.add((1.0, 0.0, 0.0))
+    # three steps alike: the floor is 2/3, so even the most unlike step costs little
+    assert 0.0 < prior.cost((-1.0, 0.0, 0.0)) <= -math.log(2.0 / 3.0) + 1e-12
+    assert len(prior) == 3
+
+
+def test_the_window_forgets_old_steps():
+    prior = prior_of(np.tile([1.0, 0.0, 0.0], (50, 1)), window=20)
+    for _ in range(20):
+        prior.add((0.0, 0.0, 0.5))
+    assert len(prior) == 20
+    assert prior.cost((1.0, 0.0, 0.0)) > prior.cost((0.0, 0.0, 0.5)) + 2.0
+
+
+def test_angles_wrap():
+    prior = prior_of(np.tile([0.0, 0.0, math.pi - 0.01], (10, 1)))
+    assert prior.cost((0.0, 0.0, -math.pi + 0.01)) < 0.01
+
+
+BAD_CONFIGS = [
+    {"window": 0}, {"min_steps": 0}, {"sigma_distance": 0.0}, {"sigma_angle": -1.0},
+    {"floor": 0.0}, {"floor": 1.5},
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("kwargs", BAD_CONFIGS)
+def test_bad_configs_are_refused(kwargs):
+    with pytest.raises(ValueError):
+        StepPriorConfig(**kwargs)
