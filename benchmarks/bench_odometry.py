@@ -10,9 +10,16 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
 - ``deskew``: the fast-turn run with and without de-skewing.
 - ``shortrange``: the URG-04LX preset (240°, 5.6 m) on three 60 s routes, beside the same
   sensor with a 30 m range and with a 360° field of view.
+- ``corridor``: corridors longer than the range, where only the motion model carries the
+  pose: the URG-04LX out and back along a closed 24 m corridor (a door niche near each end,
+  0.3 m off the centre-line), and the SICK preset along an 80 m corridor with a door every
+  6 m on alternate sides, thinned to one scan per metre.
 - ``mapfunc``: Hector's bilinear M* against the sub-cell map function, maze 120 s.
 - ``thinned``: the maze run keeping one scan in 20 or 40 (0.25 / 0.5 m and up to 25 / 50
   degrees apart), beside the same with the close recovery search only.
+- ``sickthinned``: the SICK preset (181 beams at 1°) in the rooms off a corridor, the
+  warehouse and the maze, a third of the run's duration, thinned along the true path to a
+  scan per 1 m / 0.6 rad as the public "corrected" logs are, two seeds each.
 - ``freiburg``: freiburg-079 (LiDAR only), RPE over 1 m against the log's corrected poses,
   and how much of it is the reference's own: its jitter, the local map's sharpness, and a
   three-cornered hat with the log's raw wheel odometry as the third trajectory.
@@ -55,12 +62,15 @@ from bioslam.odometry import LidarOdometry, OdometryConfig
 from bioslam.sim import (
     LIDAR_PRESETS,
     MovingObstacle,
+    Route,
+    World,
     load_world,
     make_route,
     maze_world,
     people_on_roadmap,
     simulate_scans,
 )
+from bioslam.thinning import thin_indices
 from bioslam.trajectory import Trajectory
 
 REPO = Path(__file__).resolve().parents[1]
@@ -121,13 +131,18 @@ def summary(name: str, est: Trajectory, gt: Trajectory, ms: np.ndarray, extra: d
 
 
 def sim_case(name, lidar, duration, config=None, fast_turns=False, obstacles=(), seed=0,
-             every=1, world="maze"):  # fmt: skip
+             every=1, world="maze", thin=None):  # fmt: skip
     """One simulated run (the maze by default); ``every`` > 1 keeps one scan in ``every``
-    (a thinned log)."""
+    (a thinned log); ``thin=(metres, radians)`` keeps a scan per distance or angle travelled
+    along the true path, as the public "corrected" logs were thinned."""
     world = load_world(world)
     route = make_route(world, duration=duration, seed=seed, fast_turns=fast_turns)
     obstacles = obstacles(route) if callable(obstacles) else obstacles
     scans = simulate_scans(world, lidar, route, seed=seed, obstacles=obstacles)
+    if thin is not None:
+        items = list(scans)
+        keep = thin_indices(np.array([true for _, true in items]), *thin)
+        scans = iter([items[k] for k in keep])
     scans = itertools.islice(scans, 0, None, every)
     est, gt, ms, extra = run_odometry(scans, config)
     return summary(name, est, gt, ms, extra)
@@ -348,6 +363,71 @@ def short_range_models() -> list[tuple[str, object]]:
     ]
 
 
+def _wall(x0: float, y0: float, x1: float, y1: float) -> tuple[float, float, float, float]:
+    return (x0, y0, x1, y1)
+
+
+def _niche(x: float, side: float, width: float = 1.0, depth: float = 0.5) -> list:
+    """A door recess of ``width`` x ``depth`` metres at ``x`` in the wall at y = ``side``."""
+    out = side * (1.0 + depth)
+    end = x + width
+    return [_wall(x, side, x, out), _wall(x, out, end, out), _wall(end, out, end, side)]
+
+
+def _wall_with_doors(side: float, doors: list[float], x0: float, x1: float) -> list:
+    """The corridor wall at y = ``side`` from ``x0`` to ``x1``, a 1 m door niche at each of
+    ``doors``."""
+    walls, x = [], x0
+    for d in doors:
+        walls += [_wall(x, side, d, side), *_niche(d, side)]
+        x = d + 1.0
+    return [*walls, _wall(x, side, x1, side)]
+
+
+def straight_route(xs: np.ndarray, y: float, heading: float, speed: float) -> tuple:
+    """Poses along x (``xs`` in order) at ``y`` weaving by +-0.1 m, driven at ``speed``."""
+    ys = y + 0.1 * np.sin(xs / 5.0)
+    poses = np.column_stack([xs, ys, np.full(len(xs), heading)])
+    steps = np.hypot(np.diff(xs), np.diff(ys))
+    return poses, np.concatenate([[0.0], np.cumsum(steps) / speed])
+
+
+def closed_corridor_case() -> dict:
+    """URG-04LX out and back along a closed 24 m corridor, 0.3 m off its centre-line: from
+    x = 3 to 17 it sees two parallel walls only (240 degrees never see the end behind it)."""
+    walls = (
+        _wall_with_doors(1.0, [1.0], -1.0, 23.0) + _wall_with_doors(-1.0, [18.0], -1.0, 23.0)
+        + [_wall(-1.0, -1.0, -1.0, 1.0), _wall(23.0, -1.0, 23.0, 1.0)]
+    )  # fmt: skip
+    out, t_out = straight_route(np.linspace(0.0, 20.0, 2001), 0.3, 0.0, 0.5)
+    back, t_back = straight_route(np.linspace(20.0, 1.0, 1901), 0.3, np.pi, 0.5)
+    turn_t = np.linspace(0.0, np.pi, 50)[1:]  # on the spot at 1 rad/s
+    turn = np.column_stack([np.full(49, out[-1, 0]), np.full(49, out[-1, 1]), turn_t])
+    poses = np.vstack([out, turn, back])
+    times = np.concatenate([t_out, t_out[-1] + turn_t, t_out[-1] + np.pi + t_back + 0.1])
+    route = Route(times, poses)
+    scans = simulate_scans(World(np.array(walls), "closed corridor"), LIDAR_PRESETS["urg04lx"],
+                           route, seed=0)  # fmt: skip
+    est, gt, ms, extra = run_odometry(scans)
+    return summary("urg04lx closed 24 m corridor, out and back", est, gt, ms, extra)
+
+
+def doors_corridor_case() -> dict:
+    """SICK (180 degrees, 181 beams) along an 80 m corridor 2 m wide with a door every 6 m on
+    alternate sides, thinned to one scan per metre: the doors are the only features."""
+    walls = (
+        _wall_with_doors(1.0, list(np.arange(6.0, 78.0, 6.0)), 0.0, 80.0)
+        + _wall_with_doors(-1.0, list(np.arange(3.0, 78.0, 6.0)), 0.0, 80.0)
+        + [_wall(0.0, -1.0, 0.0, 1.0), _wall(80.0, -1.0, 80.0, 1.0)]
+    )  # fmt: skip
+    poses, times = straight_route(np.linspace(1.0, 70.0, 6901), 0.2, 0.0, 0.5)
+    scans = list(simulate_scans(World(np.array(walls), "corridor with doors"),
+                                LIDAR_PRESETS["sick"], Route(times, poses), seed=0))  # fmt: skip
+    keep = thin_indices(np.array([true for _, true in scans]), distance=1.0)
+    est, gt, ms, extra = run_odometry([scans[i] for i in keep])
+    return summary("sick 80 m corridor, doors every 6 m, 1 scan per metre", est, gt, ms, extra)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="120 s simulated runs")
@@ -391,11 +471,18 @@ def main() -> None:
             for label, model in short_range_models()
             for seed in range(3)
         ],
+        "corridor": lambda: [closed_corridor_case(), doors_corridor_case()],
         "thinned": lambda: [
             sim_case(f"maze utm30lx, 1 scan in {n} ({n / 40:.1f} s apart){label}", utm,
                      duration, config, every=n)
             for n in (20, 40)
             for label, config in (("", None), (", no search", NO_SEARCH))
+        ],
+        "sickthinned": lambda: [
+            sim_case(f"{world} sick, a scan per 1 m / 0.6 rad, seed {seed}", LIDAR_PRESETS["sick"],
+                     duration / 3, world=world, seed=seed, thin=(1.0, 0.6))
+            for world in ("rooms", "warehouse", "maze")
+            for seed in (0, 1)
         ],
         "freiburg": lambda: log_case("freiburg079", "freiburg-079-corrected.log.gz", True),
         "freiburgthinned": lambda: [

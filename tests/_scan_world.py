@@ -44,18 +44,19 @@ FOV = np.radians(270.0)
 
 
 def make_scan(segs, pose, stamp=0.0, beams=541, fov=FOV, sigma=0.0, rng=None,
-              twist=None, time_increment=0.0):  # fmt: skip
+              twist=None, time_increment=0.0, max_range=30.0):  # fmt: skip
     """A scan from ``pose``; with ``twist`` the robot moves during the sweep (beam k at
-    ``stamp + k * time_increment``), as a rotating-mirror scanner does."""
+    ``stamp + k * time_increment``), as a rotating-mirror scanner does; returns beyond
+    ``max_range`` are invalid (inf)."""
     angles = -fov / 2 + fov * np.arange(beams) / (beams - 1)
     poses = np.broadcast_to(np.asarray(pose, float), (beams, 3))
     if twist is not None:
         poses = compose(poses, se2_exp(twist, np.arange(beams) * time_increment))
     heading = poses[:, 2] + angles
-    r = cast(segs, poses[:, :2], np.column_stack([np.cos(heading), np.sin(heading)]))
+    r = cast(segs, poses[:, :2], np.column_stack([np.cos(heading), np.sin(heading)]), max_range)
     if sigma:
         r = r + rng.normal(0.0, sigma, r.shape)
-    return LaserScan(stamp, r, angles, 0.05, 30.0, time_increment)
+    return LaserScan(stamp, r, angles, 0.05, max_range, time_increment)
 
 
 def pose_error(a, b):

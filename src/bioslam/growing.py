@@ -45,6 +45,10 @@ class GrowingArray:
         grown[: self._size] = self._data[: self._size]
         self._data = grown
 
+    def truncate(self, size: int) -> None:
+        """Keep the first ``size`` rows (rewritten in place through :meth:`view`)."""
+        self._size = min(max(int(size), 0), self._size)
+
     def __len__(self) -> int:
         return self._size
 

@@ -55,7 +55,9 @@ def _cell_of(x: float, y: float, ox: float, oy: float, res: float) -> tuple[int,
 
 
 @numba.njit(cache=True)
-def _above_near_point(logodds, x, y, ox, oy, res, level):
+def above_near_point(logodds, x, y, ox, oy, res, level):
+    """Whether the cell of world point (x, y) or one of its 8 neighbours (clamped to the
+    grid) has a log-odds above ``level`` (a Numba helper for kernels over scan points)."""
     rows, cols = logodds.shape
     r0, c0 = _cell_of(x, y, ox, oy, res)
     for dr in range(-1, 2):
@@ -71,7 +73,7 @@ def _above_near_point(logodds, x, y, ox, oy, res, level):
 def _above_near(logodds, world, ox, oy, res, level):
     out = np.zeros(world.shape[0], dtype=np.bool_)
     for k in range(world.shape[0]):
-        out[k] = _above_near_point(logodds, world[k, 0], world[k, 1], ox, oy, res, level)
+        out[k] = above_near_point(logodds, world[k, 0], world[k, 1], ox, oy, res, level)
     return out
 
 
@@ -83,7 +85,7 @@ def _count_not_above_near(logodds, pts, x, y, theta, ox, oy, res, level):
     for k in range(pts.shape[0]):
         wx = c * pts[k, 0] - s * pts[k, 1] + x
         wy = s * pts[k, 0] + c * pts[k, 1] + y
-        if not _above_near_point(logodds, wx, wy, ox, oy, res, level):
+        if not above_near_point(logodds, wx, wy, ox, oy, res, level):
             n += 1
     return n
 

@@ -78,7 +78,7 @@ class RunOptions:
     snapshot_times: tuple[float, ...] = ()
     keyframe_distance: float = 0.1
     keyframe_angle: float = math.radians(5.0)
-    keyframe_bytes: int = 12 * 2**20
+    keyframe_bytes: int = 8 * 2**20
     map_resolution: float = 0.05
     map_point_spacing: float = 0.025
     snapshot_tolerance: float = 1.0
@@ -156,7 +156,7 @@ class KeyframeScans:
         quantum: float = 0.001,
         distance: float = 0.1,
         angle: float = math.radians(5.0),
-        max_bytes: int = 12 * 2**20,
+        max_bytes: int = 8 * 2**20,
     ) -> None:
         self.max_range = float(max_range)
         self.quantum = max(quantum, self.max_range / 32000.0)
@@ -193,28 +193,32 @@ class KeyframeScans:
             pts = np.rint(pts / np.float32(self.quantum))
         self._starts.append(len(self._points))
         self._points.extend(pts)
-        if len(self._points) * self._points.view().itemsize * 2 > self.max_bytes:
+        if self._points.view().nbytes > self.max_bytes:
             self.thin()
 
     def thin(self) -> None:
-        """Double the spacing and keep, of the keyframes so far, those it would have kept."""
+        """Double the spacing and keep, of the keyframes so far, those it would have kept
+        (moved forward in place: thinning takes no memory of its own)."""
         self.distance *= 2.0
         self.angle *= 2.0
+        poses = self.poses.view()
         keep = [0]
         for k in range(1, len(self)):
-            if _apart(self.poses[keep[-1]], self.poses[k], self.distance, self.angle):
+            if _apart(poses[keep[-1]], poses[k], self.distance, self.angle):
                 keep.append(k)
-        index, reach, poses = self.index.view(), self.reach.view(), self.poses.view()
-        parts = [self._stored(k) for k in keep]
-        old = (index[keep], reach[keep], poses[keep])
-        total = sum(len(p) for p in parts)
-        self._reset(capacity=max(2 * len(keep), 1024), points=max(2 * total, 1 << 16))
-        for k, part in enumerate(parts):
-            self.index.append(old[0][k])
-            self.reach.append(old[1][k])
-            self.poses.append(old[2][k])
-            self._starts.append(len(self._points))
-            self._points.extend(part)
+        data, starts = self._points.view(), self._starts.view()
+        ends = np.append(starts[1:], len(self._points))
+        filled = 0
+        for k in keep:
+            size = int(ends[k] - starts[k])
+            data[filled : filled + size] = data[starts[k] : ends[k]]
+            starts[k] = filled  # k only grows: no start still to be read is overwritten
+            filled += size
+        self._points.truncate(filled)
+        for part in (self.index, self.reach, self.poses, self._starts):
+            rows = part.view()
+            rows[: len(keep)] = rows[keep]
+            part.truncate(len(keep))
 
     def __len__(self) -> int:
         return len(self.index)

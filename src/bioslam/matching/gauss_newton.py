@@ -22,6 +22,7 @@ from bioslam.occupancy_grid import (
     NORMAL_RADIUS,
     MapPyramid,
     OccupancyGrid,
+    above_near_point,
     interpolate_point,
     scan_normals,
     subcell_point,
@@ -41,6 +42,9 @@ class MatchReport:
         degenerate_direction: unit vector (x, y, theta * length_scale) in the map frame of the
             least constrained direction (zeros when not degenerate).
         condition: smallest / largest curvature (scaled Hessian eigenvalues), 1 = isotropic.
+        weakest_direction: unit vector (x, y, theta * length_scale) in the sensor frame of the
+            least constrained direction of the scan's geometry, degenerate or not (zeros when
+            the match was given no normals): the motion model keeps its velocity along it.
         score: mean M* over the matched endpoints at the finest level (1 = all on walls).
         num_points: endpoints used for matching (after subsampling).
         inserted: the scan was fused into the map.
@@ -55,12 +59,15 @@ class MatchReport:
             better one.
         ambiguous: the search found a distinct pose that fits about as well as the match
             kept (a look-alike); the match nearest the prediction was kept.
+        restarted: the pyramid's descent ended worse on the finest level than its start,
+            and the finest level was matched again from the start (:func:`match_scan_to_map`).
     """
 
     iterations: int = 0
     degenerate: bool = False
     degenerate_direction: FloatArray = field(default_factory=lambda: np.zeros(3))
     condition: float = 1.0
+    weakest_direction: FloatArray = field(default_factory=lambda: np.zeros(3))
     score: float = 0.0
     num_points: int = 0
     inserted: bool = False
@@ -70,6 +77,7 @@ class MatchReport:
     through_fraction: float = 0.0
     recovered: bool = False
     ambiguous: bool = False
+    restarted: bool = False
 
 
 # --------------------------------------------------------------------------------------------
@@ -280,7 +288,7 @@ def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, hold, prior)
     heading, and a token damping of 0.001 only wasted iterations (maze: 1.0 vs 1.3 ms per
     scan, RPE 0.38 cm / 0.085° vs 0.40 cm / 0.106°). ``hold`` is a direction kept fixed
     (:func:`_guarded_step`), ``prior`` :func:`_add_prior`'s (direction, pose, weight). Returns
-    ``(pose, H, mean M*, iterations, converged)``."""
+    ``(pose, H, mean M*, iterations, converged, cost)``, the cost with the prior's."""
     pose = pose.copy()
     trial = np.empty(3)
     H = np.zeros((3, 3))
@@ -294,7 +302,7 @@ def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, hold, prior)
     iterations = 0
     converged = False
     if inside < 3:
-        return pose, H, mean, iterations, converged
+        return pose, H, mean, iterations, converged, cost
     for _ in range(max_iter):
         iterations += 1
         step = _newton_step(H, b, length, ratio, damping, hold)
@@ -329,7 +337,7 @@ def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, hold, prior)
         if small:
             converged = True
             break
-    return pose, H, mean, iterations, converged
+    return pose, H, mean, iterations, converged, cost
 
 @numba.njit(cache=True)
 def summed_map(g, pts, c, s, tx, ty, residual):
@@ -423,6 +431,7 @@ def match_scan_to_map(
     away what little the scan has (a warehouse aisle's uprights), and the estimate drifted
     with the prediction (simulated warehouse, SICK: ATE 5.9 m). Pairwise registration,
     whose start is a search's guess and not a motion prior, holds.
+
     """
     pose = np.asarray(initial_pose, dtype=np.float64).copy()
     report = MatchReport(num_points=int(level_points[0].shape[0]))
@@ -431,6 +440,7 @@ def match_scan_to_map(
     if normals is not None:
         cond, weakest = geometric_conditioning(level_points[0], normals, length_scale)
         report.condition = cond
+        report.weakest_direction = np.asarray(weakest, dtype=np.float64)
         if cond < degeneracy_ratio:
             c, s = math.cos(pose[2]), math.sin(pose[2])
             hold = np.array([c * weakest[0] - s * weakest[1], s * weakest[0] + c * weakest[1],
@@ -443,13 +453,24 @@ def match_scan_to_map(
     if prior_weight is not None:
         hold = np.zeros(3)
     iters = max_iterations[::-1]
+    start = pose.copy()
     for k in range(len(pyramid.grids) - 1, -1, -1):
-        pose, H, mean, n, converged = _gauss_newton_level(
+        pose, H, mean, n, converged, cost = _gauss_newton_level(
             grid_args(pyramid.grids[k], subcell_sigma), level_points[k], pose,
             iters[len(pyramid.grids) - 1 - k], step_tolerance * pyramid.grids[k].resolution,
             length_scale, degeneracy_ratio, hold, prior,
         )  # fmt: skip
         report.iterations += int(n)
+    finest = grid_args(pyramid.finest, subcell_sigma)
+    weak = report.condition < 10.0 * degeneracy_ratio  # else the coarse optimum is pinned
+    if len(pyramid.grids) > 1 and weak and _worse_than_start(finest, level_points[0], start, cost):
+        # the coarse levels led the finest one out of the basin it started in
+        pose, H, mean, n, converged, cost = _gauss_newton_level(
+            finest, level_points[0], start, iters[-1], step_tolerance * pyramid.finest.resolution,
+            length_scale, degeneracy_ratio, hold, prior,
+        )  # fmt: skip
+        report.iterations += int(n)
+        report.restarted = True
     pose[2] = wrap_angle(pose[2])
     if normals is None:
         _, cond, weakest, degenerate = _guarded_step(
@@ -462,6 +483,21 @@ def match_scan_to_map(
     report.converged = bool(converged)
     report.score = float(mean)
     return pose, report
+
+
+def _worse_than_start(finest: tuple, points: FloatArray, start: FloatArray, cost: float) -> bool:
+    """The finest level's cost Σ (1 - M*)² at ``start`` is below ``cost``, where the pyramid's
+    descent ended (with the motion prior's, which is nil at the start). A coarse level's
+    optimum can lie a cell off the true one (in a corridor longer than the range, the coarse
+    map's edge ahead pulls the pose back: simulated URG-04LX, a 19 cm slip backwards from a
+    start 1 cm off), and the finer levels then converge in a neighbouring basin; matched
+    again from the start on the finest level, the pose can only end better than both
+    (Gauss-Newton with damping never raises the cost). Checked where the scan's geometry
+    constrains some direction weakly (conditioning below ten times the degeneracy ratio): a
+    well-conditioned scan pins the coarse levels' optimum, and the check would cost a dense
+    scan a tenth of its match."""
+    c, s = math.cos(start[2]), math.sin(start[2])
+    return bool(summed_map(finest, points, c, s, start[0], start[1], True) < cost)
 
 
 def geometric_conditioning(
@@ -477,6 +513,37 @@ def geometric_conditioning(
         np.ascontiguousarray(normals, dtype=np.float64),
         float(length_scale),
     )
+
+
+def mapped_conditioning(
+    grid: OccupancyGrid, points: FloatArray, normals: FloatArray, pose: ArrayLike,
+    level: float, length_scale: float,
+) -> tuple[float, FloatArray]:
+    """:func:`geometric_conditioning` of the endpoints that ``pose`` puts on a wall the map
+    already holds (a cell of ``grid``, or one of its 8 neighbours, with a log-odds above
+    ``level``): a surface seen for the first time (a corridor's end coming into range) does
+    not fix the pose against the map."""
+    p = np.asarray(pose, dtype=np.float64).reshape(3)
+    ox, oy = grid.origin.tolist()
+    pts = np.ascontiguousarray(points, dtype=np.float64)
+    used = _mapped_normals(grid.logodds, ox, oy, grid.resolution, pts, normals, p, level)
+    return _conditioning_kernel(pts, used, float(length_scale))
+
+
+@numba.njit(cache=True)
+def _mapped_normals(logodds, ox, oy, res, pts, normals, pose, level):
+    """``normals`` with those of the points ``pose`` does not place next to a cell above
+    ``level`` zeroed (no normal: no constraint)."""
+    out = np.zeros_like(normals)
+    c = math.cos(pose[2])
+    s = math.sin(pose[2])
+    for k in range(pts.shape[0]):
+        wx = c * pts[k, 0] - s * pts[k, 1] + pose[0]
+        wy = s * pts[k, 0] + c * pts[k, 1] + pose[1]
+        if above_near_point(logodds, wx, wy, ox, oy, res, level):
+            out[k, 0] = normals[k, 0]
+            out[k, 1] = normals[k, 1]
+    return out
 
 
 @numba.njit(cache=True)

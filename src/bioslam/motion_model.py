@@ -1,0 +1,168 @@
+"""The odometry's constant-velocity motion model, robust to slips along unconstrained directions.
+
+The odometry predicts each scan's pose from the previous one with a constant body twist, and the
+prediction is also the prior the scan match falls back on where the scan cannot fix the pose
+(:func:`bioslam.matching.gauss_newton.match_scan_to_map`). The twist is measured by differencing
+the poses of the last scans. Along a direction the scan constrains, that measurement is the
+scan's; along one it hardly constrains (a corridor longer than the sensor's range, seen only as
+two parallel walls), the matched pose is the prior plus whatever the weak pull of the map added
+(endpoints leaving the mapped area pull the pose back): a single slip of a few centimetres
+there, differenced over a few scan intervals, cuts the estimated speed, the next prediction
+is slower, the next match follows it, and the estimate stalls while the robot drives on
+(simulated URG-04LX, 5.6 m range: 5 m behind after 10 s in one corridor).
+
+So the twist is fused per direction, as a Kalman filter weighs a measurement by its information:
+the window's measured twist is taken along the directions the scan constrains and, along its
+weakest direction, blended with the previous twist by how well the scan constrains it
+(:func:`weak_direction_gain`): nothing below ``degeneracy_ratio`` (the previous twist carries
+on), all of it from ``constrained_ratio`` up. A scan that constrains every direction leaves the
+measurement unchanged, so dense data behaves as with the plain window difference.
+
+No file or terminal I/O here.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from bioslam.geometry import between, compose
+from bioslam.matching.deskew import se2_exp, se2_log
+
+FloatArray = NDArray[np.float64]
+
+
+def weak_direction_gain(
+    condition: float, degeneracy_ratio: float, constrained_ratio: float
+) -> float:
+    """How much of the measured twist to take along the scan's weakest direction, from the
+    scan's conditioning (smallest / largest eigenvalue of its point-to-line information): 0 at
+    or below ``degeneracy_ratio`` (the direction is unconstrained: a measurement there is the
+    prior plus a slip), 1 at or above ``constrained_ratio``, linear between (the information
+    along that direction grows linearly with the conditioning)."""
+    if constrained_ratio <= degeneracy_ratio:
+        return 1.0 if condition > degeneracy_ratio else 0.0
+    gain = (condition - degeneracy_ratio) / (constrained_ratio - degeneracy_ratio)
+    return float(min(max(gain, 0.0), 1.0))
+
+
+def translation_part(weakest: ArrayLike | None) -> FloatArray | None:
+    """The unit translation (x, y, 0) of a weakest direction (x, y, theta * length) that is
+    mostly a translation (at least half its squared length), else None. A corridor leaves a
+    translation unconstrained; a weak direction that is mostly a turn comes from a scan
+    seen while turning, where the turn rate changes within a few scans and carrying it on
+    would carry on turning (and leak into the speed through the mixed direction)."""
+    if weakest is None:
+        return None
+    x, y, t = (float(v) for v in weakest)
+    norm2 = x * x + y * y
+    if norm2 < 0.5 * (norm2 + t * t):
+        return None
+    norm = math.sqrt(norm2)
+    return np.array([x / norm, y / norm, 0.0])
+
+
+def kalman_along(
+    measured: FloatArray, carried: FloatArray, variance: float, direction: FloatArray,
+    gain: float, noise: float, gate: float, length_scale: float,
+) -> tuple[FloatArray, float]:
+    """The twist ``measured`` with its component along the unit ``direction`` (body frame,
+    scaled: x, y, theta * ``length_scale``) replaced by a Kalman update of ``carried``'s
+    component (variance ``variance``) with the measured one (variance ``noise / gain``), and
+    the updated variance. A measurement farther than ``gate`` standard deviations of the
+    innovation is rejected (the carried component is kept), as is any with zero gain."""
+    scale = np.array([1.0, 1.0, length_scale])
+    m = measured * scale
+    u = direction
+    along = float(u @ (carried * scale))
+    if gain > 0.0:
+        spread = variance + noise / gain
+        innovation = float(u @ m) - along
+        if innovation * innovation <= gate * gate * spread:
+            k = variance / spread
+            along += k * innovation
+            variance *= 1.0 - k
+    m = m + u * (along - float(u @ m))
+    return m / scale, variance
+
+
+class ConstantVelocityModel:
+    """The body twist (vx, vy, omega) of the last poses, and the prediction it makes.
+
+    The twist is measured over the last ``window`` seconds and at least ``scans`` intervals
+    (differencing two consecutive fast scans turns millimetre match noise into a velocity noise
+    that, fed back through the prediction and the de-skew, makes the estimate oscillate). A scan
+    that constrains every direction gives its measurement whole. Along the weakest direction of
+    a scan that does not, the twist is a one-dimensional Kalman filter's
+    (:func:`kalman_along`): the velocity there is carried from earlier scans, its variance
+    growing by ``accel_noise`` (m/s², how fast a robot changes speed) per second, and the
+    measurement counts with variance ``velocity_noise``² divided by the scan's gain
+    (:func:`weak_direction_gain`). A measurement more than ``gate`` standard deviations from
+    the carried velocity is a slip, not a change of speed, and is not used. The carried
+    velocity's standard deviation grows to ``max_spread`` at most: after a long corridor the
+    first partly constrained scans (a door jamb coming into range, seen against a map that
+    does not hold it yet) are the likeliest to slip, and an unbounded variance would take
+    their slips whole (simulated URG-04LX, maze, tour and adversarial routes: ATE 24 and 92 cm
+    unbounded, 12 and 79 cm at 0.1 m/s).
+    """
+
+    def __init__(
+        self, window: float, scans: int, length_scale: float, degeneracy_ratio: float,
+        constrained_ratio: float, accel_noise: float, velocity_noise: float,
+        max_spread: float, gate: float = 3.0,
+    ) -> None:
+        self.window = window
+        self.scans = scans
+        self.length_scale = length_scale
+        self.degeneracy_ratio = degeneracy_ratio
+        self.constrained_ratio = constrained_ratio
+        self.accel_noise = accel_noise
+        self.velocity_noise = velocity_noise
+        self.gate = gate
+        self.twist = np.zeros(3)
+        self.variance = velocity_noise**2  # of the velocity along the weakest direction
+        self.max_variance = max_spread**2
+        self._history: deque[tuple[float, FloatArray]] = deque()
+
+    def predict(self, pose: ArrayLike, dt: float) -> FloatArray:
+        """The pose ``dt`` seconds after ``pose`` at the current twist."""
+        return compose(np.asarray(pose, dtype=np.float64), se2_exp(self.twist, dt))
+
+    def update(
+        self, stamp: float, pose: ArrayLike, condition: float = 1.0,
+        weakest: ArrayLike | None = None,
+    ) -> None:
+        """Add the pose of a scan at ``stamp``; ``condition`` and ``weakest`` (unit, body
+        frame, scaled) are the scan's conditioning and least constrained direction
+        (:func:`bioslam.matching.gauss_newton.geometric_conditioning`); None when the scan's
+        geometry is unknown (a prediction-only update): the measured twist is taken whole."""
+        p = np.asarray(pose, dtype=np.float64).copy()
+        history = self._history
+        dt = stamp - history[-1][0] if history else 0.0
+        history.append((stamp, p))
+        while len(history) > self.scans + 1 and stamp - history[1][0] >= self.window:
+            history.popleft()
+        t0, p0 = history[0]
+        if stamp <= t0:
+            return
+        measured = se2_log(between(p0, p)) / (stamp - t0)
+        gain = 1.0
+        direction = None
+        if weakest is not None and condition < self.constrained_ratio:
+            direction = translation_part(weakest)
+        if direction is not None:
+            gain = weak_direction_gain(condition, self.degeneracy_ratio, self.constrained_ratio)
+        if gain >= 1.0:
+            self.twist = measured
+            self.variance = self.velocity_noise**2
+            return
+        self.variance = min(
+            self.variance + (self.accel_noise * max(dt, 0.0)) ** 2, self.max_variance
+        )
+        self.twist, self.variance = kalman_along(
+            measured, self.twist, self.variance, direction, gain,
+            self.velocity_noise**2, self.gate, self.length_scale,
+        )

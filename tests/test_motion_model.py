@@ -1,0 +1,108 @@
+import numpy as np
+import pytest
+
+from bioslam.motion_model import (
+    ConstantVelocityModel,
+    kalman_along,
+    translation_part,
+    weak_direction_gain,
+)
+
+ALONG_X = np.array([1.0, 0.0, 0.0])
+
+
+def _model(**kw) -> ConstantVelocityModel:
+    args = dict(
+        window=0.1, scans=3, length_scale=3.0, degeneracy_ratio=0.01, constrained_ratio=0.1,
+        accel_noise=0.5, velocity_noise=0.05, max_spread=0.1,
+    )
+    args.update(kw)
+    return ConstantVelocityModel(**args)
+
+
+def _drive(model, steps, condition, weakest, heading=0.0, start=0.0, t0=0.0, dt=0.1):
+    """Feed poses advancing by ``steps`` (metres, along ``heading``) at ``dt`` intervals."""
+    x = start
+    d = np.array([np.cos(heading), np.sin(heading)])
+    for k, step in enumerate(steps):
+        x += step
+        model.update(t0 + dt * (k + 1), (*(x * d), heading), condition, weakest)
+    return x
+
+
+def test_the_gain_ramps_from_the_degeneracy_ratio_to_the_constrained_ratio():
+    assert weak_direction_gain(0.005, 0.01, 0.1) == 0.0
+    assert weak_direction_gain(0.055, 0.01, 0.1) == pytest.approx(0.5)
+    assert weak_direction_gain(0.3, 0.01, 0.1) == 1.0
+
+
+@pytest.mark.parametrize("heading", [0.0, 2.0])
+def test_a_slip_along_an_unconstrained_direction_keeps_the_speed(heading):
+    """A corridor longer than the range: a single 8.7 cm slip backwards, differenced over three
+    scan intervals, used to cut the speed to nearly nothing, and the pose stalled. Along the
+    scan's unconstrained direction (the robot's x: body frame) the speed must carry on."""
+    model = _model()
+    x = _drive(model, [0.05] * 20, 1.0, ALONG_X, heading)  # well constrained: 0.5 m/s learned
+    assert model.twist[0] == pytest.approx(0.5, abs=1e-6)
+    _drive(model, [0.05] * 5 + [-0.087] + [0.0] * 5, 0.0, ALONG_X, heading, x, 2.0)
+    assert model.twist[0] == pytest.approx(0.5, abs=1e-6)
+    # the plain window difference (no conditioning known) takes the slip whole
+    plain = _model()
+    x = _drive(plain, [0.05] * 20, 1.0, ALONG_X, heading)
+    _drive(plain, [0.05] * 5 + [-0.087], 1.0, None, heading, x, 2.0)
+    assert plain.twist[0] < 0.05
+
+
+def test_across_the_weak_direction_the_measurement_is_taken():
+    model = _model()
+    _drive(model, [0.05] * 10, 1.0, ALONG_X)
+    # sideways drift of 2 cm per scan while x is unconstrained: y speed follows at once
+    for k in range(5):
+        model.update(1.0 + 0.1 * (k + 1), (0.5 + 0.05 * (k + 1), 0.02 * (k + 1), 0.0), 0.0,
+                     ALONG_X)  # fmt: skip
+    assert model.twist[1] == pytest.approx(0.2, abs=1e-6)
+    assert model.twist[0] == pytest.approx(0.5, abs=1e-6)
+
+
+def test_a_well_constrained_scan_gives_the_window_measurement_whole():
+    """Dense data, where every scan constrains every direction, is unchanged: the twist is
+    the plain difference over the window, a change of speed followed at once."""
+    model = _model()
+    x = _drive(model, [0.05] * 10, 0.5, ALONG_X)
+    _drive(model, [0.02] * 3, 0.5, ALONG_X, 0.0, x, 1.0)
+    assert model.twist[0] == pytest.approx(0.2, abs=1e-6)
+
+
+def test_partly_constrained_scans_follow_a_change_of_speed_but_not_a_slip():
+    """A door jamb in range gives the speed along a corridor a little information: a robot
+    speeding up is followed over a few scans, a 19 cm slip (0.6 m/s in one window) is not."""
+    model = _model()
+    x = _drive(model, [0.05] * 20, 1.0, ALONG_X)
+    weak = 0.03  # gain 0.22
+    x = _drive(model, [0.05 + 0.005 * k for k in range(1, 11)], weak, ALONG_X, 0.0, x, 2.0)
+    speeding = model.twist[0]
+    assert 0.75 < speeding < 1.0  # true 1.0 m/s, followed with a lag
+    x = _drive(model, [0.1] * 20, weak, ALONG_X, 0.0, x, 3.0)
+    assert model.twist[0] == pytest.approx(1.0, abs=0.02)
+    _drive(model, [-0.09], weak, ALONG_X, 0.0, x, 5.0)
+    assert model.twist[0] == pytest.approx(1.0, abs=0.02)
+
+
+def test_a_weak_direction_that_is_mostly_a_turn_is_not_carried():
+    assert translation_part(np.array([0.3, 0.1, 0.95])) is None
+    assert translation_part(None) is None
+    d = translation_part(np.array([0.9, 0.3, 0.3]))
+    assert d is not None and d[2] == 0.0 and np.hypot(d[0], d[1]) == pytest.approx(1.0)
+
+
+def test_kalman_along_rejects_an_outlier_and_weighs_a_measurement_by_the_gain():
+    carried = np.array([0.5, 0.0, 0.0])
+    twist, var = kalman_along(
+        np.array([0.1, 0.0, 0.0]), carried, 0.0025, ALONG_X, 1.0, 0.0025, 3.0, 3.0
+    )
+    assert twist[0] == 0.5 and var == 0.0025  # 0.4 m/s off, 5.7 sigma: a slip
+    twist, var = kalman_along(
+        np.array([0.55, 0.0, 0.0]), carried, 0.0025, ALONG_X, 0.5, 0.0025, 3.0, 3.0
+    )
+    assert twist[0] == pytest.approx(0.5 + 0.05 / 3.0)  # variance 0.0025 against 0.005
+    assert var == pytest.approx(0.0025 * 2.0 / 3.0)
