@@ -165,7 +165,7 @@ class LoopClosureConfig:
     break_distance: float = 0.1
     break_angle: float = math.radians(10.0)
     break_acceleration: float = 2.0
-    break_angular_acceleration: float = 2.0
+    break_angular_acceleration: float = 10.0
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)
 
 

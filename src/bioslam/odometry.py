@@ -232,10 +232,12 @@ class OdometryConfig:
             1° scanner at a metre a scan holds a wall only where the last scans' beams hit
             it, and a pose that reproduces the last scan's own beam pattern (standing still)
             then scores best in a corridor (intel: RPE 1 m 22 -> 8 cm with the other two).
-        step_prior, step_prior_weight: the density of the recent steps
-            (:class:`bioslam.step_prior.StepPrior`) and the weight of its cost (``-log``, at
-            most ``-log(step_prior.floor)``) against a match's quality (mean M* less the
-            negative evidence, :func:`_match_quality`).
+        step_prior, step_prior_weight: the density of the recent steps for which the search
+            ran (:class:`bioslam.step_prior.StepPrior`; a run that turns sparse halfway is not
+            then held to the millimetre steps of its dense part, and dense scans pay nothing
+            for it) and the weight of its cost (``-log``, at most ``-log(step_prior.floor)``)
+            against a match's quality (mean M* less the negative evidence,
+            :func:`_match_quality`).
         motion_weight: weight, per ``jump_distance`` metres plus per ``jump_angle`` radians
             of distance from the nearest motion hypothesis (the start, the constant-velocity
             prediction, the last step repeated, the typical step on), of that distance
@@ -484,7 +486,8 @@ class LidarOdometry:
             self.pose, self.last_report = self._match(
                 level_pts, start, previous, normals, dt, predicted
             )
-            constraint = self._mapped_constraint(level_pts[0], normals)
+            if dt <= c.gap_time:  # after a gap the velocity is measured afresh
+                constraint = self._mapped_constraint(level_pts[0], normals)
             self.num_recovered += self.last_report.recovered
             self.num_degenerate += self.last_report.degenerate
             self.num_ambiguous += self.last_report.ambiguous
@@ -525,7 +528,11 @@ class LidarOdometry:
         ``2 * search_angle`` either way from ``previous`` (thinned logs turn up to 80°
         between scans)."""
         c = self.config
-        options = [self._option(level_pts, start, normals, self._prior_weight(dt))]
+        gapless = dt <= c.gap_time  # the prediction is then the motion prior
+        options = [self._option(
+            level_pts, start, normals, self._prior_weight(dt), predicted if gapless else None,
+            gapless,
+        )]  # fmt: skip
         motion: tuple[FloatArray, ...] = (start,)  # only compared when the search ran
         searched = c.search_distance > 0 and self._untrusted(options[0][2], dt, previous, start)
         if len(self._searched) == self._searched.maxlen:
@@ -555,8 +562,10 @@ class LidarOdometry:
             pose, report = self._choose_sparse(options, motion, previous, reach)
         else:
             pose, report = self._choose(options, motion, previous, reach, jump)
-        self._remember_miss(between(start, pose), between(previous, pose))
-        self._step_prior.add(between(previous, pose))
+        step = between(previous, pose)
+        self._remember_miss(between(start, pose), step)
+        if searched:  # the steps where the prediction was not trusted, as on sparse scans
+            self._step_prior.add(step)
 
         report.iterations = sum(option[1].iterations for option in options)
         self._remember_score(report.score)
@@ -564,13 +573,15 @@ class LidarOdometry:
 
     def _option(
         self, level_pts: list[FloatArray], start: FloatArray, normals: FloatArray,
-        prior_weight: float | None = None,
+        prior_weight: float | None = None, prior_pose: FloatArray | None = None,
+        restart: bool = False,
     ) -> tuple[FloatArray, MatchReport, bool]:
         """Gauss-Newton from ``start``: (pose, report, failed). The motion prior pulls
-        towards ``start`` with ``prior_weight``, by default ``search_prior_weight`` (a
-        search's seed is no motion prior)."""
+        towards ``prior_pose`` (default ``start``) with ``prior_weight``, by default
+        ``search_prior_weight`` (a search's seed is no motion prior); ``restart``: see
+        :func:`bioslam.matching.gauss_newton.match_scan_to_map`."""
         weight = self.config.search_prior_weight if prior_weight is None else prior_weight
-        pose, report = self._match_from(level_pts, start, normals, weight)
+        pose, report = self._match_from(level_pts, start, normals, weight, prior_pose, restart)
         return pose, report, self._failed(report)
 
     def _prior_weight(self, dt: float) -> float:
@@ -852,12 +863,13 @@ class LidarOdometry:
 
     def _match_from(
         self, level_pts: list[FloatArray], start: FloatArray, normals: FloatArray,
-        prior_weight: float,
+        prior_weight: float, prior_pose: FloatArray | None = None, restart: bool = False,
     ) -> tuple[FloatArray, MatchReport]:
         c = self.config
         pose, report = match_scan_to_map(
             self.pyramid, level_pts, start, c.max_iterations, c.step_tolerance,
             c.length_scale, c.degeneracy_ratio, c.subcell_sigma, normals, prior_weight,
+            prior_pose, restart,
         )  # fmt: skip
         report.free_fraction = self.pyramid.finest.fraction_not_above_near(
             pose, level_pts[0], c.free_logodds
