@@ -232,10 +232,12 @@ class OdometryConfig:
             1° scanner at a metre a scan holds a wall only where the last scans' beams hit
             it, and a pose that reproduces the last scan's own beam pattern (standing still)
             then scores best in a corridor (intel: RPE 1 m 22 -> 8 cm with the other two).
-        step_prior, step_prior_weight: the density of the recent steps
-            (:class:`bioslam.step_prior.StepPrior`) and the weight of its cost (``-log``, at
-            most ``-log(step_prior.floor)``) against a match's quality (mean M* less the
-            negative evidence, :func:`_match_quality`).
+        step_prior, step_prior_weight: the density of the recent steps for which the search
+            ran (:class:`bioslam.step_prior.StepPrior`; a run that turns sparse halfway is not
+            then held to the millimetre steps of its dense part, and dense scans pay nothing
+            for it) and the weight of its cost (``-log``, at most ``-log(step_prior.floor)``)
+            against a match's quality (mean M* less the negative evidence,
+            :func:`_match_quality`).
         motion_weight: weight, per ``jump_distance`` metres plus per ``jump_angle`` radians
             of distance from the nearest motion hypothesis (the start, the constant-velocity
             prediction, the last step repeated, the typical step on), of that distance
@@ -557,8 +559,10 @@ class LidarOdometry:
             pose, report = self._choose_sparse(options, motion, previous, reach)
         else:
             pose, report = self._choose(options, motion, previous, reach, jump)
-        self._remember_miss(between(start, pose), between(previous, pose))
-        self._step_prior.add(between(previous, pose))
+        step = between(previous, pose)
+        self._remember_miss(between(start, pose), step)
+        if searched:  # the steps where the prediction was not trusted, as on sparse scans
+            self._step_prior.add(step)
 
         report.iterations = sum(option[1].iterations for option in options)
         self._remember_score(report.score)
