@@ -19,6 +19,7 @@ For each case (world, scanner, route):
   same scans (ratios of medians and of means).
 
     python benchmarks/bench_loops.py [--cases maze-tour,rooms-adversarial,...] [--duration 600]
+        [--thin 5]
         [--set view_distance=0.2 --set loop_closure.min_score=0.9 ...] [--log LOG --cases ""]
 """
 
@@ -70,10 +71,13 @@ DEFAULT_CASES = (
 )
 
 
-def simulate(case: SimCase, duration: float, seed: int) -> tuple[list, Trajectory]:
+def simulate(
+    case: SimCase, duration: float, seed: int, thin: int = 1
+) -> tuple[list, Trajectory]:
+    """The case's scans (every ``thin``-th, as a log thinned for size) and ground truth."""
     world = load_world(case.world)
     route = ROUTES[case.route](world, duration=duration, seed=seed)
-    pairs = list(simulate_scans(world, LIDAR_PRESETS[case.lidar], route, seed=seed))
+    pairs = list(simulate_scans(world, LIDAR_PRESETS[case.lidar], route, seed=seed))[::thin]
     scans = [scan for scan, _ in pairs]
     return scans, Trajectory(np.array([s.stamp for s in scans]), np.array([p for _, p in pairs]))
 
@@ -151,8 +155,10 @@ def revisit_recall(
     return out
 
 
-def report(case: SimCase, duration: float, seed: int, gap: float, config: SLAMConfig) -> str:
-    scans, gt = simulate(case, duration, seed)
+def report(
+    case: SimCase, duration: float, seed: int, gap: float, config: SLAMConfig, thin: int = 1
+) -> str:
+    scans, gt = simulate(case, duration, seed, thin)
     slam, full_ms = timed_run(scans, config)
     odo_ms = odometry_ms(scans, config)
     errors = closure_errors(slam, gt)
@@ -176,7 +182,8 @@ def report(case: SimCase, duration: float, seed: int, gap: float, config: SLAMCo
         if true else "-"
     )
     lines = [
-        f"{case.name} ({len(scans)} scans, {duration:g} s, seed {seed})",
+        f"{case.name} ({len(scans)} scans, {duration:g} s, seed {seed}"
+        + (f", every {thin}th scan)" if thin > 1 else ")"),
         f"  checks: {', '.join(f'{k} {v}' for k, v in sorted(by.items()))}",
         f"  accepted {len(errors)}, false {len(errors) - len(true)}, precision "
         f"{len(true) / max(len(errors), 1):.3f}; median error of true ones {med_err}",
@@ -255,6 +262,8 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=600.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--gap", type=float, default=10.0, help="metres of travel before a revisit")
+    ap.add_argument("--thin", type=int, default=1,
+                    help="keep every n-th scan only (a thinned log: the odometry's steps grow)")
     ap.add_argument("--log", action="append", default=[],
                     help="also a real log with corrected poses (e.g. freiburg-079)")
     ap.add_argument("--set", action="append", default=[],
@@ -266,8 +275,8 @@ def main() -> None:
         print(report_log(path, config), flush=True)
     for name in args.cases.split(",") if args.cases else ():
         world, lidar, route = name.split("-")
-        print(report(SimCase(world, lidar, route), args.duration, args.seed, args.gap, config),
-              flush=True)
+        case = SimCase(world, lidar, route)
+        print(report(case, args.duration, args.seed, args.gap, config, args.thin), flush=True)
 
 
 if __name__ == "__main__":

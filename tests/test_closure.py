@@ -264,3 +264,21 @@ def test_checks_near_one_old_place_share_a_submap_until_the_map_bends_it():
     # the rebuilt submap has the moved scan where the map now puts it
     now = fuse_submap(bent, payloads, 2, range(5), config.submap_spacing)
     assert np.array_equal(rebuilt.points, now) and not np.array_equal(first.points, now)
+
+
+@pytest.mark.parametrize("world, start, ahead", [("hall", 7.0, 0.0), ("doors", 4.0, -0.5)])
+def test_a_scanner_passing_the_other_way_is_not_moved_along_the_corridor(world, start, ahead):
+    # The old pass drove east with a 180 deg scanner; the robot comes back facing west, where
+    # the map predicts it (2 cm, 0.6 deg off). It sees what the old pass never saw: on every
+    # point a pose a metre along the corridor, which puts those points onto the submap's
+    # walls, fits better; where the submap looked the prediction fits about as well.
+    walls = HALL if world == "hall" else _corridor_with_doors(3.0, 6)
+    around = [(start + 0.5 * k, 1.0, 0.0) for k in range(5)]
+    submap, seen = _submap(walls, 2, around, fov=180.0)
+    robot = (around[2][0] + ahead, 1.0, math.pi)
+    truth = between(around[2], robot)
+    query = _points(walls, robot, fov=180.0, seed=7)
+    predicted = compose(truth, (0.02, 0.0, 0.01))
+    verdict = verify(submap, query, predicted, (1.5, 0.3), LoopClosureConfig(), seen)
+    err = between(truth, verdict.pose)
+    assert not verdict.accepted or math.hypot(err[0], err[1]) < 0.1, (verdict, err)

@@ -440,15 +440,18 @@ def test_registration_shape_follows_the_scans_geometry():
     np.testing.assert_allclose(registration_shape(pts[:2], nrm[:2], 50.0), (1.0, 0.0, 1.0))
 
 
-def corridor_return(measurement_shape: np.ndarray | None, slide: float):
+def corridor_return(
+    measurement_shape: np.ndarray | None, slide: float, config: CognitiveMapConfig | None = None
+):
     """Down an 8 m corridor and back with a heading-drifting odometry (0.35 m off at the end),
     then a closure onto the first experience measured exactly except ``slide`` metres along
-    the corridor (a registration sliding along it). Returns (odometry, relaxed) position RMS
-    errors of the experiences against the truth."""
+    the corridor (a registration sliding along it). Returns the odometry's and the relaxed
+    map's position RMS errors of the experiences against the truth, and the robust kernel's
+    factor on the closure."""
     steps = np.array([(0.2, 0.0, 0.0)] * 40 + [(0.0, 0.0, math.pi)] + [(0.2, 0.0, 0.0)] * 40)
     truth = integrate(steps)
     bias = np.array([0.0, 0.0, 0.003])
-    config = CognitiveMapConfig(
+    config = config or CognitiveMapConfig(
         odometry_var_per_m=0.01, odometry_heading_var_per_m=1e-3, closure_sigma_m=0.01,
         closure_sigma_rad=1e-3, closure_shape_ratio=1e4, robust_sigmas=0.0,
     )  # fmt: skip
@@ -463,13 +466,13 @@ def corridor_return(measurement_shape: np.ndarray | None, slide: float):
     assert cm.update(0, False, PC, stamp=99.0, refine=lambda e: refined).kind == "loop"
     cm.relax()
     rms = lambda p: float(np.sqrt(np.mean(np.sum((p[:, :2] - truth[: len(p), :2]) ** 2, 1))))  # noqa: E731
-    return rms(odometry), rms(cm.experience_poses)
+    return rms(odometry), rms(cm.experience_poses), float(cm._link_scale.view()[-1])
 
 
 def test_a_closure_that_slid_along_a_corridor_corrects_only_across_it():
     shape = registration_shape(*corridor_scan(), 1e4)  # the robot faces along the corridor
-    odometry, shaped = corridor_return(shape, slide=0.3)
-    _, isotropic = corridor_return(None, slide=0.3)
+    odometry, shaped, _ = corridor_return(shape, slide=0.3)
+    _, isotropic, _ = corridor_return(None, slide=0.3)
     assert odometry > 0.3
     # weighted as one isotropic measurement, the 30 cm slide drags the whole map along
     assert isotropic > 0.15
@@ -493,3 +496,15 @@ def test_block_solve_with_isotropic_shapes_is_the_scalar_solve():
     _solve_fixed_point(scalar, src, dst, dps, weights, 4)
     _solve_fixed_point(block, src, dst, dps, weights, 4, np.tile(ISOTROPIC, (src.size, 1)))
     np.testing.assert_allclose(block, scalar, atol=1e-9)
+
+
+def test_robust_kernel_still_catches_a_closure_that_slid_far_along_a_corridor():
+    # A look-alike 1 m down the corridor: the shape excuses errors along it, the kernel must
+    # not (it judges the residual against the registration's best-direction accuracy).
+    config = CognitiveMapConfig(
+        odometry_var_per_m=0.01, odometry_heading_var_per_m=1e-3, closure_sigma_rad=1e-3
+    )
+    shape = registration_shape(*corridor_scan(), config.closure_shape_ratio)
+    odometry, relaxed, scale = corridor_return(shape, slide=1.0, config=config)
+    assert scale < 0.01
+    assert relaxed < 0.15 * odometry

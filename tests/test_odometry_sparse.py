@@ -12,7 +12,7 @@ from _scan_world import ROOM, make_scan, pose_error
 from bioslam.evaluation import rpe_distance
 from bioslam.geometry import between
 from bioslam.io.logs import open_log
-from bioslam.odometry import LidarOdometry, OdometryConfig
+from bioslam.odometry import LidarOdometry, MatchReport, OdometryConfig
 from bioslam.trajectory import Trajectory
 
 
@@ -80,3 +80,21 @@ def test_intel_thinned_log_from_ten_starts_has_few_wrong_steps():
         rpes.append(rpe_distance(Trajectory(stamps, np.array(est)), source.reference, 1.0))
     assert wrong <= 45, wrong
     assert np.median([r["trans_rmse_m"] for r in rpes]) < 0.14
+
+
+def test_a_match_that_slid_off_the_map_is_not_taken_on_sparse_scans():
+    """Intel from its 5th scan: the map there held the first pass's walls, so every match that
+    fitted had some endpoints in known free space (rejected), and one Gauss-Newton run slid
+    20 m off the map, where no endpoint meets any evidence, for or against. It was the only
+    match not rejected and was kept (a 19.8 m step). A match that fits nothing is no better
+    than one the map rejects: the choice is then among all, by quality and step."""
+    odo = LidarOdometry()
+    for _ in range(5):  # the search ran for the last scans: sparse
+        odo._searched.append(True)
+        odo._num_searched += 1
+    previous = np.zeros(3)
+    first = (np.array([0.1, 0.0, -0.2]), MatchReport(score=0.13, free_fraction=0.3), True)
+    near = (np.array([1.0, 0.0, 0.0]), MatchReport(score=0.5, free_fraction=0.25), False)
+    off = (np.array([7.0, 19.0, 2.0]), MatchReport(score=0.01, through_fraction=0.02), True)
+    pose, _ = odo._choose_sparse([first, near, off], (previous,), previous, (9.0, 11.7))
+    np.testing.assert_array_equal(pose, near[0])

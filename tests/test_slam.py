@@ -154,6 +154,12 @@ def test_odometry_break_is_a_jump_between_scans_not_a_search_after_a_gap():
     assert not odometry_broke(MatchReport(), jumped, walking, 0.1, cfg)
     # a step without a match is a guess
     assert odometry_broke(MatchReport(predicted_only=True), walking, walking, 0.1, cfg)
+    # blind along a corridor, a step faster than any robot (0.29 m in 0.1 s) is no motion
+    blind = MatchReport(degenerate=True)
+    backwards = np.array([-0.29, 0.0, 0.0])
+    assert odometry_broke(blind, backwards, backwards, 0.1, cfg, max_speed=2.0)
+    assert not odometry_broke(blind, walking, walking, 0.1, cfg, max_speed=2.0)
+    assert not odometry_broke(MatchReport(), backwards, backwards, 0.1, cfg, max_speed=2.0)
 
 
 def test_submap_fuses_no_scan_across_a_break():

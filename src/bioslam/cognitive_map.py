@@ -127,7 +127,10 @@ class CognitiveMapConfig:
     #: odometry erred beyond its model (a one-scan jump of 20 cm on the SICK rooms route, whose
     #: closure 0.6 cm off the truth ended at 2 % of its weight: ATE 3.60 cm against the
     #: odometry's 3.45; 3.35 at 6; freiburg-079 6.67 and 6.51 cm), while the false closures
-    #: that get through on intel (0.9 and 1.7 m off, χ² above 100) are demoted at either.
+    #: that get through on intel (0.9 and 1.7 m off, χ² above 100) are demoted at either. The
+    #: χ² is taken against the registration's best-direction accuracy, not its shape
+    #: (``closure_shape_ratio``): a false closure slides along a corridor, where the shape
+    #: excuses errors.
     robust_sigmas: float = 6.0
     #: Solves at most per relaxation while the kernel changes a loop link's weight.
     robust_iterations: int = 4
@@ -372,21 +375,11 @@ def _block_laplacian_lu(
 
 def _link_chi2(
     poses: FloatArray, src: NDArray[np.int64], dst: NDArray[np.int64], dps: FloatArray,
-    info: FloatArray, shapes: FloatArray | None = None,
+    info: FloatArray,
 ) -> FloatArray:
-    """Each link's squared residual in units of its own variance (its χ²); ``shapes`` as
-    :func:`_solve_fixed_point` takes them."""
-    end = compose(poses[src], dps)
-    r = between(end, poses[dst])
-    heading = wrap_angle(r[:, 2]) ** 2 * info[:, 1]
-    if shapes is None:
-        return (r[:, 0] ** 2 + r[:, 1] ** 2) * info[:, 0] + heading
-    # the position residual in the source's frame, where the shape is given
-    c, s = np.cos(poses[src, 2]), np.sin(poses[src, 2])
-    dx, dy = poses[dst, 0] - end[:, 0], poses[dst, 1] - end[:, 1]
-    x, y = c * dx + s * dy, -s * dx + c * dy
-    quad = shapes[:, 0] * x * x + 2.0 * shapes[:, 1] * x * y + shapes[:, 2] * y * y
-    return quad * info[:, 0] + heading
+    """Each link's squared residual in units of its own (isotropic) variance (its χ²)."""
+    r = between(compose(poses[src], dps), poses[dst])
+    return (r[:, 0] ** 2 + r[:, 1] ** 2) * info[:, 0] + wrap_angle(r[:, 2]) ** 2 * info[:, 1]
 
 
 def link_information(
@@ -915,9 +908,10 @@ class CognitiveMap:
             )  # fmt: skip
             if not loops.any() or self.config.robust_sigmas <= 0.0:
                 break
+            # judged against the registration's best-direction accuracy, not its shape: a
+            # false closure slides along a corridor, exactly where the shape excuses it
             chi2 = _link_chi2(
-                self._poses.view(), src[keep], dst[keep], self._link_dp.view()[keep], info,
-                shapes,
+                self._poses.view(), src[keep], dst[keep], self._link_dp.view()[keep], info
             )
             wanted = robust_scale(chi2[loops], self.config.robust_sigmas)
             changed = np.abs(wanted - scale[keep[loops]]) > 0.05 * np.maximum(wanted, 1e-3)

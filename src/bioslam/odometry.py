@@ -232,10 +232,12 @@ class OdometryConfig:
             1° scanner at a metre a scan holds a wall only where the last scans' beams hit
             it, and a pose that reproduces the last scan's own beam pattern (standing still)
             then scores best in a corridor (intel: RPE 1 m 22 -> 8 cm with the other two).
-        step_prior, step_prior_weight: the density of the recent steps
-            (:class:`bioslam.step_prior.StepPrior`) and the weight of its cost (``-log``, at
-            most ``-log(step_prior.floor)``) against a match's quality (mean M* less the
-            negative evidence, :func:`_match_quality`).
+        step_prior, step_prior_weight: the density of the recent steps for which the search
+            ran (:class:`bioslam.step_prior.StepPrior`; a run that turns sparse halfway is not
+            then held to the millimetre steps of its dense part, and dense scans pay nothing
+            for it) and the weight of its cost (``-log``, at most ``-log(step_prior.floor)``)
+            against a match's quality (mean M* less the negative evidence,
+            :func:`_match_quality`).
         motion_weight: weight, per ``jump_distance`` metres plus per ``jump_angle`` radians
             of distance from the nearest motion hypothesis (the start, the constant-velocity
             prediction, the last step repeated, the typical step on), of that distance
@@ -484,7 +486,8 @@ class LidarOdometry:
             self.pose, self.last_report = self._match(
                 level_pts, start, previous, normals, dt, predicted
             )
-            constraint = self._mapped_constraint(level_pts[0], normals)
+            if dt <= c.gap_time:  # after a gap the velocity is measured afresh
+                constraint = self._mapped_constraint(level_pts[0], normals)
             self.num_recovered += self.last_report.recovered
             self.num_degenerate += self.last_report.degenerate
             self.num_ambiguous += self.last_report.ambiguous
@@ -525,7 +528,11 @@ class LidarOdometry:
         ``2 * search_angle`` either way from ``previous`` (thinned logs turn up to 80°
         between scans)."""
         c = self.config
-        options = [self._option(level_pts, start, normals, self._prior_weight(dt))]
+        gapless = dt <= c.gap_time  # the prediction is then the motion prior
+        options = [self._option(
+            level_pts, start, normals, self._prior_weight(dt), predicted if gapless else None,
+            gapless,
+        )]  # fmt: skip
         motion: tuple[FloatArray, ...] = (start,)  # only compared when the search ran
         searched = c.search_distance > 0 and self._untrusted(options[0][2], dt, previous, start)
         if len(self._searched) == self._searched.maxlen:
@@ -555,8 +562,10 @@ class LidarOdometry:
             pose, report = self._choose_sparse(options, motion, previous, reach)
         else:
             pose, report = self._choose(options, motion, previous, reach, jump)
-        self._remember_miss(between(start, pose), between(previous, pose))
-        self._step_prior.add(between(previous, pose))
+        step = between(previous, pose)
+        self._remember_miss(between(start, pose), step)
+        if searched:  # the steps where the prediction was not trusted, as on sparse scans
+            self._step_prior.add(step)
 
         report.iterations = sum(option[1].iterations for option in options)
         self._remember_score(report.score)
@@ -564,13 +573,15 @@ class LidarOdometry:
 
     def _option(
         self, level_pts: list[FloatArray], start: FloatArray, normals: FloatArray,
-        prior_weight: float | None = None,
+        prior_weight: float | None = None, prior_pose: FloatArray | None = None,
+        restart: bool = False,
     ) -> tuple[FloatArray, MatchReport, bool]:
         """Gauss-Newton from ``start``: (pose, report, failed). The motion prior pulls
-        towards ``start`` with ``prior_weight``, by default ``search_prior_weight`` (a
-        search's seed is no motion prior)."""
+        towards ``prior_pose`` (default ``start``) with ``prior_weight``, by default
+        ``search_prior_weight`` (a search's seed is no motion prior); ``restart``: see
+        :func:`bioslam.matching.gauss_newton.match_scan_to_map`."""
         weight = self.config.search_prior_weight if prior_weight is None else prior_weight
-        pose, report = self._match_from(level_pts, start, normals, weight)
+        pose, report = self._match_from(level_pts, start, normals, weight, prior_pose, restart)
         return pose, report, self._failed(report)
 
     def _prior_weight(self, dt: float) -> float:
@@ -618,13 +629,19 @@ class LidarOdometry:
         times its distance from the nearest motion hypothesis (in ``jump_distance`` /
         ``jump_angle`` units). Where the scan cannot tell places apart, the step like the
         robot's recent ones wins; where it can, the scan does (the prior costs at most
-        ``-log(step_prior.floor)`` times its weight). A match farther than the robot can
-        have moved since the last scan (``reach``) falls back on the first, as in
-        :meth:`_choose`. Flags the report ambiguous when a distinct match is plausible
-        (``plausible_ratio`` of the quality), recovered when it is not the first match."""
+        ``-log(step_prior.floor)`` times its weight). When every match the map does not
+        reject has failed, all compete the same way: a match that slid off the map meets no
+        evidence against it, but none for it either (intel from its 5th scan: a 19.8 m step
+        was so kept). A match farther than the robot can have moved since the last scan
+        (``reach``) falls back on the first, as in :meth:`_choose`, unless the first is
+        rejected and it is clean and did not fail. Flags the report ambiguous when a
+        distinct match is plausible (``plausible_ratio`` of the quality), recovered when it
+        is not the first match."""
         c = self.config
         first = options[0]
-        pool = [o for o in options if not self._rejected(o[1])] or options
+        pool = [o for o in options if not self._rejected(o[1])]
+        if all(o[2] for o in pool):  # no match both fits and is consistent with the map
+            pool = options
         quality = {id(o): _match_quality(o[1]) for o in options}
 
         def merit(option: tuple[FloatArray, MatchReport, bool]) -> float:
@@ -637,7 +654,7 @@ class LidarOdometry:
 
         chosen = max(pool, key=merit)
         if chosen is not first and self._beyond(chosen[0], previous, reach) and not (
-            self._rejected(first[1]) and self._clean(chosen[1])
+            self._rejected(first[1]) and self._clean(chosen[1]) and not chosen[2]
         ):
             chosen = first
         q = quality[id(chosen)]
@@ -846,12 +863,13 @@ class LidarOdometry:
 
     def _match_from(
         self, level_pts: list[FloatArray], start: FloatArray, normals: FloatArray,
-        prior_weight: float,
+        prior_weight: float, prior_pose: FloatArray | None = None, restart: bool = False,
     ) -> tuple[FloatArray, MatchReport]:
         c = self.config
         pose, report = match_scan_to_map(
             self.pyramid, level_pts, start, c.max_iterations, c.step_tolerance,
             c.length_scale, c.degeneracy_ratio, c.subcell_sigma, normals, prior_weight,
+            prior_pose, restart,
         )  # fmt: skip
         report.free_fraction = self.pyramid.finest.fraction_not_above_near(
             pose, level_pts[0], c.free_logodds

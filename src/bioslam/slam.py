@@ -134,7 +134,9 @@ class SelfMotion:
             if self._last_dt > 0.0:  # the velocity of the step before is known
                 expected = self._last_step * min(dt / self._last_dt, 1e3)
                 report = self.odometry.last_report
-                self.breaks += odometry_broke(report, dp, expected, dt, self.closure)
+                self.breaks += odometry_broke(
+                    report, dp, expected, dt, self.closure, self.odometry.config.max_speed
+                )
             self._last_step, self._last_dt = dp.copy(), dt
             if self.heading_bias:
                 dp[2] += self.heading_bias * dt
