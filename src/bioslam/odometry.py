@@ -528,11 +528,8 @@ class LidarOdometry:
         ``2 * search_angle`` either way from ``previous`` (thinned logs turn up to 80°
         between scans)."""
         c = self.config
-        gapless = dt <= c.gap_time  # the prediction is then the motion prior
-        options = [self._option(
-            level_pts, start, normals, self._prior_weight(dt), predicted if gapless else None,
-            gapless,
-        )]  # fmt: skip
+        gapless = dt <= c.gap_time  # the start is then a trusted prediction
+        options = [self._option(level_pts, start, normals, self._prior_weight(dt), None, gapless)]
         motion: tuple[FloatArray, ...] = (start,)  # only compared when the search ran
         searched = c.search_distance > 0 and self._untrusted(options[0][2], dt, previous, start)
         if len(self._searched) == self._searched.maxlen:
