@@ -76,8 +76,9 @@ class LoopClosureConfig:
             (0) by default: the prediction then becomes a loop link weighted as a
             registration, which holds the map at its drifted state (the maze tour's loop links
             were 1.2 cm off the truth with 3 cm / 0.006 rad against 0.7 cm without, their
-            registrations 0.7 cm). Measured with loop links weighted by their scan's geometry
-            (``bioslam.cognitive_map.registration_shape``), 300 s per world, ATE full /
+            registrations 0.7 cm). Measured at a049569 with loop links weighted by their
+            scan's geometry (``bioslam.cognitive_map.registration_shape``), 300 s per world,
+            ATE full /
             odometry: without a dead band maze tour 0.59 / 0.49 cm, weaving 1.95 / 2.03,
             RPLIDAR weaving 2.62 / 2.80, rooms 3.60 / 3.45 (SICK) and 7.76 / 9.43, warehouse
             1.63 / 2.12 and 4.19 / 5.17, freiburg-079 6.67 / 7.21; with 3 cm / 0.006 rad

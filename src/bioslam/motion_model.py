@@ -11,12 +11,14 @@ there, differenced over a few scan intervals, cuts the estimated speed, the next
 is slower, the next match follows it, and the estimate stalls while the robot drives on
 (simulated URG-04LX, 5.6 m range: 5 m behind after 10 s in one corridor).
 
-So the twist is fused per direction, as a Kalman filter weighs a measurement by its information:
-the window's measured twist is taken along the directions the scan constrains and, along its
-weakest direction, blended with the previous twist by how well the scan constrains it
-(:func:`weak_direction_gain`): nothing below ``degeneracy_ratio`` (the previous twist carries
-on), all of it from ``constrained_ratio`` up. A scan that constrains every direction leaves the
-measurement unchanged, so dense data behaves as with the plain window difference.
+So the twist is fused per direction: the window's measured twist is taken across the scan's
+weakest direction (when that is mostly a translation, :func:`translation_part`), and along it
+the velocity is a one-dimensional Kalman filter's (:func:`kalman_along`), the measurement
+weighted by how well the scan constrains that direction (:func:`weak_direction_gain`: not at
+all below ``degeneracy_ratio``, where the carried velocity goes on, fully from
+``constrained_ratio`` up) and rejected when it is a slip rather than a change of speed. A scan
+that constrains every direction gives the measurement whole, so dense data behaves as with the
+plain window difference.
 
 No file or terminal I/O here.
 """

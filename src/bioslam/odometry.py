@@ -232,10 +232,12 @@ class OdometryConfig:
             1° scanner at a metre a scan holds a wall only where the last scans' beams hit
             it, and a pose that reproduces the last scan's own beam pattern (standing still)
             then scores best in a corridor (intel: RPE 1 m 22 -> 8 cm with the other two).
-        step_prior, step_prior_weight: the density of the recent steps
-            (:class:`bioslam.step_prior.StepPrior`) and the weight of its cost (``-log``, at
-            most ``-log(step_prior.floor)``) against a match's quality (mean M* less the
-            negative evidence, :func:`_match_quality`).
+        step_prior, step_prior_weight: the density of the recent steps for which the search
+            ran (:class:`bioslam.step_prior.StepPrior`; a run that turns sparse halfway is not
+            then held to the millimetre steps of its dense part, and dense scans pay nothing
+            for it) and the weight of its cost (``-log``, at most ``-log(step_prior.floor)``)
+            against a match's quality (mean M* less the negative evidence,
+            :func:`_match_quality`).
         motion_weight: weight, per ``jump_distance`` metres plus per ``jump_angle`` radians
             of distance from the nearest motion hypothesis (the start, the constant-velocity
             prediction, the last step repeated, the typical step on), of that distance
@@ -526,11 +528,8 @@ class LidarOdometry:
         ``2 * search_angle`` either way from ``previous`` (thinned logs turn up to 80°
         between scans)."""
         c = self.config
-        gapless = dt <= c.gap_time  # the prediction is then the motion prior
-        options = [self._option(
-            level_pts, start, normals, self._prior_weight(dt), predicted if gapless else None,
-            gapless,
-        )]  # fmt: skip
+        gapless = dt <= c.gap_time  # the start is then a trusted prediction
+        options = [self._option(level_pts, start, normals, self._prior_weight(dt), None, gapless)]
         motion: tuple[FloatArray, ...] = (start,)  # only compared when the search ran
         searched = c.search_distance > 0 and self._untrusted(options[0][2], dt, previous, start)
         if len(self._searched) == self._searched.maxlen:
@@ -560,8 +559,10 @@ class LidarOdometry:
             pose, report = self._choose_sparse(options, motion, previous, reach)
         else:
             pose, report = self._choose(options, motion, previous, reach, jump)
-        self._remember_miss(between(start, pose), between(previous, pose))
-        self._step_prior.add(between(previous, pose))
+        step = between(previous, pose)
+        self._remember_miss(between(start, pose), step)
+        if searched:  # the steps where the prediction was not trusted, as on sparse scans
+            self._step_prior.add(step)
 
         report.iterations = sum(option[1].iterations for option in options)
         self._remember_score(report.score)
