@@ -10,6 +10,7 @@ from loop_world import ring_route, ring_world
 
 from bioslam.config import SLAMConfig, config_from_dict
 from bioslam.evaluation import ate
+from bioslam.geometry import between
 from bioslam.sim import LIDAR_PRESETS, simulate_scans
 from bioslam.slam import BioSLAM, thin_points
 from bioslam.trajectory import Trajectory
@@ -108,30 +109,42 @@ def _jumping(slam: BioSLAM, at: int, jump: float) -> None:
     odometry.update = jumping_update
 
 
-@pytest.mark.parametrize("refuse", [True, False])
-def test_no_closure_is_measured_across_a_jump_of_the_odometry(ring_drive, refuse):
-    scans, _ = ring_drive
-    config = SLAMConfig()
-    config.loop_closure.refuse_broken_odometry = refuse
-    slam = BioSLAM(config)
+def _closure_errors(slam: BioSLAM, gt: Trajectory, checks: list) -> list[float]:
+    """Each check's registered pose against the truth's relative pose (m)."""
+    at = lambda t: gt.poses[min(int(np.searchsorted(gt.stamps, t)), len(gt) - 1)]  # noqa: E731
+    errors = []
+    for check in checks:
+        err = between(between(at(check.experience_stamp), at(check.stamp)), check.verdict.pose)
+        errors.append(float(np.hypot(err[0], err[1])))
+    return errors
+
+
+@pytest.mark.parametrize("jump", [0.6, 2.0])
+def test_a_closure_across_a_jump_of_the_odometry_measures_the_jump_or_is_refused(
+    ring_drive, jump
+):
+    scans, gt = ring_drive
+    slam = BioSLAM(SLAMConfig())
     at = len(scans) // 4  # a quarter into the first lap: places made before and after
-    _jumping(slam, at, 0.6)
+    _jumping(slam, at, jump)
     for scan in scans:
         slam.process(scan)
     jumped = scans[at].stamp
     assert slam.self_motion.breaks == 1
     across = [c for c in slam.checks if c.experience_stamp < jumped and c.verdict.accepted]
     later = [c for c in slam.checks if c.experience_stamp > jumped and c.verdict.accepted]
-    if refuse:
-        # the map relates the robot to the places made before the jump only across it
+    assert later, "the places made after the jump still close"
+    if jump < slam.config.loop_closure.search_distance:
+        # the map's prediction is off by the jump; the window covers it and each closure
+        # measures where the robot is, not where the jumped odometry put it
+        assert across
+        assert max(_closure_errors(slam, gt, across)) < 0.15
+    else:
+        # beyond what the verification searches: only refusals, counted as such
         assert not across
         refused = [c for c in slam.checks if c.verdict.reason == "odometry broke"]
         assert refused and all(c.experience_stamp < jumped for c in refused)
         assert slam.summary()["closure_refused_odometry_broke"] == len(refused)
-        # the places made after it still close
-        assert later
-    else:
-        assert across, "without the guard closures across the jump are accepted"
 
 
 def test_odometry_break_is_a_jump_between_scans_not_a_search_after_a_gap():
@@ -168,3 +181,18 @@ def test_submap_fuses_no_scan_across_a_break():
     breaks_at = np.array([0, 0, 1, 1, 1, 2, 2])
     assert unbroken(breaks_at, 3, [1, 2, 3, 4, 5]) == [2, 3, 4]
     assert unbroken(breaks_at, 0, [0, 1, 2]) == [0, 1]
+
+
+def test_a_break_widens_the_closure_window_by_how_far_it_may_have_put_the_robot():
+    from bioslam.closure import break_extent
+
+    cfg = SLAMConfig().loop_closure
+    walking = np.array([0.05, 0.0, 0.0])
+    # a jump half a metre ahead and 40 degrees round: the map's prediction is off by that
+    jumped = walking + np.array([0.5, 0.0, np.radians(40.0)])
+    assert np.allclose(break_extent(jumped, walking, 0.1, cfg), [0.5, np.radians(40.0)])
+    # a step without a match repeats the motion: off by what the robot could have changed
+    guessed = break_extent(walking, walking, 0.1, cfg)
+    slack = 0.5 * 0.1**2
+    assert guessed[0] == pytest.approx(cfg.break_distance + cfg.break_acceleration * slack)
+    assert guessed[1] == pytest.approx(cfg.break_angle + cfg.break_angular_acceleration * slack)

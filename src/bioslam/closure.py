@@ -105,6 +105,28 @@ def odometry_broke(
     )
 
 
+def break_extent(
+    step: FloatArray, expected: FloatArray, dt: float, config: LoopClosureConfig
+) -> FloatArray:
+    """How far (m, rad) a step that broke the odometry's chain (:func:`odometry_broke`) may
+    have put the robot from where it went: its departure from the ``expected`` motion, at
+    least what a robot could have changed its motion by in ``dt`` (a step without a match,
+    or one blind along a corridor, has no departure of its own to tell)."""
+    slack = 0.5 * dt * dt
+    return np.array(
+        [
+            max(
+                math.hypot(step[0] - expected[0], step[1] - expected[1]),
+                config.break_distance + config.break_acceleration * slack,
+            ),
+            max(
+                abs(wrap_angle(step[2] - expected[2])),
+                config.break_angle + config.break_angular_acceleration * slack,
+            ),
+        ]
+    )
+
+
 def unbroken(breaks_at: NDArray[np.int64], anchor: int, members: Sequence[int]) -> list[int]:
     """The ``members`` of ``anchor``'s submap made with no odometry break between them and
     the anchor (``breaks_at``: the count of breaks when each experience was made)."""

@@ -24,6 +24,7 @@ from bioslam.closure import (
     Check,
     SubmapCache,
     Verdict,
+    break_extent,
     nearest_experience,
     odometry_broke,
     pass_neighbours,
@@ -125,6 +126,9 @@ class SelfMotion:
         self._last_dt = 0.0
         #: steps so far that broke the odometry's chain (:func:`bioslam.closure.odometry_broke`)
         self.breaks = 0
+        #: the summed (m, rad) by which those breaks may have put the robot off
+        #: (:func:`bioslam.closure.break_extent`)
+        self.break_extent = np.zeros(2)
 
     def step(self, scan: LaserScan) -> FloatArray:
         """The motion since the previous scan, in the previous robot frame."""
@@ -134,9 +138,11 @@ class SelfMotion:
             if self._last_dt > 0.0:  # the velocity of the step before is known
                 expected = self._last_step * min(dt / self._last_dt, 1e3)
                 report = self.odometry.last_report
-                self.breaks += odometry_broke(
+                if odometry_broke(
                     report, dp, expected, dt, self.closure, self.odometry.config.max_speed
-                )
+                ):
+                    self.breaks += 1
+                    self.break_extent += break_extent(dp, expected, dt, self.closure)
             self._last_step, self._last_dt = dp.copy(), dt
             if self.heading_bias:
                 dp[2] += self.heading_bias * dt
@@ -170,6 +176,7 @@ class BioSLAM:
         # experience was made: a closure is measured only against a place the odometry
         # relates to the robot without a break
         self._breaks_at = np.empty(1024, dtype=np.int64)
+        self._extent_at = np.empty((1024, 2))
         self._last_registration = -np.inf
         self._travelled_at_entry = 0.0
         self._pending = np.zeros(3)
@@ -262,8 +269,10 @@ class BioSLAM:
         if experience_id >= self._made_at.size:
             self._made_at = np.concatenate([self._made_at, np.empty_like(self._made_at)])
             self._breaks_at = np.concatenate([self._breaks_at, np.empty_like(self._breaks_at)])
+            self._extent_at = np.concatenate([self._extent_at, np.empty_like(self._extent_at)])
         self._made_at[experience_id] = self._travelled
         self._breaks_at[experience_id] = self.self_motion.breaks
+        self._extent_at[experience_id] = self.self_motion.break_extent
 
     def _nearby(self, pose: FloatArray, travelled: float) -> int | None:
         """The path-integration cue: the experience nearest the robot's map ``pose`` (after
@@ -308,16 +317,22 @@ class BioSLAM:
         predicted = between(experience.pose, self.cognitive_map.pose())
         linked, since = self._odometry_relation(experience.id)
         drift, drift_angle = self._drift_bound(since, linked)
-        if np.hypot(predicted[0], predicted[1]) > cfg.recognition_radius + drift:
-            return None
         anchor, members = self._submap_members(experience.id)
-        since = self._breaks_at[min(anchor, experience.id)]
-        if cfg.refuse_broken_odometry and self.self_motion.breaks > since:
+        broken = self._break_since(min(anchor, experience.id))
+        if broken is not None:
             # The map relates the robot to the place through a break of the odometry (a
             # jump to a look-alike, a match it could not tell from one, a step it could not
-            # match): its prediction may be off by metres, and a registration that finds
-            # the place where the map puts it only repeats the break (a corridor seen
-            # along its axis fits anywhere along it). Refused before any registration.
+            # match): its prediction may be off by as much as the breaks since, so the
+            # window covers that too (a registration within the drift bound alone would
+            # only confirm the break: a corridor seen along its axis fits anywhere along
+            # it, and the look-alike the odometry jumped to fits where the map puts it).
+            drift, drift_angle = drift + broken[0], drift_angle + broken[1]
+        if np.hypot(predicted[0], predicted[1]) > cfg.recognition_radius + drift:
+            return None
+        if broken is not None and (
+            broken[0] > cfg.search_distance or broken[1] > cfg.search_angle
+        ):
+            # farther off than the verification searches: it could only confirm the break
             self._last_registration = self._travelled
             self._refuse(experience, predicted, "odometry broke")
             return None
@@ -348,6 +363,16 @@ class BioSLAM:
         normals = scan_normals(pts, NORMAL_RADIUS, NORMAL_MAX_GAP)
         ratio = self.config.cognitive_map.closure_shape_ratio
         return Measurement(verdict.pose, registration_shape(pts, normals, ratio))
+
+    def _break_since(self, experience_id: int) -> FloatArray | None:
+        """The summed extent (m, rad) of the odometry breaks since ``experience_id`` was
+        made (:func:`bioslam.closure.break_extent`), or None when there was none or the
+        loop-closure settings trust the odometry across breaks."""
+        if not self.config.loop_closure.refuse_broken_odometry:
+            return None
+        if self.self_motion.breaks == self._breaks_at[experience_id]:
+            return None
+        return self.self_motion.break_extent - self._extent_at[experience_id]
 
     def _submap_members(self, candidate: int) -> tuple[int, list[int]]:
         """The experiences whose scans verify ``candidate``: those around it on its own pass,
