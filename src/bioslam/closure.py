@@ -96,13 +96,7 @@ def odometry_broke(
         return True
     if not (report.recovered or report.ambiguous):
         return False  # the match from the motion model's own start, kept: no jump
-    slack = 0.5 * dt * dt
-    moved = math.hypot(step[0] - expected[0], step[1] - expected[1])
-    turned = abs(wrap_angle(step[2] - expected[2]))
-    return bool(
-        moved > config.break_distance + config.break_acceleration * slack
-        or turned > config.break_angle + config.break_angular_acceleration * slack
-    )
+    return bool(np.any(_departure(step, expected) > _break_thresholds(dt, config)))
 
 
 def break_extent(
@@ -112,17 +106,27 @@ def break_extent(
     have put the robot from where it went: its departure from the ``expected`` motion, at
     least what a robot could have changed its motion by in ``dt`` (a step without a match,
     or one blind along a corridor, has no departure of its own to tell)."""
+    return np.maximum(_departure(step, expected), _break_thresholds(dt, config))
+
+
+def _departure(step: FloatArray, expected: FloatArray) -> FloatArray:
+    """How far (m, rad) ``step`` lands from the ``expected`` motion."""
+    return np.array(
+        [
+            math.hypot(step[0] - expected[0], step[1] - expected[1]),
+            abs(wrap_angle(step[2] - expected[2])),
+        ]
+    )
+
+
+def _break_thresholds(dt: float, config: LoopClosureConfig) -> FloatArray:
+    """The most (m, rad) a robot's motion can change in ``dt`` seconds: ``break_distance``
+    / ``break_angle`` plus half the break accelerations times dt²."""
     slack = 0.5 * dt * dt
     return np.array(
         [
-            max(
-                math.hypot(step[0] - expected[0], step[1] - expected[1]),
-                config.break_distance + config.break_acceleration * slack,
-            ),
-            max(
-                abs(wrap_angle(step[2] - expected[2])),
-                config.break_angle + config.break_angular_acceleration * slack,
-            ),
+            config.break_distance + config.break_acceleration * slack,
+            config.break_angle + config.break_angular_acceleration * slack,
         ]
     )
 

@@ -351,8 +351,7 @@ class BioSLAM:
             (drift, drift_angle), cfg, submap.seen, submap.pyramid,
         )  # fmt: skip
         verdict = dataclasses.replace(verdict, pose=compose(anchor_in_experience, verdict.pose))
-        cue = "proximity" if experience.id == self._proposed else "view"
-        self.checks.append(Check(self._stamp, experience.id, experience.stamp, cue, verdict))
+        self._note_check(experience, verdict)
         if not verdict.accepted:
             return None
         if within(between(predicted, verdict.pose), cfg.deadband, cfg.deadband_angle):
@@ -396,6 +395,10 @@ class BioSLAM:
     def _refuse(self, experience: Experience, predicted: FloatArray, reason: str) -> None:
         """Record a check refused before its registration ran."""
         verdict = Verdict(False, np.asarray(predicted, dtype=np.float64), float("nan"), 0.0, reason)
+        self._note_check(experience, verdict)
+
+    def _note_check(self, experience: Experience, verdict: Verdict) -> None:
+        """Record a verification's outcome, with the cue that proposed the experience."""
         cue = "proximity" if experience.id == self._proposed else "view"
         self.checks.append(Check(self._stamp, experience.id, experience.stamp, cue, verdict))
 
