@@ -1,14 +1,17 @@
-"""bioslam.signals: a signal that lands inside a native callback is not lost."""
+"""bioslam.signals: a signal that lands where Python swallows exceptions is not lost."""
 
+import ctypes
 import signal
+import sys
 import time
+import weakref
 
 import pytest
 
 from bioslam import signals
 
 # A function whose module looks like llvmlite's: Numba's LLVM binding runs such Python code
-# inside ctypes callbacks, where a raised exception is printed and dropped.
+# inside ctypes callbacks, which must not be cut short.
 _CALLBACK_SOURCE = '''
 import signal
 def callback(log):
@@ -17,26 +20,89 @@ def callback(log):
 '''
 
 
-def _fake_llvmlite_callback():
+def _in_llvmlite_callback(log: list[str]) -> None:
     namespace = {"__name__": "llvmlite.binding.fake"}
     exec(compile(_CALLBACK_SOURCE, "fake_llvmlite.py", "exec"), namespace)
-    return namespace["callback"]
+    namespace["callback"](log)
 
 
-def test_a_signal_inside_a_native_callback_is_delivered_again_afterwards():
-    callback, log = _fake_llvmlite_callback(), []
+# Places where Python cannot propagate an exception and prints it as "Exception ignored":
+# Numba's LLVM binding calls Python through ctypes callbacks, and the garbage collector runs
+# finalizers and weakref callbacks wherever it happens to be triggered.
+
+
+def _in_ctypes_callback(log: list[str]) -> None:
+    @ctypes.CFUNCTYPE(None)
+    def callback() -> None:
+        signal.raise_signal(signal.SIGTERM)
+        log.append("not reached: the signal raised")
+
+    callback()
+
+
+def _in_finalizer(log: list[str]) -> None:
+    class Finalized:
+        def __del__(self) -> None:
+            signal.raise_signal(signal.SIGTERM)
+            log.append("not reached: the signal raised")
+
+    Finalized()
+
+
+def _in_weakref_callback(log: list[str]) -> None:
+    class Referent:
+        pass
+
+    def callback(_ref: weakref.ref) -> None:
+        signal.raise_signal(signal.SIGTERM)
+        log.append("not reached: the signal raised")
+
+    referent = Referent()
+    ref = weakref.ref(referent, callback)
+    del referent
+    assert ref() is None
+
+
+@pytest.mark.parametrize(
+    ("land_signal", "callback_log"),
+    [
+        (_in_llvmlite_callback, ["callback finished"]),
+        (_in_ctypes_callback, []),
+        (_in_finalizer, []),
+        (_in_weakref_callback, []),
+    ],
+)
+def test_a_signal_where_python_swallows_exceptions_is_delivered_again(
+    land_signal, callback_log, capfd
+):
+    log: list[str] = []
     with (
         signals.installed(),
         pytest.raises(signals.Interrupted) as stopped,
         signals.interruptible(),
     ):
-        callback(log)  # the signal arrives here: the callback must run to its end
+        land_signal(log)  # the signal arrives here and must not be lost
         log.append("after the callback")
         deadline = time.monotonic() + 5.0
         while time.monotonic() < deadline:
             time.sleep(0.01)
-    assert log == ["callback finished", "after the callback"]
+    assert log == [*callback_log, "after the callback"]
     assert stopped.value.signum == signal.SIGTERM and stopped.value.exit_code == 143
+    assert "Exception ignored" not in capfd.readouterr().err
+
+
+def test_other_swallowed_errors_still_reach_the_previous_hook(monkeypatch):
+    reported: list[BaseException] = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda args: reported.append(args.exc_value))
+
+    class Broken:
+        def __del__(self) -> None:
+            raise ValueError("finalizer failed")
+
+    with signals.installed():
+        Broken()
+    assert [str(error) for error in reported] == ["finalizer failed"]
+    assert sys.unraisablehook is not signals._unraisable_hook
 
 
 def test_a_signal_in_plain_python_code_raises_at_once():

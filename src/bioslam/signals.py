@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 from types import FrameType
@@ -41,11 +42,14 @@ class _State:
     protected = 0
     received: int | None = None
     pending = False
+    previous_unraisable_hook = sys.__unraisablehook__
 
 
-#: Packages whose Python code runs inside ctypes callbacks from native code (Numba's LLVM
-#: binding while it compiles or loads cached kernels): an exception raised there is printed as
-#: "Exception ignored" and lost, so a signal arriving in it is delivered again a moment later.
+#: Python swallows an exception raised where it cannot propagate (a weakref callback while the
+#: garbage collector runs, ``__del__``, a ctypes callback) and prints it as "Exception ignored".
+#: A signal raised there would be lost, so :func:`_unraisable_hook` sends it again a moment
+#: later. Inside the ctypes callbacks of Numba's LLVM binding (while it compiles or loads cached
+#: kernels) the handler does not raise at all, so that LLVM's callback is never cut short.
 _CALLBACK_PACKAGES = frozenset({"llvmlite"})
 REDELIVERY_DELAY_S = 0.05
 
@@ -87,6 +91,13 @@ def _handler(signum: int, frame: FrameType | None) -> None:
     raise Interrupted(signum)
 
 
+def _unraisable_hook(unraisable: sys.UnraisableHookArgs) -> None:
+    if isinstance(unraisable.exc_value, Interrupted):
+        _redeliver(unraisable.exc_value.signum)
+        return
+    _State.previous_unraisable_hook(unraisable)
+
+
 def received() -> int | None:
     """The first handled signal that arrived since :func:`installed`, or ``None``."""
     return _State.received
@@ -113,6 +124,8 @@ def installed(ignore_after: bool = False) -> Iterator[None]:
         previous = dict.fromkeys(HANDLED, signal.SIG_IGN)
     _State.installed += 1
     _State.received, _State.pending, _State.protected = None, False, 0
+    _State.previous_unraisable_hook = sys.unraisablehook
+    sys.unraisablehook = _unraisable_hook
     for sig in HANDLED:
         signal.signal(sig, _handler)
     try:
@@ -121,6 +134,7 @@ def installed(ignore_after: bool = False) -> Iterator[None]:
         with _swap:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
+            sys.unraisablehook = _State.previous_unraisable_hook
             _State.installed -= 1
 
 
