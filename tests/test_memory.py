@@ -108,6 +108,26 @@ def test_a_log_longer_than_the_replay_budget_reads_the_same(tmp_path, monkeypatc
     np.testing.assert_array_equal(odometry_again.poses, odometry.poses)
 
 
+def test_the_replayed_planning_pass_is_freed_as_the_run_reads_it(tmp_path):
+    """A log kept from its planning pass is not held until the last scan: a record the run
+    has read is dropped (its ranges freed), while those still to come are kept."""
+    import gc
+    import weakref
+
+    source = logs.open_log(_carmen_log(tmp_path / "a.log"))
+    assert source.time_plan.stamps.size == 30  # planned (and kept) before the run reads it
+    kept = [event[1].ranges for event in source._replay if event[0] == logs._SCAN]
+    first, last = weakref.ref(kept[0]), weakref.ref(kept[-1])
+    del kept
+    scans = iter(source)
+    for _ in range(10):
+        next(scans)  # read and dropped, as the run does
+    gc.collect()
+    assert first() is None
+    assert last() is not None
+    assert len(list(scans)) == 20
+
+
 TIMING = {"wall_s", "startup_s", "realtime_factor", "ms_per_scan_median", "ms_per_scan_p99"}
 
 
