@@ -21,7 +21,9 @@ from numpy.typing import NDArray
 
 from bioslam.boundary import BoundaryCells
 from bioslam.closure import (
+    Candidate,
     Check,
+    ClosureConsensus,
     SubmapCache,
     Verdict,
     break_extent,
@@ -29,6 +31,7 @@ from bioslam.closure import (
     odometry_broke,
     pass_neighbours,
     submap_anchor,
+    submap_span,
     thin_points,
     unbroken,
     verify,
@@ -177,6 +180,12 @@ class BioSLAM:
         # relates to the robot without a break
         self._breaks_at = np.empty(1024, dtype=np.int64)
         self._extent_at = np.empty((1024, 2))
+        # the odometry's pose when each experience was made: the old pass's chain of
+        # relative poses for the closures' pairwise test (:class:`bioslam.closure.Candidate`)
+        self._odometry_at = np.empty((1024, 3))
+        self.consensus = ClosureConsensus(self.config.loop_closure)
+        self._confirmed_earlier = False
+        self._extent_at_look = np.zeros(2)
         self._last_registration = -np.inf
         self._travelled_at_entry = 0.0
         self._pending = np.zeros(3)
@@ -240,7 +249,10 @@ class BioSLAM:
         self.pose_cells.path_integrate(dp)
         self.pose_cells.inject_view(match.view_id, match.activity, match.is_new)
         self.pose_cells.step()
-        self.cognitive_map.integrate_odometry(dp, scan.stamp)
+        # the breaks of the odometry since the last look weaken the link that carries them
+        broken = self.self_motion.break_extent - self._extent_at_look
+        self._extent_at_look = self.self_motion.break_extent.copy()
+        self.cognitive_map.integrate_odometry(dp, scan.stamp, broken)
         self._stamp = scan.stamp
         self._proposed = self._nearby(self.cognitive_map.pose(), self._travelled)
         known = len(self.cognitive_map)
@@ -253,8 +265,9 @@ class BioSLAM:
             refine=self._refiner(points) if self.config.loop_closure.refine else None,
             nearby=self._proposed,
         )
-        if event.kind == "loop":
+        if event.kind == "loop" or self._confirmed_earlier:
             self.cognitive_map.relax()
+        self._confirmed_earlier = False
         self._travelled += float(np.hypot(dp[0], dp[1]))
         # every experience this look made (a closure also makes one of the robot's pose)
         for experience_id in range(known, len(self.cognitive_map)):
@@ -267,10 +280,11 @@ class BioSLAM:
 
     def _note_made(self, experience_id: int) -> None:
         if experience_id >= self._made_at.size:
-            self._made_at = np.concatenate([self._made_at, np.empty_like(self._made_at)])
-            self._breaks_at = np.concatenate([self._breaks_at, np.empty_like(self._breaks_at)])
-            self._extent_at = np.concatenate([self._extent_at, np.empty_like(self._extent_at)])
+            for name in ("_made_at", "_breaks_at", "_extent_at", "_odometry_at"):
+                column = getattr(self, name)
+                setattr(self, name, np.concatenate([column, np.empty_like(column)]))
         self._made_at[experience_id] = self._travelled
+        self._odometry_at[experience_id] = self.self_motion.pose
         self._breaks_at[experience_id] = self.self_motion.breaks
         self._extent_at[experience_id] = self.self_motion.break_extent
 
@@ -319,6 +333,7 @@ class BioSLAM:
         drift, drift_angle = self._drift_bound(since, linked)
         anchor, members = self._submap_members(experience.id)
         broken = self._break_since(min(anchor, experience.id))
+        self._across_break = broken is not None
         if broken is not None:
             # The map relates the robot to the place through a break of the odometry (a
             # jump to a look-alike, a match it could not tell from one, a step it could not
@@ -357,11 +372,45 @@ class BioSLAM:
         if within(between(predicted, verdict.pose), cfg.deadband, cfg.deadband_angle):
             # The map already agrees with the registration to within the registration's own
             # error: keep the map's estimate rather than inject that error into the map.
-            return predicted
-        pts = np.ascontiguousarray(points, dtype=np.float64)
-        normals = scan_normals(pts, NORMAL_RADIUS, NORMAL_MAX_GAP)
-        ratio = self.config.cognitive_map.closure_shape_ratio
-        return Measurement(verdict.pose, registration_shape(pts, normals, ratio))
+            measured = Measurement(np.asarray(predicted, dtype=np.float64))
+        else:
+            pts = np.ascontiguousarray(points, dtype=np.float64)
+            normals = scan_normals(pts, NORMAL_RADIUS, NORMAL_MAX_GAP)
+            ratio = self.config.cognitive_map.closure_shape_ratio
+            measured = Measurement(verdict.pose, registration_shape(pts, normals, ratio))
+        return measured if self._confirmed(experience, measured) else None
+
+    def _confirmed(self, experience: Experience, measured: Measurement) -> bool:
+        """Whether a verified closure enters the map now: at once without the pairwise
+        test, else once another closure agrees with it (:class:`bioslam.closure.
+        ClosureConsensus`); the waiting closures it confirms enter the map here, their
+        checks then counting as accepted. A closure left waiting is recorded as refused
+        ('unconfirmed') until then."""
+        import os
+        if not self.config.loop_closure.consistency:
+            return True
+        if os.environ.get("PCM_BREAK_ONLY") and not self._across_break:
+            return True
+        cmap, eid = self.cognitive_map, experience.id
+        candidate = Candidate(
+            self._stamp, eid, np.asarray(measured.pose, dtype=np.float64),
+            self.self_motion.pose.copy(), self._odometry_at[eid].copy(), self._travelled,
+            float(self._made_at[eid]), self.self_motion.breaks, int(self._breaks_at[eid]),
+            link=cmap.loop_link(eid, measured, self._stamp), check=len(self.checks) - 1,
+        )  # fmt: skip
+        confirmed = self.consensus.offer(candidate)
+        check = self.checks[candidate.check]
+        if not confirmed:
+            waiting = dataclasses.replace(check.verdict, accepted=False, reason="unconfirmed")
+            self.checks[candidate.check] = dataclasses.replace(check, verdict=waiting)
+            return False
+        for earlier in confirmed[:-1]:
+            cmap.add_loop_link(earlier.link)  # type: ignore[arg-type]
+            old = self.checks[earlier.check]
+            accepted = dataclasses.replace(old.verdict, accepted=True, reason="")
+            self.checks[earlier.check] = dataclasses.replace(old, verdict=accepted)
+            self._confirmed_earlier = True
+        return True
 
     def _break_since(self, experience_id: int) -> FloatArray | None:
         """The summed extent (m, rad) of the odometry breaks since ``experience_id`` was
@@ -384,10 +433,10 @@ class BioSLAM:
         cfg = self.config.loop_closure
         made_at = self._made_at[: len(self.cognitive_map)]
         anchor = submap_anchor(made_at, candidate, cfg.submap_step)
-        members = pass_neighbours(
-            made_at, anchor, cfg.submap_reach, cfg.submap_step,
-            self._travelled - cfg.submap_reach,
-        )  # fmt: skip
+        reach, step = submap_span(
+            made_at, anchor, cfg.submap_reach, cfg.submap_step, cfg.submap_max_reach
+        )
+        members = pass_neighbours(made_at, anchor, reach, step, self._travelled - reach)
         if cfg.refuse_broken_odometry:
             members = unbroken(self._breaks_at, anchor, members)
         return anchor, members
@@ -474,7 +523,8 @@ class BioSLAM:
         """Loop-closure verifications by cue, and refusals by reason (``closure.verify``)."""
         out = {"closure_checks_view": 0, "closure_checks_proximity": 0}
         for reason in (
-            "score", "degenerate", "ambiguous", "slid", "beyond_drift", "odometry_broke"
+            "score", "degenerate", "ambiguous", "slid", "beyond_drift", "odometry_broke",
+            "unconfirmed",
         ):
             out[f"closure_refused_{reason}"] = 0
         for check in self.checks:
