@@ -332,3 +332,14 @@ def test_closures_across_an_odometry_break_cannot_confirm_each_other():
     far = ClosureConsensus(LoopClosureConfig(consistency_window=5.0))
     assert far.offer(_second_pass(1.0)) == []
     assert far.offer(_second_pass(7.0)) == []  # beyond the window: the first was dropped
+
+
+def test_a_closure_the_odometry_never_doubted_enters_alone_and_confirms_others():
+    consensus = ClosureConsensus(LoopClosureConfig())
+    waiting = _second_pass(1.0)
+    assert consensus.offer(waiting) == []
+    trusted = _second_pass(2.0)
+    assert consensus.offer(trusted, trusted=True) == [waiting, trusted]
+    alone = ClosureConsensus(LoopClosureConfig())
+    assert alone.offer(_second_pass(5.0), trusted=True)  # no partner needed
+    assert alone.offer(_second_pass(5.2, off=0.9)) == []  # a doubted one still waits

@@ -109,6 +109,17 @@ def break_extent(
     return np.maximum(_departure(step, expected), _break_thresholds(dt, config))
 
 
+def odometry_doubted(report: MatchReport) -> bool:
+    """Whether the odometry's matcher itself doubted a step: no match was made, the scan
+    left some direction unconstrained (blind along a corridor, where it may slide), or a
+    distinct pose fitted about as well. A closure to a place the odometry relates to the
+    robot only across such a step may confirm the step's error instead of the place (the
+    simulated worlds' false closures, 0.56-1.48 m off, all came after such steps), so it
+    needs another closure to agree (:class:`ClosureConsensus`); across steps it never
+    doubted, one verified registration is enough (freiburg-079: none doubted)."""
+    return bool(report.predicted_only or report.degenerate or report.ambiguous)
+
+
 def _departure(step: FloatArray, expected: FloatArray) -> FloatArray:
     """How far (m, rad) ``step`` lands from the ``expected`` motion."""
     return np.array(
@@ -620,9 +631,11 @@ class ClosureConsensus:
         self.config = config
         self.recent: list[Candidate] = []
 
-    def offer(self, candidate: Candidate) -> list[Candidate]:
+    def offer(self, candidate: Candidate, trusted: bool = False) -> list[Candidate]:
         """Judge a newly verified ``candidate``: the closures to enter the map now (the
-        candidate and the waiting ones it confirms, oldest first), or [] while it waits."""
+        candidate and the waiting ones it confirms, oldest first), or [] while it waits.
+        A ``trusted`` candidate enters at once (the odometry relates it to its place
+        without a doubted step) and may still confirm waiting ones."""
         window = self.config.consistency_window
         self.recent = [c for c in self.recent if candidate.travelled - c.travelled <= window]
         agree, disagree = [], 0
@@ -633,7 +646,7 @@ class ClosureConsensus:
             elif verdict is False:
                 disagree += 1
         self.recent.append(candidate)
-        if not agree or len(agree) < disagree:
+        if not trusted and (not agree or len(agree) < disagree):
             return []
         out = [c for c in agree if not c.entered] + [candidate]
         for c in out:

@@ -134,14 +134,18 @@ class LoopClosureConfig:
         min_seen: the score counts only the points of the current scan where the submap's
             scans looked (a robot off the old centre-line sees what they never saw), but at
             least this share of the points (the unseen ones then as misses).
-        consistency: a verified closure enters the map only once another closure confirms
-            it (:class:`bioslam.closure.ClosureConsensus`): the two measurements and the
-            odometry between them close a cycle within ``consistency_distance`` (m) /
-            ``consistency_angle`` (rad) plus ``consistency_per_metre`` /
+        consistency: a verified closure to a place the odometry relates to the robot only
+            across a step it doubted or a break (:func:`bioslam.closure.odometry_doubted`,
+            :func:`bioslam.closure.odometry_broke`) enters the map only once another closure
+            confirms it (:class:`bioslam.closure.ClosureConsensus`): the two measurements
+            and the odometry between them close a cycle within ``consistency_distance`` (m)
+            / ``consistency_angle`` (rad) plus ``consistency_per_metre`` /
             ``consistency_angle_per_metre`` times the odometry they span, they were measured
-            at least ``consistency_separation`` metres of travel apart, and no more recent
-            closure within ``consistency_window`` metres contradicts more of them than
-            agree. A closure that finds no partner within the window is dropped.
+            at least ``consistency_separation`` metres of travel apart, and no more of the
+            closures within ``consistency_window`` metres contradict it than agree. One
+            that finds no partner within the window is dropped. Requiring a partner for
+            every closure also took the false ones out, but cost freiburg-079 (no doubted
+            step, 26 breaks) 1 cm of ATE (6.84 -> 7.85 cm against the odometry's 7.64).
         registration: the registration's map and Gauss-Newton parameters.
     """
 

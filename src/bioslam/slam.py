@@ -29,6 +29,7 @@ from bioslam.closure import (
     break_extent,
     nearest_experience,
     odometry_broke,
+    odometry_doubted,
     pass_neighbours,
     submap_anchor,
     submap_span,
@@ -129,6 +130,9 @@ class SelfMotion:
         self._last_dt = 0.0
         #: steps so far that broke the odometry's chain (:func:`bioslam.closure.odometry_broke`)
         self.breaks = 0
+        #: steps so far whose match the odometry itself doubted (blind along some direction,
+        #: among look-alikes, or no match): a closure across one needs a second to confirm it
+        self.doubts = 0
         #: the summed (m, rad) by which those breaks may have put the robot off
         #: (:func:`bioslam.closure.break_extent`)
         self.break_extent = np.zeros(2)
@@ -141,6 +145,7 @@ class SelfMotion:
             if self._last_dt > 0.0:  # the velocity of the step before is known
                 expected = self._last_step * min(dt / self._last_dt, 1e3)
                 report = self.odometry.last_report
+                self.doubts += int(odometry_doubted(report))
                 if odometry_broke(
                     report, dp, expected, dt, self.closure, self.odometry.config.max_speed
                 ):
@@ -183,6 +188,7 @@ class BioSLAM:
         # the odometry's pose when each experience was made: the old pass's chain of
         # relative poses for the closures' pairwise test (:class:`bioslam.closure.Candidate`)
         self._odometry_at = np.empty((1024, 3))
+        self._doubts_at = np.empty(1024, dtype=np.int64)
         self.consensus = ClosureConsensus(self.config.loop_closure)
         self._confirmed_earlier = False
         self._extent_at_look = np.zeros(2)
@@ -280,11 +286,12 @@ class BioSLAM:
 
     def _note_made(self, experience_id: int) -> None:
         if experience_id >= self._made_at.size:
-            for name in ("_made_at", "_breaks_at", "_extent_at", "_odometry_at"):
+            for name in ("_made_at", "_breaks_at", "_extent_at", "_odometry_at", "_doubts_at"):
                 column = getattr(self, name)
                 setattr(self, name, np.concatenate([column, np.empty_like(column)]))
         self._made_at[experience_id] = self._travelled
         self._odometry_at[experience_id] = self.self_motion.pose
+        self._doubts_at[experience_id] = self.self_motion.doubts
         self._breaks_at[experience_id] = self.self_motion.breaks
         self._extent_at[experience_id] = self.self_motion.break_extent
 
@@ -333,7 +340,6 @@ class BioSLAM:
         drift, drift_angle = self._drift_bound(since, linked)
         anchor, members = self._submap_members(experience.id)
         broken = self._break_since(min(anchor, experience.id))
-        self._across_break = broken is not None
         if broken is not None:
             # The map relates the robot to the place through a break of the odometry (a
             # jump to a look-alike, a match it could not tell from one, a step it could not
@@ -377,28 +383,34 @@ class BioSLAM:
             pts = np.ascontiguousarray(points, dtype=np.float64)
             normals = scan_normals(pts, NORMAL_RADIUS, NORMAL_MAX_GAP)
             ratio = self.config.cognitive_map.closure_shape_ratio
-            measured = Measurement(verdict.pose, registration_shape(pts, normals, ratio))
-        return measured if self._confirmed(experience, measured) else None
+            shape = registration_shape(pts, normals, ratio)
+            measured = Measurement(verdict.pose, shape)
+        return measured if self._confirmed(experience, measured, submap.anchor) else None
 
-    def _confirmed(self, experience: Experience, measured: Measurement) -> bool:
+    def _confirmed(self, experience: Experience, measured: Measurement, anchor: int) -> bool:
         """Whether a verified closure enters the map now: at once without the pairwise
-        test, else once another closure agrees with it (:class:`bioslam.closure.
-        ClosureConsensus`); the waiting closures it confirms enter the map here, their
-        checks then counting as accepted. A closure left waiting is recorded as refused
-        ('unconfirmed') until then."""
-        import os
+        test, or when the odometry relates the robot to the place without a step it doubted
+        (:func:`bioslam.closure.odometry_doubted`) or a break; else once another closure
+        agrees with it (:class:`bioslam.closure.ClosureConsensus`). The waiting closures a
+        closure confirms enter the map here, their checks then counting as accepted; one
+        left waiting is recorded as refused ('unconfirmed') until then."""
         if not self.config.loop_closure.consistency:
             return True
-        if os.environ.get("PCM_BREAK_ONLY") and not self._across_break:
-            return True
         cmap, eid = self.cognitive_map, experience.id
+        # the measurement relates the robot to the submap's ``anchor``, and the map the
+        # anchor to the experience: both through the odometry since the earlier of them
+        since = min(anchor, eid)
+        trusted = bool(
+            self.self_motion.doubts == self._doubts_at[since]
+            and self.self_motion.breaks == self._breaks_at[since]
+        )
         candidate = Candidate(
             self._stamp, eid, np.asarray(measured.pose, dtype=np.float64),
             self.self_motion.pose.copy(), self._odometry_at[eid].copy(), self._travelled,
             float(self._made_at[eid]), self.self_motion.breaks, int(self._breaks_at[eid]),
             link=cmap.loop_link(eid, measured, self._stamp), check=len(self.checks) - 1,
         )  # fmt: skip
-        confirmed = self.consensus.offer(candidate)
+        confirmed = self.consensus.offer(candidate, trusted)
         check = self.checks[candidate.check]
         if not confirmed:
             waiting = dataclasses.replace(check.verdict, accepted=False, reason="unconfirmed")
