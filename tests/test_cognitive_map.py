@@ -116,7 +116,8 @@ def test_refine_measures_a_loop_link_or_rejects_closure():
     cm.update(2, True, PC, stamp=1.0)
     cm.integrate_odometry((-1.9, 0.05, 0.0))
     ev = cm.update(1, False, PC, stamp=2.0, refine=lambda e: None)
-    assert ev.kind == "none" and ev.rejected and cm.loop_closures == 0
+    # refused: no link to the place; the robot's pose is a place of its own
+    assert ev.kind == "new" and ev.rejected and ev.matched == 0 and cm.loop_closures == 0
     measured = np.array([0.12, 0.03, 0.0])
     ev = cm.update(1, False, PC, stamp=2.0, refine=lambda e: measured)
     assert ev.kind == "loop" and cm.current == 0
@@ -135,6 +136,47 @@ def test_refine_measures_a_loop_link_or_rejects_closure():
     share = np.dot(moved[:2], wanted[:2]) / np.dot(wanted[:2], wanted[:2])
     odometry_var = 3.9 * 1e-4
     assert share == pytest.approx(odometry_var / (odometry_var + 0.02**2), abs=0.03)
+
+
+def _three_places() -> CognitiveMap:
+    """An old place (0), a look-alike (1), and the current place (2) back near place 0."""
+    cm = CognitiveMap()
+    cm.update(1, True, PC, stamp=0.0)
+    cm.integrate_odometry((3.0, 0.0, 0.0))
+    cm.update(2, True, PC, stamp=1.0)
+    cm.integrate_odometry((3.0, 0.0, math.pi))
+    cm.update(3, True, PC, stamp=2.0)
+    cm.integrate_odometry((5.9, 0.0, 0.0))
+    return cm
+
+
+@pytest.mark.parametrize("view_id, expected", [(3, [0]), (2, [1, 0])])
+def test_path_integration_cue_is_tried_when_the_view_proposes_no_move(view_id, expected):
+    """The view cells often recognise the view learned a few centimetres back on this pass
+    (view 3) or a look-alike the verification refuses (view 2); the map's cue of an old
+    place nearby must still be verified then, not dropped (it was, for every revisit of a
+    warehouse aisle)."""
+    tried: list[int] = []
+
+    def refine(e):
+        tried.append(e.id)
+        return np.array([0.05, 0.0, math.pi]) if e.id == 0 else None
+
+    cm = _three_places()
+    ev = cm.update(view_id, False, PC, stamp=3.0, refine=refine, nearby=0)
+    assert tried == expected and ev.kind == "loop" and ev.experience == 0
+    # both refused: at its own place the robot stays; refused a look-alike's, the map knows
+    # no place here and makes one (staying would stretch the current experience over the
+    # metres the look-alike's view keeps matching, leaving no experience for a later return)
+    tried.clear()
+    cm = _three_places()
+    ev = cm.update(view_id, False, PC, stamp=3.0, refine=lambda e: tried.append(e.id), nearby=0)
+    assert tried == expected
+    if view_id == 3:
+        assert ev.kind == "none" and len(cm) == 3 and cm.current == 2
+    else:
+        assert ev.kind == "new" and ev.rejected and len(cm) == 4 and cm.current == 3
+        np.testing.assert_allclose(cm.pose(), cm.experience(3).pose)
 
 
 def test_relaxation_shrinks_a_known_loop_error():
