@@ -191,6 +191,9 @@ class BioSLAM:
         self._doubts_at = np.empty(1024, dtype=np.int64)
         self.consensus = ClosureConsensus(self.config.loop_closure)
         self._confirmed_earlier = False
+        #: closures held back and entered later, when another confirmed them (each makes a
+        #: loop link without a look of its own)
+        self.confirmed_later = 0
         self._extent_at_look = np.zeros(2)
         self._last_registration = -np.inf
         self._travelled_at_entry = 0.0
@@ -418,6 +421,7 @@ class BioSLAM:
             return False
         for earlier in confirmed[:-1]:
             cmap.add_loop_link(earlier.link)  # type: ignore[arg-type]
+            self.confirmed_later += 1
             old = self.checks[earlier.check]
             accepted = dataclasses.replace(old.verdict, accepted=True, reason="")
             self.checks[earlier.check] = dataclasses.replace(old, verdict=accepted)
