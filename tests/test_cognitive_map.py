@@ -116,7 +116,8 @@ def test_refine_measures_a_loop_link_or_rejects_closure():
     cm.update(2, True, PC, stamp=1.0)
     cm.integrate_odometry((-1.9, 0.05, 0.0))
     ev = cm.update(1, False, PC, stamp=2.0, refine=lambda e: None)
-    assert ev.kind == "none" and ev.rejected and cm.loop_closures == 0
+    # refused: no link to the place; the robot's pose is a place of its own
+    assert ev.kind == "new" and ev.rejected and ev.matched == 0 and cm.loop_closures == 0
     measured = np.array([0.12, 0.03, 0.0])
     ev = cm.update(1, False, PC, stamp=2.0, refine=lambda e: measured)
     assert ev.kind == "loop" and cm.current == 0
@@ -164,11 +165,18 @@ def test_path_integration_cue_is_tried_when_the_view_proposes_no_move(view_id, e
     cm = _three_places()
     ev = cm.update(view_id, False, PC, stamp=3.0, refine=refine, nearby=0)
     assert tried == expected and ev.kind == "loop" and ev.experience == 0
-    # both refused: the robot stays where it is, as when the view's move alone is refused
+    # both refused: at its own place the robot stays; refused a look-alike's, the map knows
+    # no place here and makes one (staying would stretch the current experience over the
+    # metres the look-alike's view keeps matching, leaving no experience for a later return)
     tried.clear()
     cm = _three_places()
     ev = cm.update(view_id, False, PC, stamp=3.0, refine=lambda e: tried.append(e.id), nearby=0)
-    assert tried == expected and ev.kind == "none" and len(cm) == 3 and cm.current == 2
+    assert tried == expected
+    if view_id == 3:
+        assert ev.kind == "none" and len(cm) == 3 and cm.current == 2
+    else:
+        assert ev.kind == "new" and ev.rejected and len(cm) == 4 and cm.current == 3
+        np.testing.assert_allclose(cm.pose(), cm.experience(3).pose)
 
 
 def test_relaxation_shrinks_a_known_loop_error():
@@ -542,3 +550,28 @@ def test_robust_kernel_still_catches_a_closure_that_slid_far_along_a_corridor():
     odometry, relaxed, scale = corridor_return(shape, slide=1.0, config=config)
     assert scale < 0.01
     assert relaxed < 0.15 * odometry
+
+
+def test_a_loop_bends_at_the_odometry_break_that_caused_its_error():
+    # One lap of a 4 m square with an exact odometry but for one step, which jumped 0.5 m
+    # forward (the matcher took a look-alike). Told where the break lay, the map puts the
+    # loop closure's correction there and the rest of the lap stays where it was; told
+    # nothing, it spreads the 0.5 m along the whole lap.
+    steps = square_route(4.0, 0.2, 1)
+    truth = integrate(steps)
+    jump = 30
+
+    def run(flag: bool) -> float:
+        cm = CognitiveMap(CognitiveMapConfig(robust_sigmas=0.0))
+        for k, d in enumerate(steps):
+            odo = d + np.array([0.5, 0.0, 0.0]) if k == jump else d
+            cm.integrate_odometry(odo, float(k), (0.5, 0.0) if flag and k == jump else (0, 0))
+            cm.update(view_id=k, is_new=True, pc_centre=PC, stamp=float(k))
+        cm.integrate_odometry(steps[0])
+        true_end = compose(truth[-1], steps[0])
+        cm.update(0, False, PC, stamp=len(steps), refine=lambda e: between(truth[e.id], true_end))
+        cm.relax()
+        return errors(cm.experience_poses[: len(truth)], truth)[0]
+
+    assert run(False) > 0.1
+    assert run(True) < 0.03
