@@ -377,3 +377,24 @@ def test_a_turn_beyond_the_search_window_is_found_by_the_turn_searches(window_de
     dt_err, dr_err = pose_error(true, odo.pose)
     assert odo.last_report.recovered
     assert dt_err < 0.03 and dr_err < np.radians(0.5)
+
+
+def test_densify_scan_fills_a_wall_seen_along_but_no_opening_or_depth_jump():
+    """1° beams from the origin on a wall at y = 1 from x = 3 to 12 (gaps 0.15 -> 2.5 m,
+    growing beam by beam), a doorway from x = 6.5 to 8, then a wall 0.6 m farther back."""
+    angles = np.radians(np.arange(20.0, 4.0, -1.0))
+    x = 1.0 / np.tan(angles)
+    wall = np.column_stack([x, np.ones_like(x)])
+    wall = wall[(wall[:, 0] < 6.5) | (wall[:, 0] > 8.0)]
+    back = np.column_stack([np.linspace(12.5, 13.1, 4), np.full(4, 1.6)])
+    pts = np.vstack([wall, back])
+    step = np.hypot(*np.diff(pts, axis=0).T)
+    assert step.max() > 0.9 and np.sum(step[:-4] > 0.3) >= 4  # gaps a short fill leaves open
+    dense = densify_scan(pts, 0.05, 0.3, straight_angle=0.05)
+    on_wall = dense[np.abs(dense[:, 1] - 1.0) < 1e-9]
+    gaps = np.diff(np.sort(on_wall[:, 0]))
+    assert gaps.max() > 1.0  # the doorway stays open ...
+    assert np.sum(gaps > 0.06) == 1  # ... and the rest of the wall is filled
+    between_walls = (dense[:, 1] > 1.0 + 1e-9) & (dense[:, 1] < 1.6 - 1e-9)
+    assert not between_walls.any()  # nothing across the depth jump
+    assert len(densify_scan(pts, 0.05, 0.3)) < len(dense)  # straight_angle 0: short gaps only

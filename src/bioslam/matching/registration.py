@@ -95,16 +95,51 @@ class RegistrationConfig:
     score_level: int = 1
 
 
-def densify_scan(points: FloatArray, spacing: float, max_gap: float) -> FloatArray:
+def straight_gaps(
+    points: FloatArray, max_gap: float, angle: float, ratio: float = 3.0, longest: float = 2.0
+) -> NDArray[np.bool_]:
+    """Which gaps between consecutive endpoints (scan order) cross no opening: those up to
+    ``max_gap``, and longer ones (up to ``longest`` metres) that continue a straight run: the
+    gaps either side turn by at most ``angle`` radians from it and are at least ``1 / ratio``
+    of its length. A 1 deg scanner looking along a wall at 10 m hits it a metre apart, beam
+    after beam in a line whose gaps grow steadily; a depth jump (a door frame, an
+    obstacle's edge) leaves that line, and an opening in it is a gap several times its
+    neighbours'."""
+    step = np.diff(points, axis=0)
+    gap = np.hypot(step[:, 0], step[:, 1])
+    near = gap <= max_gap
+    if angle <= 0.0 or gap.size < 3:
+        return near
+    heading = np.arctan2(step[:, 1], step[:, 0])
+    turn = np.abs(np.angle(np.exp(1j * np.diff(heading))))
+    ok = np.zeros(gap.size, dtype=bool)
+    inner = slice(1, gap.size - 1)
+    ok[inner] = (
+        (turn[:-1] <= angle)
+        & (turn[1:] <= angle)
+        & (ratio * gap[:-2] >= gap[1:-1])
+        & (ratio * gap[2:] >= gap[1:-1])
+        & (gap[1:-1] <= longest)
+    )
+    return near | ok
+
+
+def densify_scan(
+    points: FloatArray, spacing: float, max_gap: float, straight_angle: float = 0.0
+) -> FloatArray:
     """Endpoints in scan order with points added every ``spacing`` metres between neighbours
-    closer than ``max_gap`` (the same surface): a sparse scan (1 deg beams reach 10 cm
-    apart at 6 m) would otherwise leave empty cells between its points on a wall, where
-    the other scan's points of that wall find nothing to land on."""
+    on the same surface (:func:`straight_gaps`: closer than ``max_gap``, or, with
+    ``straight_angle`` > 0, farther but on a straight run): a sparse scan (1 deg beams reach
+    10 cm apart at 6 m, a metre apart along a wall 10 m ahead) would otherwise leave empty
+    cells between its points on a wall, where the other scan's points of that wall find
+    nothing to land on, and a map made of a few such scans is densest near where they were
+    taken: a pose moved back towards there scores better than the true one."""
     if points.shape[0] < 2:
         return points
     step = np.diff(points, axis=0)
     gap = np.hypot(step[:, 0], step[:, 1])
-    extra = np.where(gap <= max_gap, np.floor(gap / spacing).astype(np.int64), 0)
+    fill = straight_gaps(points, max_gap, straight_angle)
+    extra = np.where(fill, np.floor(gap / spacing).astype(np.int64), 0)
     counts = np.append(extra + 1, 1)
     start = np.repeat(np.arange(points.shape[0]), counts)
     offset = np.arange(start.size) - np.repeat(np.cumsum(counts) - counts, counts)
