@@ -233,6 +233,8 @@ def cold_start(interval: float) -> dict:
         warm = watch(cmd, interval, env)
     return {"cold_wall_s": round(cold["wall_s"], 2), "warm_wall_s": round(warm["wall_s"], 2),
             "compile_s": round(cold["wall_s"] - warm["wall_s"], 2),
+            # CPU time: what other jobs on a shared machine do not inflate
+            "cold_cpu_s": round(cold["cpu_s"], 2), "warm_cpu_s": round(warm["cpu_s"], 2),
             "cold_peak_rss_mb": round(cold["peak_rss_mb"], 1),
             "warm_peak_rss_mb": round(warm["peak_rss_mb"], 1)}  # fmt: skip
 

@@ -137,6 +137,40 @@ def test_refine_measures_a_loop_link_or_rejects_closure():
     assert share == pytest.approx(odometry_var / (odometry_var + 0.02**2), abs=0.03)
 
 
+def _three_places() -> CognitiveMap:
+    """An old place (0), a look-alike (1), and the current place (2) back near place 0."""
+    cm = CognitiveMap()
+    cm.update(1, True, PC, stamp=0.0)
+    cm.integrate_odometry((3.0, 0.0, 0.0))
+    cm.update(2, True, PC, stamp=1.0)
+    cm.integrate_odometry((3.0, 0.0, math.pi))
+    cm.update(3, True, PC, stamp=2.0)
+    cm.integrate_odometry((5.9, 0.0, 0.0))
+    return cm
+
+
+@pytest.mark.parametrize("view_id, expected", [(3, [0]), (2, [1, 0])])
+def test_path_integration_cue_is_tried_when_the_view_proposes_no_move(view_id, expected):
+    """The view cells often recognise the view learned a few centimetres back on this pass
+    (view 3) or a look-alike the verification refuses (view 2); the map's cue of an old
+    place nearby must still be verified then, not dropped (it was, for every revisit of a
+    warehouse aisle)."""
+    tried: list[int] = []
+
+    def refine(e):
+        tried.append(e.id)
+        return np.array([0.05, 0.0, math.pi]) if e.id == 0 else None
+
+    cm = _three_places()
+    ev = cm.update(view_id, False, PC, stamp=3.0, refine=refine, nearby=0)
+    assert tried == expected and ev.kind == "loop" and ev.experience == 0
+    # both refused: the robot stays where it is, as when the view's move alone is refused
+    tried.clear()
+    cm = _three_places()
+    ev = cm.update(view_id, False, PC, stamp=3.0, refine=lambda e: tried.append(e.id), nearby=0)
+    assert tried == expected and ev.kind == "none" and len(cm) == 3 and cm.current == 2
+
+
 def test_relaxation_shrinks_a_known_loop_error():
     cm_odo, truth, _ = loop_map(heading_bias=0.004, config=drifting())
     before = errors(cm_odo.experience_poses, truth)

@@ -692,7 +692,14 @@ class CognitiveMap:
             dist = wrapped_cell_distance(self._centres.view()[candidates], centre, self.dims)
             best = int(np.argmin(dist))
             if dist[best] <= self.config.match_threshold:
-                return self._move_to(candidates[best], stamp, refine, (vid, centre, payload))
+                event = self._move_to(candidates[best], stamp, refine, (vid, centre, payload))
+                if event.kind != "none" or nearby in (None, self._current, candidates[best]):
+                    return event
+                # The view proposed no move (its place is where the robot already is, or a
+                # look-alike the verification refused): that does not deny the
+                # path-integration cue's old place.
+                other = self._move_to(int(nearby), stamp, refine, (vid, centre, payload))
+                return event if other.rejected else other
         if nearby is not None and nearby != self._current:
             event = self._move_to(int(nearby), stamp, refine, (vid, centre, payload))
             if not event.rejected:

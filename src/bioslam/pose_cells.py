@@ -199,9 +199,12 @@ def _conv_axis(src, src_idx, n_src, dst, dst_idx, mark, gen, g, r, stride, n, ke
 def _conv3(a, a_idx, n_a, b, b_idx, c, c_idx, mark, gen, g, r, nx, ny, nt, keep_src, min_src):
     """Separable 3-D Gaussian: a -> b (x), b -> c (y), c -> b (θ); result in b / b_idx.
     Sources of ``a`` at or below ``min_src`` are left out."""
+    # Constants as typed values (np.bool_, np.int64), not literals: Numba compiles a kernel
+    # again for every literal argument, which a first run (empty cache) pays for.
+    clear = np.bool_(False)
     n_b = _conv_axis(a, a_idx, n_a, b, b_idx, mark, gen, g, r, ny * nt, nx, keep_src, min_src)
-    n_c = _conv_axis(b, b_idx, n_b, c, c_idx, mark, gen + 1, g, r, nt, ny, False, 0.0)
-    return _conv_axis(c, c_idx, n_c, b, b_idx, mark, gen + 2, g, r, 1, nt, False, 0.0)
+    n_c = _conv_axis(b, b_idx, n_b, c, c_idx, mark, gen + 1, g, r, nt, ny, clear, 0.0)
+    return _conv_axis(c, c_idx, n_c, b, b_idx, mark, gen + 2, g, r, np.int64(1), nt, clear, 0.0)
 
 
 @njit(cache=True)
@@ -246,7 +249,7 @@ def _attractor_step(
         nx,
         ny,
         nt,
-        False,
+        np.bool_(False),  # typed, not literal: one compilation of _conv3 (see there)
         0.0,
     )
     # Local inhibition from the excited state, as OpenRatSLAM: PC = exc - W_I * exc. A cell
@@ -267,7 +270,7 @@ def _attractor_step(
         nx,
         ny,
         nt,
-        True,
+        np.bool_(True),
         g_inhib,
     )
     # Every excited cell above the global inhibition is in the inhibited support (the kernel

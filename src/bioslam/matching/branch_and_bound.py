@@ -196,7 +196,8 @@ def _fill_levels(weights, r0, c0, rows, cols, blur, levels):
             out = levels[h, r, :inside]
             for c in range(inside):
                 out[c] = max(here[c], right[c])
-            levels[h, r, inside:cols] = levels[h - 1, r, inside:cols]
+            for c in range(inside, cols):  # a loop, not a slice copy (see _copy_into)
+                levels[h, r, c] = levels[h - 1, r, c]
             if r >= s:
                 done = levels[h, r - s, :cols]
                 row = levels[h, r, :cols]
@@ -381,7 +382,9 @@ def _local_maximum(levels, table, jj, score, ix, iy, rows, cols, stride):
             for dy in range(-1, 2):
                 if dj == 0 and dx == 0 and dy == 0:
                     continue
-                v = _node_bound(levels, 0, table, jj + dj, ix + dx, iy + dy, rows, cols, stride)
+                v = _node_bound(
+                    levels, np.int64(0), table, jj + dj, ix + dx, iy + dy, rows, cols, stride
+                )
                 if v > score:
                     return False
     return True
@@ -441,6 +444,17 @@ def _open(pool_b, pool_k, heap_b, heap_n, n, size, bound, j, h, ix, iy):
 
 
 @numba.njit(cache=True)
+def _copy_into(dst, src):
+    """``dst[:len(src)] = src`` for 1-D or 2-D arrays, as a loop: Numba's slice assignment
+    checks the shapes and compiles an error message formatter with it, a few seconds of a
+    first run's compilation."""
+    flat_dst = dst.reshape(-1)
+    flat_src = src.reshape(-1)
+    for i in range(flat_src.shape[0]):
+        flat_dst[i] = flat_src[i]
+
+
+@numba.njit(cache=True)
 def _grown(pool_b, pool_k, heap_b, heap_n, need):
     """The node pool and heap with room for ``need`` nodes (doubled when short)."""
     if need <= pool_b.shape[0]:
@@ -450,10 +464,10 @@ def _grown(pool_b, pool_k, heap_b, heap_n, need):
     nk = np.empty((size, 4), dtype=np.int64)
     hb = np.empty(size)
     hn = np.empty(size, dtype=np.int64)
-    nb[: pool_b.shape[0]] = pool_b
-    nk[: pool_b.shape[0]] = pool_k
-    hb[: heap_b.shape[0]] = heap_b
-    hn[: heap_n.shape[0]] = heap_n
+    _copy_into(nb, pool_b)
+    _copy_into(nk, pool_k)
+    _copy_into(hb, heap_b)
+    _copy_into(hn, heap_n)
     return nb, nk, hb, hn
 
 
@@ -491,8 +505,10 @@ def _search(levels, pts, args, nt, nx, dims, rival):
     xs = np.empty(4, dtype=np.int64)
     ys = np.empty(4, dtype=np.int64)
     out = np.empty(4)
-    n = 0
-    size = 0
+    # counts start as typed zeros, not literals: Numba would compile the kernels they are
+    # passed to once more for the literal 0 (a first run's compilation time)
+    n = np.int64(0)
+    size = np.int64(0)
     for j in range(-nt, nt + 1):
         for first in range(0, per_heading, 4):
             m = min(4, per_heading - first)
@@ -517,7 +533,9 @@ def _search(levels, pts, args, nt, nx, dims, rival):
             # no node left can hold a leaf scoring as much as the chosen one
             if chosen >= 0:
                 found[phase, 0] = pool_b[chosen]
-                found[phase, 1:] = pool_k[chosen, 0], pool_k[chosen, 2], pool_k[chosen, 3]
+                found[phase, 1] = pool_k[chosen, 0]
+                found[phase, 2] = pool_k[chosen, 2]
+                found[phase, 3] = pool_k[chosen, 3]
             if phase == 1 or chosen < 0:
                 break
             for t in range(n_held):
@@ -558,13 +576,13 @@ def _search(levels, pts, args, nt, nx, dims, rival):
             if q >= 0 and phase == 0:
                 if n_held == held.shape[0]:
                     more = np.empty(2 * n_held, dtype=np.int64)
-                    more[:n_held] = held
+                    _copy_into(more, held)
                     held = more
                 held[n_held] = q
                 n_held += 1
             continue
         half = 1 << (h - 1)
-        m = 0
+        m = np.int64(0)
         for a in range(2):
             for c in range(2):
                 cx = ix + a * half
@@ -606,7 +624,7 @@ def _brute_force(levels, pts, args, nt, nx, dims, pad):
         for ix in range(-nx - pad, nx + pad + 1):
             for iy in range(-nx - pad, nx + pad + 1):
                 out[j + nt + pad, ix + nx + pad, iy + nx + pad] = _node_bound(
-                    levels, 0, table, j + nt + reach, ix, iy, rows, cols, stride
+                    levels, np.int64(0), table, j + nt + reach, ix, iy, rows, cols, stride
                 )
     return out
 
