@@ -380,21 +380,23 @@ def test_a_turn_beyond_the_search_window_is_found_by_the_turn_searches(window_de
 
 
 def test_densify_scan_fills_a_wall_seen_along_but_no_opening_or_depth_jump():
-    """1° beams from the origin on a wall at y = 1 from x = 3 to 12 (gaps 0.15 -> 2.5 m,
-    growing beam by beam), a doorway from x = 6.5 to 8, then a wall 0.6 m farther back."""
-    angles = np.radians(np.arange(20.0, 4.0, -1.0))
-    x = 1.0 / np.tan(angles)
-    wall = np.column_stack([x, np.ones_like(x)])
-    wall = wall[(wall[:, 0] < 6.5) | (wall[:, 0] > 8.0)]
-    back = np.column_stack([np.linspace(12.5, 13.1, 4), np.full(4, 1.6)])
+    """1° beams from the origin on a wall at y = 2 from x = 3.5 to 12.6 (gaps 0.14 -> 1.3 m,
+    growing beam by beam), a doorway from x = 7 to 8.5, then a wall 0.6 m farther back."""
+    x = 2.0 / np.tan(np.radians(np.arange(30.0, 8.0, -1.0)))
+    wall = np.column_stack([x, np.full_like(x, 2.0)])
+    wall = wall[(wall[:, 0] < 7.0) | (wall[:, 0] > 8.5)]
+    back = np.column_stack([np.linspace(15.5, 16.1, 4), np.full(4, 2.6)])
     pts = np.vstack([wall, back])
-    step = np.hypot(*np.diff(pts, axis=0).T)
-    assert step.max() > 0.9 and np.sum(step[:-4] > 0.3) >= 4  # gaps a short fill leaves open
+
+    def wall_gaps(dense, lo, hi):
+        on = np.sort(dense[(np.abs(dense[:, 1] - 2.0) < 1e-9)][:, 0])
+        return np.diff(on[(on >= lo) & (on <= hi)])
+
     dense = densify_scan(pts, 0.05, 0.3, straight_angle=0.05)
-    on_wall = dense[np.abs(dense[:, 1] - 1.0) < 1e-9]
-    gaps = np.diff(np.sort(on_wall[:, 0]))
-    assert gaps.max() > 1.0  # the doorway stays open ...
-    assert np.sum(gaps > 0.06) == 1  # ... and the rest of the wall is filled
-    between_walls = (dense[:, 1] > 1.0 + 1e-9) & (dense[:, 1] < 1.6 - 1e-9)
+    assert wall_gaps(dense, 3.4, 7.0).max() < 0.06  # filled up to the doorway ...
+    assert wall_gaps(dense, 8.6, 10.3).max() < 0.06  # ... and on past it
+    assert wall_gaps(dense, 6.9, 8.7).max() > 1.5  # the doorway stays open
+    between_walls = (dense[:, 1] > 2.0 + 1e-9) & (dense[:, 1] < 2.6 - 1e-9)
     assert not between_walls.any()  # nothing across the depth jump
-    assert len(densify_scan(pts, 0.05, 0.3)) < len(dense)  # straight_angle 0: short gaps only
+    short_only = densify_scan(pts, 0.05, 0.3)  # straight_angle 0: gaps up to 0.3 m only
+    assert wall_gaps(short_only, 3.4, 7.0).max() > 0.3

@@ -33,11 +33,11 @@ def run(config: OdometryConfig, path, dt: float, seed: int = 0) -> tuple[np.ndar
 
 
 def test_dense_scans_never_use_the_sparse_machinery():
-    """At 40 Hz the search never runs, so the weights of the step prior and the motion
-    hypotheses cannot change a pose: the same run with them huge is the same run."""
+    """At 40 Hz the search never runs, so the step prior's weight and typical steps
+    cannot change a pose: the same run with them huge is the same run."""
     path = room_path(60, 0.02)
     plain, odo = run(OdometryConfig(), path, 0.025)
-    weighted, _ = run(OdometryConfig(step_prior_weight=100.0, motion_weight=100.0), path, 0.025)
+    weighted, _ = run(OdometryConfig(step_prior_weight=100.0, step_modes=50), path, 0.025)
     assert not odo._sparse()
     np.testing.assert_array_equal(plain, weighted)
     errors = [pose_error(t, p)[0] for t, p in zip(path, plain, strict=True)]
@@ -61,7 +61,10 @@ def test_intel_thinned_log_from_ten_starts_has_few_wrong_steps():
     a metre along a corridor, the pose of the last scan kept in a corridor, a turn placed
     90° off); with them 31. Which start is hit varies from start to start (one wrong step
     changes the map every later one is matched against), so the count is summed over
-    starts."""
+    starts. The RPE over 1 m was at most 10 cm from 4 of the starts (median 10.7 cm) while
+    Gauss-Newton started from the motion model's hypotheses only and the choice favoured
+    the match nearest them; with the step prior's typical steps as starts too and the
+    choice left to the scan and the step prior, from 9 (median 6.3 cm)."""
     source = open_log(shared_log("intel-corrected.log.gz"))
     scans = list(source)
     wrong, rpes = 0, []
@@ -79,7 +82,8 @@ def test_intel_thinned_log_from_ten_starts_has_few_wrong_steps():
             wrong += math.hypot(miss[0], miss[1]) > 0.2
         rpes.append(rpe_distance(Trajectory(stamps, np.array(est)), source.reference, 1.0))
     assert wrong <= 45, wrong
-    assert np.median([r["trans_rmse_m"] for r in rpes]) < 0.14
+    rmse = np.array([r["trans_rmse_m"] for r in rpes])
+    assert np.median(rmse) < 0.09 and np.sum(rmse <= 0.10) >= 8, rmse
 
 
 def test_a_match_that_slid_off_the_map_is_not_taken_on_sparse_scans():
@@ -96,25 +100,5 @@ def test_a_match_that_slid_off_the_map_is_not_taken_on_sparse_scans():
     first = (np.array([0.1, 0.0, -0.2]), MatchReport(score=0.13, free_fraction=0.3), True)
     near = (np.array([1.0, 0.0, 0.0]), MatchReport(score=0.5, free_fraction=0.25), False)
     off = (np.array([7.0, 19.0, 2.0]), MatchReport(score=0.01, through_fraction=0.02), True)
-    pose, _ = odo._choose_sparse([first, near, off], (previous,), previous, (9.0, 11.7))
+    pose, _ = odo._choose_sparse([first, near, off], previous, (9.0, 11.7))
     np.testing.assert_array_equal(pose, near[0])
-
-
-def test_a_thinned_log_is_tracked_from_its_first_steps():
-    """SICK (181 beams at 1°) down a warehouse aisle of identical racks, a scan per metre:
-    the first scans' map holds the racks only where their beams hit, densest where they
-    were taken; undensified, standing still outscored each true metre-long step and the
-    odometry never moved."""
-    from bioslam.sim import LIDAR_PRESETS, load_world, make_route, simulate_scans
-    from bioslam.thinning import thin_indices
-
-    world = load_world("warehouse")
-    route = make_route(world, duration=25.0, seed=1)
-    items = list(simulate_scans(world, LIDAR_PRESETS["sick"], route, seed=1))
-    items = [items[k] for k in thin_indices(np.array([t for _, t in items]), 1.0, 0.6)]
-    odo = LidarOdometry(initial_pose=items[0][1])
-    errors = []
-    for scan, true in items:
-        odo.update(scan)
-        errors.append(pose_error(true, odo.pose)[0])
-    assert len(items) >= 10 and max(errors) < 0.1

@@ -232,18 +232,14 @@ class OdometryConfig:
             1° scanner at a metre a scan holds a wall only where the last scans' beams hit
             it, and a pose that reproduces the last scan's own beam pattern (standing still)
             then scores best in a corridor (intel: RPE 1 m 22 -> 8 cm with the other two).
-            The first scans, before the run has shown whether its scans are sparse (fewer
-            than ``sparse_scans`` matched), are densified too: the map a thinned log starts
-            from is one or two scans, and densest where they were taken, so that a pose
-            moved back there (standing still) outscored the true step a metre on (SICK in
-            the warehouse: lost from its first steps, ATE 4.4 m -> 0.8 cm).
         straight_angle: densifying also fills a gap longer than ``NORMAL_MAX_GAP`` between
             neighbouring endpoints that continues a straight run of them (the gaps either
             side turn by at most this many radians,
-            :func:`bioslam.matching.registration.straight_gaps`): a 1° scanner hits a wall
-            it looks along a metre apart at 10 m, and such a wall left as dots is matched
-            by the dots' pattern, not the wall (SICK in the maze thinned to a scan per
-            metre: ATE 56 -> 9 cm, 4.6 m -> 64 cm; 0 keeps short gaps only).
+            :func:`bioslam.matching.registration.straight_gaps`; 0 fills short gaps only):
+            a 1° scanner hits a wall it looks along a metre apart at 10 m, and such a wall
+            left as dots is matched by the dots' pattern, not the wall (SICK in the maze
+            thinned to a scan per metre, seeds 0 / 1: ATE 7.8 / 2.9 m -> 34 / 59 cm; intel
+            from ten starts: RPE 1 m median 9.1 -> 7.6 cm; ``benchmarks/README.md``).
         step_prior, step_prior_weight: the density of the recent steps for which the search
             ran (:class:`bioslam.step_prior.StepPrior`; a run that turns sparse halfway is not
             then held to the millimetre steps of its dense part, and dense scans pay nothing
@@ -456,7 +452,7 @@ class LidarOdometry:
         centre = self.pyramid.finest.origin + 0.5 * c.map_size
         if np.max(np.abs(self.pose[:2] - centre)) > c.recenter_distance:
             self.pyramid.recenter(self.pose[0], self.pose[1])
-        if self._sparse() or len(self._searched) < c.sparse_scans:
+        if self._sparse():
             dense = densify_scan(pts, c.resolution, NORMAL_MAX_GAP, c.straight_angle)
             if dense.shape[0] != pts.shape[0]:
                 pts, normals = dense, thinned_normals(dense)

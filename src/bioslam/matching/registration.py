@@ -96,30 +96,32 @@ class RegistrationConfig:
 
 
 def straight_gaps(
-    points: FloatArray, max_gap: float, angle: float, ratio: float = 3.0, longest: float = 2.0
+    points: FloatArray, max_gap: float, angle: float, reach: int = 1, ratio: float = 3.0,
+    longest: float = 2.0,
 ) -> NDArray[np.bool_]:
     """Which gaps between consecutive endpoints (scan order) cross no opening: those up to
-    ``max_gap``, and longer ones (up to ``longest`` metres) that continue a straight run: the
-    gaps either side turn by at most ``angle`` radians from it and are at least ``1 / ratio``
-    of its length. A 1 deg scanner looking along a wall at 10 m hits it a metre apart, beam
-    after beam in a line whose gaps grow steadily; a depth jump (a door frame, an
-    obstacle's edge) leaves that line, and an opening in it is a gap several times its
-    neighbours'."""
+    ``max_gap``, and longer ones (up to ``longest`` metres) inside a straight run: the
+    ``reach`` gaps either side each turn by at most ``angle`` radians from the one before,
+    and the gaps next to it are at least ``1 / ratio`` of its length. A 1 deg scanner
+    looking along a wall at 10 m hits it a metre apart, beam after beam in a line whose
+    gaps grow steadily; a depth jump (a door frame, an obstacle's edge) leaves that line,
+    and an opening in it is a gap several times its neighbours'."""
     step = np.diff(points, axis=0)
     gap = np.hypot(step[:, 0], step[:, 1])
     near = gap <= max_gap
-    if angle <= 0.0 or gap.size < 3:
+    n = gap.size
+    if angle <= 0.0 or n <= 2 * reach:
         return near
     heading = np.arctan2(step[:, 1], step[:, 0])
-    turn = np.abs(np.angle(np.exp(1j * np.diff(heading))))
-    ok = np.zeros(gap.size, dtype=bool)
-    inner = slice(1, gap.size - 1)
+    bent = np.abs(np.angle(np.exp(1j * np.diff(heading)))) > angle  # turn k: gap k -> k + 1
+    bends = np.concatenate([[0], np.cumsum(bent)])
+    inner = np.arange(reach, n - reach)
+    ok = np.zeros(n, dtype=bool)
     ok[inner] = (
-        (turn[:-1] <= angle)
-        & (turn[1:] <= angle)
-        & (ratio * gap[:-2] >= gap[1:-1])
-        & (ratio * gap[2:] >= gap[1:-1])
-        & (gap[1:-1] <= longest)
+        (bends[inner + reach] - bends[inner - reach] == 0)  # turns inner-reach .. inner+reach-1
+        & (ratio * gap[inner - 1] >= gap[inner])
+        & (ratio * gap[inner + 1] >= gap[inner])
+        & (gap[inner] <= longest)
     )
     return near | ok
 
