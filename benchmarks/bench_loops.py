@@ -142,16 +142,46 @@ def revisit_bins(gt: Trajectory, gap: float) -> tuple[np.ndarray, dict[int, floa
     return bins, {b: float(np.median(v)) for b, v in offsets.items()}
 
 
+def bins_at(gt: Trajectory, bins: np.ndarray, stamps: np.ndarray) -> np.ndarray:
+    """The travel bin of the ground-truth pose at each of ``stamps``."""
+    return bins[np.clip(np.searchsorted(gt.stamps, stamps), 0, len(bins) - 1)]
+
+
 def revisit_recall(
     gt: Trajectory, true_stamps: np.ndarray, gap: float
 ) -> dict[str, tuple[int, int]]:
     """(revisit bins, recognised bins), all and per heading-offset class (module docstring)."""
     bins, offsets = revisit_bins(gt, gap)
-    hit = set(bins[np.clip(np.searchsorted(gt.stamps, true_stamps), 0, len(bins) - 1)].tolist())
+    hit = set(bins_at(gt, bins, true_stamps).tolist())
     out = {"all": (len(offsets), sum(b in hit for b in offsets))}
     for lo, hi, name in OFFSET_CLASSES:
         members = [b for b, turn in offsets.items() if lo <= turn < hi]
         out[name] = (len(members), sum(b in hit for b in members))
+    return out
+
+
+def revisit_stages(
+    gt: Trajectory, checks: list, true_stamps: np.ndarray, gap: float
+) -> dict[str, int]:
+    """Where each revisit bin's recognition stopped: ``recognised`` (a true closure accepted
+    in it); ``refused <reason>`` (checks ran and the verification refused them all, by the
+    bin's most frequent reason; ``accepted false`` if only a false one passed); ``no check``
+    (no candidate from either cue reached the verification)."""
+    bins, offsets = revisit_bins(gt, gap)
+    hit = set(bins_at(gt, bins, true_stamps).tolist())
+    reasons: dict[int, list[str]] = {}
+    stamps = np.array([c.stamp for c in checks])
+    for check, b in zip(checks, bins_at(gt, bins, stamps), strict=True):
+        reasons.setdefault(int(b), []).append(check.verdict.reason or "accepted false")
+    out: dict[str, int] = {}
+    for b in offsets:
+        if b in hit:
+            stage = "recognised"
+        elif b in reasons:
+            stage = "refused " + max(set(reasons[b]), key=reasons[b].count)
+        else:
+            stage = "no check"
+        out[stage] = out.get(stage, 0) + 1
     return out
 
 
@@ -165,6 +195,7 @@ def report(
     true = [e for e in errors if e[2] <= TRUE_DISTANCE and e[3] <= math.degrees(TRUE_ANGLE)]
     recall = revisit_recall(gt, np.array([e[0] for e in true]), gap)
     revisits, recognised = recall["all"]
+    stages = revisit_stages(gt, slam.checks, np.array([e[0] for e in true]), gap)
     by_offset = ", ".join(
         f"{name} {hit}/{n}" + (f" {hit / n:.2f}" if n else "")
         for name, (n, hit) in recall.items() if name != "all"
@@ -190,6 +221,8 @@ def report(
         f"  revisit bins {revisits}, recognised {recognised}, recall "
         f"{recognised / max(revisits, 1):.3f}; loop links {slam.summary()['loop_closures']}",
         f"  recall by heading offset from the earlier pass: {by_offset}",
+        "  revisit bins by stage: "
+        + ", ".join(f"{k} {v}" for k, v in sorted(stages.items(), key=lambda kv: -kv[1])),
         f"  ATE RMSE full {100 * full:.2f} cm, odometry {100 * odo:.2f} cm",
         f"  per-scan ms full median {np.median(full_ms):.2f} p99 {np.percentile(full_ms, 99):.2f};"
         f" odometry median {np.median(odo_ms):.2f} p99 {np.percentile(odo_ms, 99):.2f};"

@@ -116,7 +116,8 @@ def test_refine_measures_a_loop_link_or_rejects_closure():
     cm.update(2, True, PC, stamp=1.0)
     cm.integrate_odometry((-1.9, 0.05, 0.0))
     ev = cm.update(1, False, PC, stamp=2.0, refine=lambda e: None)
-    assert ev.kind == "none" and ev.rejected and cm.loop_closures == 0
+    # refused: no link to the place; the robot's pose is a place of its own
+    assert ev.kind == "new" and ev.rejected and ev.matched == 0 and cm.loop_closures == 0
     measured = np.array([0.12, 0.03, 0.0])
     ev = cm.update(1, False, PC, stamp=2.0, refine=lambda e: measured)
     assert ev.kind == "loop" and cm.current == 0
@@ -164,11 +165,18 @@ def test_path_integration_cue_is_tried_when_the_view_proposes_no_move(view_id, e
     cm = _three_places()
     ev = cm.update(view_id, False, PC, stamp=3.0, refine=refine, nearby=0)
     assert tried == expected and ev.kind == "loop" and ev.experience == 0
-    # both refused: the robot stays where it is, as when the view's move alone is refused
+    # both refused: at its own place the robot stays; refused a look-alike's, the map knows
+    # no place here and makes one (staying would stretch the current experience over the
+    # metres the look-alike's view keeps matching, leaving no experience for a later return)
     tried.clear()
     cm = _three_places()
     ev = cm.update(view_id, False, PC, stamp=3.0, refine=lambda e: tried.append(e.id), nearby=0)
-    assert tried == expected and ev.kind == "none" and len(cm) == 3 and cm.current == 2
+    assert tried == expected
+    if view_id == 3:
+        assert ev.kind == "none" and len(cm) == 3 and cm.current == 2
+    else:
+        assert ev.kind == "new" and ev.rejected and len(cm) == 4 and cm.current == 3
+        np.testing.assert_allclose(cm.pose(), cm.experience(3).pose)
 
 
 def test_relaxation_shrinks_a_known_loop_error():

@@ -108,6 +108,26 @@ def test_a_log_longer_than_the_replay_budget_reads_the_same(tmp_path, monkeypatc
     np.testing.assert_array_equal(odometry_again.poses, odometry.poses)
 
 
+def test_the_replayed_planning_pass_is_freed_as_the_run_reads_it(tmp_path):
+    """A log kept from its planning pass is not held until the last scan: a record the run
+    has read is dropped (its ranges freed), while those still to come are kept."""
+    import gc
+    import weakref
+
+    source = logs.open_log(_carmen_log(tmp_path / "a.log"))
+    assert source.time_plan.stamps.size == 30  # planned (and kept) before the run reads it
+    kept = [event[1].ranges for event in source._replay if event[0] == logs._SCAN]
+    first, last = weakref.ref(kept[0]), weakref.ref(kept[-1])
+    del kept
+    scans = iter(source)
+    for _ in range(10):
+        next(scans)  # read and dropped, as the run does
+    gc.collect()
+    assert first() is None
+    assert last() is not None
+    assert len(list(scans)) == 20
+
+
 TIMING = {"wall_s", "startup_s", "realtime_factor", "ms_per_scan_median", "ms_per_scan_p99"}
 
 
@@ -198,3 +218,24 @@ def test_large_blocks_freed_between_living_ones_go_back_to_the_system():
 
     assert resident_after_free("heap") > 40.0  # 64 MB made and freed, most still resident
     assert resident_after_free("mapped") < 10.0
+
+
+def test_handing_free_pages_back_during_the_run_changes_nothing(monkeypatch):
+    """``RunOptions.trim_every``: the allocator's free pages are handed back every so many
+    scans, between scans, and the trajectory is that of a run that never does."""
+    import bioslam.pipeline as pipeline
+    from bioslam.pipeline import RunOptions, _drive, run_slam
+    from bioslam.sim import LIDAR_PRESETS, maze_world, simulate_scans
+
+    world = maze_world()
+    scans = [s for s, _ in simulate_scans(world, LIDAR_PRESETS["sick"], _drive(world, 1.0))]
+    calls = []
+    monkeypatch.setattr(pipeline, "release_free_memory", lambda: calls.append(1) or True)
+
+    def run(every: int):
+        options = RunOptions(odometry_only=True, progress=False, warm_up=False, trim_every=every)
+        return run_slam(scans, options=options).system.trajectory()
+
+    plain, trimmed = run(0), run(3)
+    assert calls and len(calls) == len(scans) // 3
+    np.testing.assert_array_equal(trimmed.poses, plain.poses)

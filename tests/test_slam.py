@@ -196,3 +196,32 @@ def test_a_break_widens_the_closure_window_by_how_far_it_may_have_put_the_robot(
     slack = 0.5 * 0.1**2
     assert guessed[0] == pytest.approx(cfg.break_distance + cfg.break_acceleration * slack)
     assert guessed[1] == pytest.approx(cfg.break_angle + cfg.break_angular_acceleration * slack)
+
+
+def test_closure_window_follows_the_shortest_chain_of_links_not_the_travel_since():
+    """A place made 60 m of travel ago but joined to the robot by 10 m of links through an
+    earlier closure is related by those 10 m of odometry: the verification's window is
+    their drift bound (a weaving route came back to corridors it had closed at, and the
+    travel's 1.5 m window let a rival along the corridor make every check ambiguous)."""
+    slam = BioSLAM()
+    cmap = slam.cognitive_map
+    pc = (10.0, 10.0, 0.0)
+    for k in range(61):  # a straight pass, one experience a metre
+        if k:
+            cmap.integrate_odometry((1.0, 0.0, 0.0), stamp=float(k))
+            slam._travelled += 1.0
+        cmap.update(k, True, pc, stamp=float(k))
+        slam._note_made(k)
+    # back to experience 50 (a closure), then 0.2 m on towards 40
+    cmap.integrate_odometry((0.0, 0.0, np.pi), stamp=61.0)
+    cmap.update(50, False, pc, stamp=61.0, refine=lambda e: np.array([0.0, 0.0, np.pi]))
+    slam._travelled_at_entry = slam._travelled
+    cmap.integrate_odometry((0.2, 0.0, 0.0), stamp=62.0)
+    slam._travelled += 0.2
+    linked, since = slam._odometry_relation(40)
+    assert not linked and since == pytest.approx(10.2)
+    cfg = slam.config.loop_closure
+    window = slam._drift_bound(since, linked)[0]
+    assert window == pytest.approx(cfg.drift_floor + cfg.drift_per_metre * 10.2)
+    # farther along the old pass, the chain grows with it (45.2 m, the travel since 55.2 m)
+    assert slam._odometry_relation(5)[1] == pytest.approx(45.2)

@@ -94,3 +94,18 @@ BAD_CONFIGS = [
 def test_bad_configs_are_refused(kwargs):
     with pytest.raises(ValueError):
         StepPriorConfig(**kwargs)
+
+
+def test_modes_are_the_typical_steps_each_distinct():
+    """A thinned log's typical steps: a metre on (the commonest first), a turn on the spot
+    either way; never two of one kind, and nothing before ``min_steps`` steps are known."""
+    prior = prior_of(thinned_log_steps())
+    modes = prior.modes(3)
+    assert len(modes) == 3
+    assert 0.9 <= modes[0][0] <= 1.1 and abs(modes[0][2]) < math.radians(10.0)
+    turns = sorted(m[2] for m in modes[1:])
+    assert turns[0] == pytest.approx(math.radians(-30.0), abs=1e-9)
+    assert turns[1] == pytest.approx(math.radians(30.0), abs=1e-9)
+    assert all(m[0] < 0.1 for m in modes[1:])
+    assert len(prior.modes(10)) < 10  # three kinds of step: few distinct ones
+    assert prior_of(thinned_log_steps()[:2]).modes(3) == []

@@ -688,23 +688,38 @@ class CognitiveMap:
         if self._current < 0:
             return self._new_experience(vid, centre, stamp, payload)
         candidates = self._by_view.get(vid)
+        refused: MapEvent | None = None
         if not is_new and candidates:
             dist = wrapped_cell_distance(self._centres.view()[candidates], centre, self.dims)
             best = int(np.argmin(dist))
             if dist[best] <= self.config.match_threshold:
                 event = self._move_to(candidates[best], stamp, refine, (vid, centre, payload))
-                if event.kind != "none" or nearby in (None, self._current, candidates[best]):
+                if event.kind != "none":
                     return event
                 # The view proposed no move (its place is where the robot already is, or a
                 # look-alike the verification refused): that does not deny the
-                # path-integration cue's old place.
-                other = self._move_to(int(nearby), stamp, refine, (vid, centre, payload))
-                return event if other.rejected else other
+                # path-integration cue's old place, tried below.
+                if nearby in (None, self._current, candidates[best]):
+                    nearby = None
+                if not event.rejected:
+                    if nearby is None:
+                        return event  # still at the current experience
+                    other = self._move_to(int(nearby), stamp, refine, (vid, centre, payload))
+                    return event if other.rejected else other
+                refused = event
         if nearby is not None and nearby != self._current:
             event = self._move_to(int(nearby), stamp, refine, (vid, centre, payload))
             if not event.rejected:
                 return event
-        return self._new_experience(vid, centre, stamp, payload)
+            refused = refused or event
+        # No place verified here: a new one. (After a refused look-alike, staying on the
+        # current experience would stretch it over the metres the look-alike's view keeps
+        # matching, and a later return there would find no experience near: 2-3 m gaps in
+        # the rooms world's first pass.)
+        new = self._new_experience(vid, centre, stamp, payload)
+        if refused is None:
+            return new
+        return MapEvent("new", new.experience, rejected=True, matched=refused.matched)
 
     def _add_experience(
         self, pose: FloatArray, vid: int, centre: FloatArray, stamp: float, payload: Any

@@ -71,6 +71,10 @@ class RunOptions:
             (``BioSLAM.release``) and, once the map is drawn, the kept scans, so that the
             outputs are made in that much less memory; for commands that are done with the
             system after writing.
+        trim_every: every this many scans the allocator's free pages are handed back to the
+            system (:func:`bioslam.memory.release_free_memory`, a millisecond or so, not
+            billed to a scan): the blocks a scan's work frees between longer-lived ones
+            would otherwise stay resident for the rest of the run. 0: never.
     """
 
     odometry_only: bool = False
@@ -84,6 +88,7 @@ class RunOptions:
     snapshot_tolerance: float = 1.0
     warm_up: bool = True
     release: bool = False
+    trim_every: int = 2000
 
 
 class OdometryOnly:
@@ -416,6 +421,8 @@ def _feed(
             pending_snapshots.pop(0)
         if observer is not None:
             observer(scan, pose, system)
+        if options.trim_every > 0 and system.num_scans % options.trim_every == 0:
+            release_free_memory()
         bar.update(1)
 
 

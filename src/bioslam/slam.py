@@ -416,7 +416,14 @@ class BioSLAM:
         )
         if chain is not None:
             return True, since_entry + chain
-        return False, self._travelled - float(self._made_at[experience_id])
+        since = self._travelled - float(self._made_at[experience_id])
+        # Earlier closures may join the two places by a shorter chain of links than the
+        # travel since the place was made: the map's error between them is then that
+        # chain's odometry's (a weaving route back to a place it closed at a loop ago)
+        cfg = self.config.loop_closure
+        horizon = min(since, (cfg.max_drift - cfg.drift_floor) / max(cfg.drift_per_metre, 1e-9))
+        graph = cmap.link_distance(cmap.current, experience_id, horizon - since_entry)
+        return False, since if graph is None else min(since, since_entry + graph)
 
     def _drift_bound(self, travelled: float, linked: bool) -> tuple[float, float]:
         """How far (m, rad) the map's prediction may be off after ``travelled`` metres of

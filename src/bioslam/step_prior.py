@@ -106,3 +106,31 @@ class StepPrior:
             return 0.0
         f = max(self.config.floor, 2.0 / len(self._steps))
         return -math.log((1.0 - f) * self.density(step) + f)
+
+    def modes(self, count: int) -> list[np.ndarray]:
+        """Up to ``count`` typical steps: the recent steps of highest density, each more
+        than twice the kernel widths (in distance or in angle) from those before it. Where
+        the prediction cannot be trusted, each is a start for the match as good as any
+        motion hypothesis: a thinned log's robot goes a metre on, turns either way on the
+        spot or along an arc, and which one it did last says little about the next."""
+        if len(self._steps) < self.config.min_steps or count < 1:
+            return []
+        if self._array is None:
+            self._array = np.array(self._steps)
+        h = self._array
+        c = self.config
+        dd = (h[:, None, 0] - h[None, :, 0]) ** 2 + (h[:, None, 1] - h[None, :, 1]) ** 2
+        da = wrap_angle(h[:, None, 2] - h[None, :, 2])
+        density = np.exp(-0.5 * (dd / c.sigma_distance**2 + da**2 / c.sigma_angle**2)).sum(1)
+        chosen: list[np.ndarray] = []
+        for i in np.argsort(-density, kind="stable"):
+            far = all(
+                math.hypot(h[i, 0] - m[0], h[i, 1] - m[1]) > 2 * c.sigma_distance
+                or abs(wrap_angle(h[i, 2] - m[2])) > 2 * c.sigma_angle
+                for m in chosen
+            )
+            if far:
+                chosen.append(h[i].copy())
+                if len(chosen) == count:
+                    break
+        return chosen

@@ -241,8 +241,12 @@ class LogSource(ABC):
         self, events: list[tuple[Any, ...]]
     ) -> Iterator[tuple[LaserScan, str, Pose | None]]:
         """The records of the planning pass again, with its skips and odometry reported anew
-        (strict mode raises here, at the same record as a fresh parse would)."""
-        for event in events:
+        (strict mode raises here, at the same record as a fresh parse would). Each is
+        dropped from ``events`` as it is handed on, so that what the run has read is freed
+        as it goes rather than held until the last scan."""
+        events.reverse()
+        while events:
+            event = events.pop()
             if event[0] == _SCAN:
                 yield event[1], event[2], event[3]
             elif event[0] == _SKIP:
