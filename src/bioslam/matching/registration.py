@@ -136,8 +136,15 @@ def densify_scan(
     cells between its points on a wall, where the other scan's points of that wall find
     nothing to land on, and a map made of a few such scans is densest near where they were
     taken: a pose moved back towards there scores better than the true one."""
+    return densify_with_mask(points, spacing, max_gap, straight_angle)[0]
+
+
+def densify_with_mask(
+    points: FloatArray, spacing: float, max_gap: float, straight_angle: float = 0.0
+) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """:func:`densify_scan` and which of its points were added (not endpoints)."""
     if points.shape[0] < 2:
-        return points
+        return points, np.zeros(points.shape[0], dtype=bool)
     step = np.diff(points, axis=0)
     gap = np.hypot(step[:, 0], step[:, 1])
     fill = straight_gaps(points, max_gap, straight_angle)
@@ -147,7 +154,7 @@ def densify_scan(
     offset = np.arange(start.size) - np.repeat(np.cumsum(counts) - counts, counts)
     frac = offset / np.repeat(counts, counts)
     ahead = np.minimum(start + 1, points.shape[0] - 1)
-    return points[start] + frac[:, None] * (points[ahead] - points[start])
+    return points[start] + frac[:, None] * (points[ahead] - points[start]), offset > 0
 
 
 def _check_points(points: ArrayLike, name: str) -> FloatArray:
