@@ -66,16 +66,19 @@ def test_few_steps_give_a_weak_prior_and_none_a_flat_one():
     assert prior.cost((5.0, 5.0, 3.0)) == 0.0 and prior.density((5.0, 5.0, 3.0)) == 1.0
     for _ in range(3):
         prior.add((1.0, 0.0, 0.0))
-    # three steps alike: the floor is 2/3, so even the most unlike step costs little
-    assert 0.0 < prior.cost((-1.0, 0.0, 0.0)) <= -math.log(2.0 / 3.0) + 1e-12
-    assert len(prior) == 3
+    assert prior.cost((-1.0, 0.0, 0.0)) == 0.0  # floor_steps / 3 > 1: still flat
+    for _ in range(2):
+        prior.add((1.0, 0.0, 0.0))
+    # five steps alike: the floor is 4/5, so even the most unlike step costs little
+    assert 0.0 < prior.cost((-1.0, 0.0, 0.0)) <= -math.log(4.0 / 5.0) + 1e-12
+    assert len(prior) == 5
 
 
 def test_the_window_forgets_old_steps():
-    prior = prior_of(np.tile([1.0, 0.0, 0.0], (50, 1)), window=20)
-    for _ in range(20):
+    prior = prior_of(np.tile([1.0, 0.0, 0.0], (100, 1)), window=40)
+    for _ in range(40):
         prior.add((0.0, 0.0, 0.5))
-    assert len(prior) == 20
+    assert len(prior) == 40
     assert prior.cost((1.0, 0.0, 0.0)) > prior.cost((0.0, 0.0, 0.5)) + 2.0
 
 
@@ -86,7 +89,7 @@ def test_angles_wrap():
 
 BAD_CONFIGS = [
     {"window": 0}, {"min_steps": 0}, {"sigma_distance": 0.0}, {"sigma_angle": -1.0},
-    {"floor": 0.0}, {"floor": 1.5},
+    {"floor": 0.0}, {"floor": 1.5}, {"floor_steps": -1.0},
 ]  # fmt: skip
 
 
