@@ -19,6 +19,7 @@ from bioslam.closure import (
     pass_neighbours,
     seen_hit_fraction,
     submap_anchor,
+    submap_span,
     verify,
 )
 from bioslam.config import LoopClosureConfig
@@ -343,3 +344,14 @@ def test_a_closure_the_odometry_never_doubted_enters_alone_and_confirms_others()
     alone = ClosureConsensus(LoopClosureConfig())
     assert alone.offer(_second_pass(5.0), trusted=True)  # no partner needed
     assert alone.offer(_second_pass(5.2, off=0.9)) == []  # a doubted one still waits
+
+
+def test_a_sparse_pass_still_gives_its_submap_several_scans():
+    dense = np.arange(0.0, 20.0, 0.1)  # an experience every 0.1 m of travel
+    assert submap_span(dense, 100, 1.5, 0.5, 4.0) == (1.5, 0.5)
+    sparse = np.arange(0.0, 40.0, 2.0)  # one every 2 m (a log thinned to a scan a metre)
+    reach, step = submap_span(sparse, 10, 1.5, 0.5, 4.0)
+    assert step == pytest.approx(2.0) and reach == pytest.approx(4.0)
+    members = pass_neighbours(sparse, 10, reach, step, np.inf)
+    assert members == [8, 9, 10, 11, 12]  # with the dense settings, the anchor alone
+    assert pass_neighbours(sparse, 10, 1.5, 0.5, np.inf) == [10]
