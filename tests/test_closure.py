@@ -10,6 +10,8 @@ from _views_world import box, cast
 
 from bioslam.boundary import BoundaryCells
 from bioslam.closure import (
+    Candidate,
+    ClosureConsensus,
     SeenArea,
     SubmapCache,
     fuse_submap,
@@ -17,6 +19,7 @@ from bioslam.closure import (
     pass_neighbours,
     seen_hit_fraction,
     submap_anchor,
+    submap_span,
     verify,
 )
 from bioslam.config import LoopClosureConfig
@@ -282,3 +285,73 @@ def test_a_scanner_passing_the_other_way_is_not_moved_along_the_corridor(world, 
     verdict = verify(submap, query, predicted, (1.5, 0.3), LoopClosureConfig(), seen)
     err = between(truth, verdict.pose)
     assert not verdict.accepted or math.hypot(err[0], err[1]) < 0.1, (verdict, err)
+
+
+def _second_pass(x: float, off: float = 0.0, breaks: int = 0) -> Candidate:
+    """A closure measured on a second pass 0.2 m beside the first along x, at travel ``x``
+    (m): the old pass's odometry runs along the x axis, the robot's in a frame drifted by
+    (100 m, 5 m, 0.3 rad); the measurement is the truth, ``off`` metres along the corridor
+    for a closure that slid or took a look-alike."""
+    drifted = np.array([100.0, 5.0, 0.3])
+    return Candidate(
+        stamp=x, target=int(x * 10), measured=np.array([off, 0.2, 0.0]),
+        odometry=compose(drifted, np.array([x, 0.2, 0.0])),
+        target_odometry=np.array([x, 0.0, 0.0]), travelled=50.0 + x, target_travelled=x,
+        breaks=breaks, target_breaks=0,
+    )  # fmt: skip
+
+
+def test_closures_enter_only_when_another_agrees_with_them():
+    consensus = ClosureConsensus(LoopClosureConfig())
+    first = _second_pass(1.0)
+    assert consensus.offer(first) == []  # alone it waits
+    second = _second_pass(2.0)
+    assert consensus.offer(second) == [first, second]  # the cycle closes: both enter
+    third = _second_pass(3.0)
+    assert consensus.offer(third) == [third]
+
+
+def test_a_closure_off_along_the_corridor_never_finds_a_partner():
+    consensus = ClosureConsensus(LoopClosureConfig())
+    true_one, false_one = _second_pass(1.0), _second_pass(2.0, off=0.9)
+    assert consensus.offer(true_one) == []
+    assert consensus.offer(false_one) == []  # contradicts the waiting one
+    confirming = _second_pass(3.0)
+    assert consensus.offer(confirming) == [true_one, confirming]
+    assert consensus.offer(_second_pass(4.0))
+    assert not false_one.entered
+    # a look-alike a door further on, twice at one place: no partner, however alike
+    lone = ClosureConsensus(LoopClosureConfig())
+    assert lone.offer(_second_pass(1.0, off=0.9)) == []
+    assert lone.offer(_second_pass(1.2, off=0.9)) == []  # the same view again proves nothing
+
+
+def test_closures_across_an_odometry_break_cannot_confirm_each_other():
+    consensus = ClosureConsensus(LoopClosureConfig())
+    assert consensus.offer(_second_pass(1.0)) == []
+    assert consensus.offer(_second_pass(2.0, breaks=1)) == []
+    far = ClosureConsensus(LoopClosureConfig(consistency_window=5.0))
+    assert far.offer(_second_pass(1.0)) == []
+    assert far.offer(_second_pass(7.0)) == []  # beyond the window: the first was dropped
+
+
+def test_a_closure_the_odometry_never_doubted_enters_alone_and_confirms_others():
+    consensus = ClosureConsensus(LoopClosureConfig())
+    waiting = _second_pass(1.0)
+    assert consensus.offer(waiting) == []
+    trusted = _second_pass(2.0)
+    assert consensus.offer(trusted, trusted=True) == [waiting, trusted]
+    alone = ClosureConsensus(LoopClosureConfig())
+    assert alone.offer(_second_pass(5.0), trusted=True)  # no partner needed
+    assert alone.offer(_second_pass(5.2, off=0.9)) == []  # a doubted one still waits
+
+
+def test_a_sparse_pass_still_gives_its_submap_several_scans():
+    dense = np.arange(0.0, 20.0, 0.1)  # an experience every 0.1 m of travel
+    assert submap_span(dense, 100, 1.5, 0.5, 4.0) == (1.5, 0.5)
+    sparse = np.arange(0.0, 40.0, 2.0)  # one every 2 m (a log thinned to a scan a metre)
+    reach, step = submap_span(sparse, 10, 1.5, 0.5, 4.0)
+    assert step == pytest.approx(2.0) and reach == pytest.approx(4.0)
+    members = pass_neighbours(sparse, 10, reach, step, np.inf)
+    assert members == [8, 9, 10, 11, 12]  # with the dense settings, the anchor alone
+    assert pass_neighbours(sparse, 10, 1.5, 0.5, np.inf) == [10]

@@ -550,3 +550,28 @@ def test_robust_kernel_still_catches_a_closure_that_slid_far_along_a_corridor():
     odometry, relaxed, scale = corridor_return(shape, slide=1.0, config=config)
     assert scale < 0.01
     assert relaxed < 0.15 * odometry
+
+
+def test_a_loop_bends_at_the_odometry_break_that_caused_its_error():
+    # One lap of a 4 m square with an exact odometry but for one step, which jumped 0.5 m
+    # forward (the matcher took a look-alike). Told where the break lay, the map puts the
+    # loop closure's correction there and the rest of the lap stays where it was; told
+    # nothing, it spreads the 0.5 m along the whole lap.
+    steps = square_route(4.0, 0.2, 1)
+    truth = integrate(steps)
+    jump = 30
+
+    def run(flag: bool) -> float:
+        cm = CognitiveMap(CognitiveMapConfig(robust_sigmas=0.0))
+        for k, d in enumerate(steps):
+            odo = d + np.array([0.5, 0.0, 0.0]) if k == jump else d
+            cm.integrate_odometry(odo, float(k), (0.5, 0.0) if flag and k == jump else (0, 0))
+            cm.update(view_id=k, is_new=True, pc_centre=PC, stamp=float(k))
+        cm.integrate_odometry(steps[0])
+        true_end = compose(truth[-1], steps[0])
+        cm.update(0, False, PC, stamp=len(steps), refine=lambda e: between(truth[e.id], true_end))
+        cm.relax()
+        return errors(cm.experience_poses[: len(truth)], truth)[0]
+
+    assert run(False) > 0.1
+    assert run(True) < 0.03

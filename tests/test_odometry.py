@@ -377,3 +377,26 @@ def test_a_turn_beyond_the_search_window_is_found_by_the_turn_searches(window_de
     dt_err, dr_err = pose_error(true, odo.pose)
     assert odo.last_report.recovered
     assert dt_err < 0.03 and dr_err < np.radians(0.5)
+
+
+def test_densify_scan_fills_a_wall_seen_along_but_no_opening_or_depth_jump():
+    """1° beams from the origin on a wall at y = 2 from x = 3.5 to 12.6 (gaps 0.14 -> 1.3 m,
+    growing beam by beam), a doorway from x = 7 to 8.5, then a wall 0.6 m farther back."""
+    x = 2.0 / np.tan(np.radians(np.arange(30.0, 8.0, -1.0)))
+    wall = np.column_stack([x, np.full_like(x, 2.0)])
+    wall = wall[(wall[:, 0] < 7.0) | (wall[:, 0] > 8.5)]
+    back = np.column_stack([np.linspace(15.5, 16.1, 4), np.full(4, 2.6)])
+    pts = np.vstack([wall, back])
+
+    def wall_gaps(dense, lo, hi):
+        on = np.sort(dense[(np.abs(dense[:, 1] - 2.0) < 1e-9)][:, 0])
+        return np.diff(on[(on >= lo) & (on <= hi)])
+
+    dense = densify_scan(pts, 0.05, 0.3, straight_angle=0.05)
+    assert wall_gaps(dense, 3.4, 7.0).max() < 0.06  # filled up to the doorway ...
+    assert wall_gaps(dense, 8.6, 10.3).max() < 0.06  # ... and on past it
+    assert wall_gaps(dense, 6.9, 8.7).max() > 1.5  # the doorway stays open
+    between_walls = (dense[:, 1] > 2.0 + 1e-9) & (dense[:, 1] < 2.6 - 1e-9)
+    assert not between_walls.any()  # nothing across the depth jump
+    short_only = densify_scan(pts, 0.05, 0.3)  # straight_angle 0: gaps up to 0.3 m only
+    assert wall_gaps(short_only, 3.4, 7.0).max() > 0.3

@@ -186,6 +186,22 @@ ISOTROPIC = np.array([1.0, 0.0, 1.0])
 
 
 @dataclass(frozen=True)
+class LoopLink:
+    """A link as it enters the map: from ``source`` to ``target``, ``dp`` in the source's
+    frame, made at ``stamp`` ``dt`` seconds after the source was entered, with its
+    (position, heading) information ``info`` (:func:`link_information`) and position
+    information ``shape`` (xx, xy, yy) in the source's frame."""
+
+    source: int
+    target: int
+    dp: FloatArray
+    stamp: float
+    dt: float
+    info: tuple[float, float]
+    shape: FloatArray
+
+
+@dataclass(frozen=True)
 class Measurement:
     """What a registration returns to :meth:`CognitiveMap.update`: the robot's ``pose`` in
     the recognised experience's frame, and the ``shape`` (xx, xy, yy) of its position
@@ -383,7 +399,11 @@ def _link_chi2(
 
 
 def link_information(
-    distance: float, turned: float, registrations: int, config: CognitiveMapConfig
+    distance: float,
+    turned: float,
+    registrations: int,
+    config: CognitiveMapConfig,
+    broken: ArrayLike = (0.0, 0.0),
 ) -> tuple[float, float]:
     """Eq. 14's weight of a link: the information (1 / variance) of its Δp, for the position
     (m⁻²) and the heading (rad⁻²).
@@ -396,13 +416,21 @@ def link_information(
     than a short one; a registration is as uncertain however far apart its experiences were
     made. With equal weights a closure's error would be spread like an exact one's over a
     loop of odometry that is often more precise than a single registration.
+    ``broken`` (m², rad²) adds the variance of the odometry's breaks within the link: a
+    jump to a look-alike is no random walk (:meth:`CognitiveMap.integrate_odometry`).
     """
     floor_xy, floor_th = config.link_var_floor
-    var_xy = config.odometry_var_per_m * distance + registrations * config.closure_sigma_m**2
+    extra_xy, extra_th = (float(v) for v in np.asarray(broken, dtype=np.float64).reshape(2))
+    var_xy = (
+        config.odometry_var_per_m * distance
+        + registrations * config.closure_sigma_m**2
+        + extra_xy
+    )
     var_th = (
         config.odometry_heading_var_per_m * distance
         + config.odometry_heading_var_per_rad * turned
         + registrations * config.closure_sigma_rad**2
+        + extra_th
     )
     return 1.0 / (floor_xy + var_xy), 1.0 / (floor_th + var_th)
 
@@ -533,6 +561,8 @@ class CognitiveMap:
         # metres travelled and radians turned since the current experience was entered, and
         # whether it was entered by a registration (all part of the next link's uncertainty)
         self._travel = np.zeros(2)
+        # variance (m², rad²) the odometry's breaks since the current experience add
+        self._broken_var = np.zeros(2)
         self._entered_measured = False
         self._csr: tuple[NDArray[np.int64], ...] | None = None
         self.loop_closures = 0
@@ -633,13 +663,22 @@ class CognitiveMap:
 
     # --- odometry and poses ----------------------------------------------------------------
 
-    def integrate_odometry(self, dp: ArrayLike, stamp: float | None = None) -> None:
-        """Accumulate the motion ``dp`` (robot frame) since the current experience."""
+    def integrate_odometry(
+        self, dp: ArrayLike, stamp: float | None = None, broken: ArrayLike = (0.0, 0.0)
+    ) -> None:
+        """Accumulate the motion ``dp`` (robot frame) since the current experience.
+
+        ``broken`` (m, rad): how far a break of the odometry's chain within ``dp`` may have
+        put it off (:func:`bioslam.closure.break_extent`), beyond its model's drift. The
+        link that carries the step is weighted by that much less (:func:`link_information`),
+        so that a loop closure bends the map at the break rather than spreading its
+        correction along a loop whose odometry is good but for one jump."""
         d = np.asarray(dp, dtype=np.float64).reshape(3)
         if not np.all(np.isfinite(d)):
             raise ValueError(f"odometry step must be finite, got {dp}")
         self._offset = compose(self._offset, d)
         self._travel += (math.hypot(d[0], d[1]), abs(d[2]))
+        self._broken_var += np.square(np.asarray(broken, dtype=np.float64).reshape(2))
         if stamp is not None:
             self._last_stamp = float(stamp)
 
@@ -741,22 +780,31 @@ class CognitiveMap:
         """Eq. 13: l_ij = <Δp^ij, Δt^ij>, weighted by the odometry and registrations it
         composes (:func:`link_information`)."""
         registrations = int(kind == "loop") + int(self._entered_measured)
-        self._link_ends.append((source, target))
-        self._link_dp.append(dp)
-        self._link_dt.append(stamp - self._entered)
-        self._link_stamp.append(stamp)
+        info = link_information(*self._travel, registrations, self.config, self._broken_var)
+        self._append_link(
+            LoopLink(source, target, np.asarray(dp, dtype=np.float64), stamp,
+                     stamp - self._entered, info, np.asarray(shape, dtype=np.float64)),
+            kind,
+        )  # fmt: skip
+
+    def _append_link(self, link: LoopLink, kind: LinkKind) -> None:
+        self._link_ends.append((link.source, link.target))
+        self._link_dp.append(link.dp)
+        self._link_dt.append(link.dt)
+        self._link_stamp.append(link.stamp)
         self._link_kind.append(kind)
-        self._link_info.append(link_information(*self._travel, registrations, self.config))
+        self._link_info.append(link.info)
         self._link_scale.append(1.0)
-        self._link_shape.append(shape)
-        self._linked.add((source, target))
-        length = math.hypot(float(dp[0]), float(dp[1]))
-        self._neighbours.setdefault(source, []).append((target, length))
-        self._neighbours.setdefault(target, []).append((source, length))
+        self._link_shape.append(link.shape)
+        self._linked.add((link.source, link.target))
+        length = math.hypot(float(link.dp[0]), float(link.dp[1]))
+        self._neighbours.setdefault(link.source, []).append((link.target, length))
+        self._neighbours.setdefault(link.target, []).append((link.source, length))
         self._csr = None
 
     def _enter(self, eid: int, offset: FloatArray, stamp: float, measured: bool = False) -> None:
         self._travel = np.zeros(2)
+        self._broken_var = np.zeros(2)
         self._entered_measured = measured
         self._current = self._base = eid
         self._offset = np.asarray(offset, dtype=np.float64).copy()
@@ -817,13 +865,29 @@ class CognitiveMap:
     ) -> None:
         """A loop link to ``target``, the robot being at ``arrival`` in its frame; ``shape``:
         the measurement's position information in the robot's frame."""
+        self.add_loop_link(self.loop_link(target, Measurement(arrival, shape), stamp))
+
+    def loop_link(self, target: int, measurement: Measurement, stamp: float) -> LoopLink:
+        """The loop link that ``measurement`` (the robot's pose in ``target``'s frame, now)
+        makes, from the experience the robot's pose hangs off, to enter the map now or
+        later (:meth:`add_loop_link`): a closure held until another confirms it
+        (:class:`bioslam.closure.ClosureConsensus`) keeps the odometry and the pose it was
+        measured at."""
         # p_base ⊕ offset = p_target ⊕ arrival, so Δp = offset ⊕ arrival⁻¹; a registration's
         # error moves the robot's end of the link, in the robot's frame (offset from the base)
+        arrival = np.asarray(measurement.pose, dtype=np.float64).reshape(3)
         dp = compose(self._offset, inverse(arrival))
-        shape = rotate_shape(np.asarray(shape, dtype=np.float64), float(self._offset[2]))
-        self._add_link(self._base, target, dp, stamp, "loop", shape)
+        shape = np.asarray(measurement.shape, dtype=np.float64)
+        shape = rotate_shape(shape, float(self._offset[2]))
+        registrations = 1 + int(self._entered_measured)
+        info = link_information(*self._travel, registrations, self.config, self._broken_var)
+        return LoopLink(self._base, int(target), dp, stamp, stamp - self._entered, info, shape)
+
+    def add_loop_link(self, link: LoopLink) -> None:
+        """Enter a loop link made by :meth:`loop_link`; the next :meth:`relax` solves."""
+        self._append_link(link, "loop")
         self.loop_closures += 1
-        if not self._agrees(self._base, target, dp):
+        if not self._agrees(link.source, link.target, link.dp):
             self._dirty = True
             self._needs_solve = True
 

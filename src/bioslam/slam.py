@@ -21,14 +21,18 @@ from numpy.typing import NDArray
 
 from bioslam.boundary import BoundaryCells
 from bioslam.closure import (
+    Candidate,
     Check,
+    ClosureConsensus,
     SubmapCache,
     Verdict,
     break_extent,
     nearest_experience,
     odometry_broke,
+    odometry_doubted,
     pass_neighbours,
     submap_anchor,
+    submap_span,
     thin_points,
     unbroken,
     verify,
@@ -126,6 +130,9 @@ class SelfMotion:
         self._last_dt = 0.0
         #: steps so far that broke the odometry's chain (:func:`bioslam.closure.odometry_broke`)
         self.breaks = 0
+        #: steps so far whose match the odometry itself doubted (blind along some direction,
+        #: among look-alikes, or no match): a closure across one needs a second to confirm it
+        self.doubts = 0
         #: the summed (m, rad) by which those breaks may have put the robot off
         #: (:func:`bioslam.closure.break_extent`)
         self.break_extent = np.zeros(2)
@@ -138,6 +145,7 @@ class SelfMotion:
             if self._last_dt > 0.0:  # the velocity of the step before is known
                 expected = self._last_step * min(dt / self._last_dt, 1e3)
                 report = self.odometry.last_report
+                self.doubts += int(odometry_doubted(report))
                 if odometry_broke(
                     report, dp, expected, dt, self.closure, self.odometry.config.max_speed
                 ):
@@ -177,6 +185,16 @@ class BioSLAM:
         # relates to the robot without a break
         self._breaks_at = np.empty(1024, dtype=np.int64)
         self._extent_at = np.empty((1024, 2))
+        # the odometry's pose when each experience was made: the old pass's chain of
+        # relative poses for the closures' pairwise test (:class:`bioslam.closure.Candidate`)
+        self._odometry_at = np.empty((1024, 3))
+        self._doubts_at = np.empty(1024, dtype=np.int64)
+        self.consensus = ClosureConsensus(self.config.loop_closure)
+        self._confirmed_earlier = False
+        #: closures held back and entered later, when another confirmed them (each makes a
+        #: loop link without a look of its own)
+        self.confirmed_later = 0
+        self._extent_at_look = np.zeros(2)
         self._last_registration = -np.inf
         self._travelled_at_entry = 0.0
         self._pending = np.zeros(3)
@@ -240,7 +258,10 @@ class BioSLAM:
         self.pose_cells.path_integrate(dp)
         self.pose_cells.inject_view(match.view_id, match.activity, match.is_new)
         self.pose_cells.step()
-        self.cognitive_map.integrate_odometry(dp, scan.stamp)
+        # the breaks of the odometry since the last look weaken the link that carries them
+        broken = self.self_motion.break_extent - self._extent_at_look
+        self._extent_at_look = self.self_motion.break_extent.copy()
+        self.cognitive_map.integrate_odometry(dp, scan.stamp, broken)
         self._stamp = scan.stamp
         self._proposed = self._nearby(self.cognitive_map.pose(), self._travelled)
         known = len(self.cognitive_map)
@@ -253,8 +274,9 @@ class BioSLAM:
             refine=self._refiner(points) if self.config.loop_closure.refine else None,
             nearby=self._proposed,
         )
-        if event.kind == "loop":
+        if event.kind == "loop" or self._confirmed_earlier:
             self.cognitive_map.relax()
+        self._confirmed_earlier = False
         self._travelled += float(np.hypot(dp[0], dp[1]))
         # every experience this look made (a closure also makes one of the robot's pose)
         for experience_id in range(known, len(self.cognitive_map)):
@@ -267,10 +289,12 @@ class BioSLAM:
 
     def _note_made(self, experience_id: int) -> None:
         if experience_id >= self._made_at.size:
-            self._made_at = np.concatenate([self._made_at, np.empty_like(self._made_at)])
-            self._breaks_at = np.concatenate([self._breaks_at, np.empty_like(self._breaks_at)])
-            self._extent_at = np.concatenate([self._extent_at, np.empty_like(self._extent_at)])
+            for name in ("_made_at", "_breaks_at", "_extent_at", "_odometry_at", "_doubts_at"):
+                column = getattr(self, name)
+                setattr(self, name, np.concatenate([column, np.empty_like(column)]))
         self._made_at[experience_id] = self._travelled
+        self._odometry_at[experience_id] = self.self_motion.pose
+        self._doubts_at[experience_id] = self.self_motion.doubts
         self._breaks_at[experience_id] = self.self_motion.breaks
         self._extent_at[experience_id] = self.self_motion.break_extent
 
@@ -357,11 +381,52 @@ class BioSLAM:
         if within(between(predicted, verdict.pose), cfg.deadband, cfg.deadband_angle):
             # The map already agrees with the registration to within the registration's own
             # error: keep the map's estimate rather than inject that error into the map.
-            return predicted
-        pts = np.ascontiguousarray(points, dtype=np.float64)
-        normals = scan_normals(pts, NORMAL_RADIUS, NORMAL_MAX_GAP)
-        ratio = self.config.cognitive_map.closure_shape_ratio
-        return Measurement(verdict.pose, registration_shape(pts, normals, ratio))
+            measured = Measurement(np.asarray(predicted, dtype=np.float64))
+        else:
+            pts = np.ascontiguousarray(points, dtype=np.float64)
+            normals = scan_normals(pts, NORMAL_RADIUS, NORMAL_MAX_GAP)
+            ratio = self.config.cognitive_map.closure_shape_ratio
+            shape = registration_shape(pts, normals, ratio)
+            measured = Measurement(verdict.pose, shape)
+        return measured if self._confirmed(experience, measured, submap.anchor) else None
+
+    def _confirmed(self, experience: Experience, measured: Measurement, anchor: int) -> bool:
+        """Whether a verified closure enters the map now: at once without the pairwise
+        test, or when the odometry relates the robot to the place without a step it doubted
+        (:func:`bioslam.closure.odometry_doubted`) or a break; else once another closure
+        agrees with it (:class:`bioslam.closure.ClosureConsensus`). The waiting closures a
+        closure confirms enter the map here, their checks then counting as accepted; one
+        left waiting is recorded as refused ('unconfirmed') until then."""
+        if not self.config.loop_closure.consistency:
+            return True
+        cmap, eid = self.cognitive_map, experience.id
+        # the measurement relates the robot to the submap's ``anchor``, and the map the
+        # anchor to the experience: both through the odometry since the earlier of them
+        since = min(anchor, eid)
+        trusted = bool(
+            self.self_motion.doubts == self._doubts_at[since]
+            and self.self_motion.breaks == self._breaks_at[since]
+        )
+        candidate = Candidate(
+            self._stamp, eid, np.asarray(measured.pose, dtype=np.float64),
+            self.self_motion.pose.copy(), self._odometry_at[eid].copy(), self._travelled,
+            float(self._made_at[eid]), self.self_motion.breaks, int(self._breaks_at[eid]),
+            link=cmap.loop_link(eid, measured, self._stamp), check=len(self.checks) - 1,
+        )  # fmt: skip
+        confirmed = self.consensus.offer(candidate, trusted)
+        check = self.checks[candidate.check]
+        if not confirmed:
+            waiting = dataclasses.replace(check.verdict, accepted=False, reason="unconfirmed")
+            self.checks[candidate.check] = dataclasses.replace(check, verdict=waiting)
+            return False
+        for earlier in confirmed[:-1]:
+            cmap.add_loop_link(earlier.link)  # type: ignore[arg-type]
+            self.confirmed_later += 1
+            old = self.checks[earlier.check]
+            accepted = dataclasses.replace(old.verdict, accepted=True, reason="")
+            self.checks[earlier.check] = dataclasses.replace(old, verdict=accepted)
+            self._confirmed_earlier = True
+        return True
 
     def _break_since(self, experience_id: int) -> FloatArray | None:
         """The summed extent (m, rad) of the odometry breaks since ``experience_id`` was
@@ -384,10 +449,10 @@ class BioSLAM:
         cfg = self.config.loop_closure
         made_at = self._made_at[: len(self.cognitive_map)]
         anchor = submap_anchor(made_at, candidate, cfg.submap_step)
-        members = pass_neighbours(
-            made_at, anchor, cfg.submap_reach, cfg.submap_step,
-            self._travelled - cfg.submap_reach,
-        )  # fmt: skip
+        reach, step = submap_span(
+            made_at, anchor, cfg.submap_reach, cfg.submap_step, cfg.submap_max_reach
+        )
+        members = pass_neighbours(made_at, anchor, reach, step, self._travelled - reach)
         if cfg.refuse_broken_odometry:
             members = unbroken(self._breaks_at, anchor, members)
         return anchor, members
@@ -481,7 +546,8 @@ class BioSLAM:
         """Loop-closure verifications by cue, and refusals by reason (``closure.verify``)."""
         out = {"closure_checks_view": 0, "closure_checks_proximity": 0}
         for reason in (
-            "score", "degenerate", "ambiguous", "slid", "beyond_drift", "odometry_broke"
+            "score", "degenerate", "ambiguous", "slid", "beyond_drift", "odometry_broke",
+            "unconfirmed",
         ):
             out[f"closure_refused_{reason}"] = 0
         for check in self.checks:

@@ -95,22 +95,66 @@ class RegistrationConfig:
     score_level: int = 1
 
 
-def densify_scan(points: FloatArray, spacing: float, max_gap: float) -> FloatArray:
-    """Endpoints in scan order with points added every ``spacing`` metres between neighbours
-    closer than ``max_gap`` (the same surface): a sparse scan (1 deg beams reach 10 cm
-    apart at 6 m) would otherwise leave empty cells between its points on a wall, where
-    the other scan's points of that wall find nothing to land on."""
-    if points.shape[0] < 2:
-        return points
+def straight_gaps(
+    points: FloatArray, max_gap: float, angle: float, reach: int = 1, ratio: float = 3.0,
+    longest: float = 2.0,
+) -> NDArray[np.bool_]:
+    """Which gaps between consecutive endpoints (scan order) cross no opening: those up to
+    ``max_gap``, and longer ones (up to ``longest`` metres) inside a straight run: the
+    ``reach`` gaps either side each turn by at most ``angle`` radians from the one before,
+    and the gaps next to it are at least ``1 / ratio`` of its length. A 1 deg scanner
+    looking along a wall at 10 m hits it a metre apart, beam after beam in a line whose
+    gaps grow steadily; a depth jump (a door frame, an obstacle's edge) leaves that line,
+    and an opening in it is a gap several times its neighbours'."""
     step = np.diff(points, axis=0)
     gap = np.hypot(step[:, 0], step[:, 1])
-    extra = np.where(gap <= max_gap, np.floor(gap / spacing).astype(np.int64), 0)
+    near = gap <= max_gap
+    n = gap.size
+    if angle <= 0.0 or n <= 2 * reach:
+        return near
+    heading = np.arctan2(step[:, 1], step[:, 0])
+    bent = np.abs(np.angle(np.exp(1j * np.diff(heading)))) > angle  # turn k: gap k -> k + 1
+    bends = np.concatenate([[0], np.cumsum(bent)])
+    inner = np.arange(reach, n - reach)
+    ok = np.zeros(n, dtype=bool)
+    ok[inner] = (
+        (bends[inner + reach] - bends[inner - reach] == 0)  # turns inner-reach .. inner+reach-1
+        & (ratio * gap[inner - 1] >= gap[inner])
+        & (ratio * gap[inner + 1] >= gap[inner])
+        & (gap[inner] <= longest)
+    )
+    return near | ok
+
+
+def densify_scan(
+    points: FloatArray, spacing: float, max_gap: float, straight_angle: float = 0.0
+) -> FloatArray:
+    """Endpoints in scan order with points added every ``spacing`` metres between neighbours
+    on the same surface (:func:`straight_gaps`: closer than ``max_gap``, or, with
+    ``straight_angle`` > 0, farther but on a straight run): a sparse scan (1 deg beams reach
+    10 cm apart at 6 m, a metre apart along a wall 10 m ahead) would otherwise leave empty
+    cells between its points on a wall, where the other scan's points of that wall find
+    nothing to land on, and a map made of a few such scans is densest near where they were
+    taken: a pose moved back towards there scores better than the true one."""
+    return densify_with_mask(points, spacing, max_gap, straight_angle)[0]
+
+
+def densify_with_mask(
+    points: FloatArray, spacing: float, max_gap: float, straight_angle: float = 0.0
+) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """:func:`densify_scan` and which of its points were added (not endpoints)."""
+    if points.shape[0] < 2:
+        return points, np.zeros(points.shape[0], dtype=bool)
+    step = np.diff(points, axis=0)
+    gap = np.hypot(step[:, 0], step[:, 1])
+    fill = straight_gaps(points, max_gap, straight_angle)
+    extra = np.where(fill, np.floor(gap / spacing).astype(np.int64), 0)
     counts = np.append(extra + 1, 1)
     start = np.repeat(np.arange(points.shape[0]), counts)
     offset = np.arange(start.size) - np.repeat(np.cumsum(counts) - counts, counts)
     frac = offset / np.repeat(counts, counts)
     ahead = np.minimum(start + 1, points.shape[0] - 1)
-    return points[start] + frac[:, None] * (points[ahead] - points[start])
+    return points[start] + frac[:, None] * (points[ahead] - points[start]), offset > 0
 
 
 def _check_points(points: ArrayLike, name: str) -> FloatArray:

@@ -169,12 +169,14 @@ class Tap:
 
     def _events(self, ns: int, system: BioSLAM) -> None:
         cmap = system.cognitive_map
-        if cmap.num_links > self._seen["links"]:
-            link = cmap.link(cmap.num_links - 1)
-            self._seen["links"] = cmap.num_links
+        # every link made since the last look: a closure that confirms one held back
+        # (bioslam.closure.ClosureConsensus) enters both at once
+        for k in range(self._seen["links"], cmap.num_links):
+            link = cmap.link(k)
             if link.kind == "loop":
                 self._log(ns, "Info", f"loop closure accepted: experience {link.source} -> "
                           f"{link.target} ({cmap.loop_closures} so far)", "cognitive_map")
+        self._seen["links"] = cmap.num_links
         if cmap.rejected_closures > self._seen["rejected"]:
             self._seen["rejected"] = cmap.rejected_closures
             self._log(ns, "Warning", "loop closure rejected: the scan registration did not fit "
