@@ -45,7 +45,7 @@ def _correlative_scores(g, pts, pose, nt, nx, step_xy, step_th):
             for iy in range(-nx, nx + 1):
                 tx = pose[0] + ix * step_xy
                 ty = pose[1] + iy * step_xy
-                out[it + nt, ix + nx, iy + nx] = summed_map(g, pts, c, s, tx, ty, False)
+                out[it + nt, ix + nx, iy + nx] = summed_map(g, pts, c, s, tx, ty, np.bool_(False))
     return out
 
 

@@ -363,7 +363,7 @@ def pose_costs(g, pts, poses):
     for j in range(poses.shape[0]):
         c = math.cos(poses[j, 2])
         s = math.sin(poses[j, 2])
-        out[j] = summed_map(g, pts, c, s, poses[j, 0], poses[j, 1], True)
+        out[j] = summed_map(g, pts, c, s, poses[j, 0], poses[j, 1], np.bool_(True))
     return out
 
 def grid_args(grid: OccupancyGrid, subcell_sigma: float | None) -> tuple:
