@@ -528,12 +528,15 @@ class BioSLAM:
     def num_scans(self) -> int:
         return len(self._stamps)
 
-    def trajectory(self) -> Trajectory:
+    def trajectory(self, experience_poses: FloatArray | None = None) -> Trajectory:
         """Every scan's pose: its experience's relaxed pose composed with the odometry since,
-        so that the whole trajectory follows each correction of the map."""
+        so that the whole trajectory follows each correction of the map. With
+        ``experience_poses`` ((N, 3), e.g. :meth:`CognitiveMap.solved`) instead of the map's."""
         if not len(self._stamps):
             return Trajectory.empty()
-        poses = self.cognitive_map.poses_of(self._anchor_ids.view(), self._anchor_offsets.view())
+        poses = self.cognitive_map.poses_of(
+            self._anchor_ids.view(), self._anchor_offsets.view(), experience_poses
+        )
         return Trajectory(self._stamps.array(), poses)
 
     def odometry_trajectory(self) -> Trajectory:
