@@ -225,3 +225,42 @@ def test_closure_window_follows_the_shortest_chain_of_links_not_the_travel_since
     assert window == pytest.approx(cfg.drift_floor + cfg.drift_per_metre * 10.2)
     # farther along the old pass, the chain grows with it (45.2 m, the travel since 55.2 m)
     assert slam._odometry_relation(5)[1] == pytest.approx(45.2)
+
+
+
+def _per_scan_work(scans: list, config: SLAMConfig) -> tuple[BioSLAM, list[tuple[int, int]]]:
+    """Per scan: loop-closure checks registered, map relaxations run."""
+    slam = BioSLAM(config)
+    relaxed = [0]
+    relax = slam.cognitive_map.relax
+
+    def counted(*args, **kwargs):
+        relaxed[0] += 1
+        return relax(*args, **kwargs)
+
+    slam.cognitive_map.relax = counted  # type: ignore[method-assign]
+    work = []
+    for scan in scans:
+        checks, relaxes = len(slam.checks), relaxed[0]
+        slam.process(scan)
+        work.append((len(slam.checks) - checks, relaxed[0] - relaxes))
+    slam.finish()
+    return slam, work
+
+
+def test_the_map_relaxes_after_a_closure_on_the_next_scan_to_the_same_trajectory(ring_drive):
+    scans, _ = ring_drive
+    config = dataclasses.replace(SLAMConfig(), heading_bias=0.002)
+    slam, work = _per_scan_work(scans, config)
+    assert slam.summary()["loop_closures"] >= 1
+    registered = [k for k, (checks, _) in enumerate(work) if checks]
+    assert not any(work[k][1] for k in registered)
+    # every closure's relaxation ran, one scan later
+    closed = [k for k, r in enumerate(slam.records) if r.event == "loop"]
+    assert closed and sum(relaxes for _, relaxes in work) >= len(closed)
+    # on the registration's scan without deferring (so the test above can tell them apart),
+    # and the map ends where it does deferred
+    at_once, together = _per_scan_work(scans, dataclasses.replace(config, defer_relaxation=False))
+    assert any(checks and relaxes for checks, relaxes in together)
+    assert at_once.summary()["loop_closures"] == slam.summary()["loop_closures"]
+    np.testing.assert_allclose(at_once.trajectory().poses, slam.trajectory().poses, atol=1e-9)

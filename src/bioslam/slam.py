@@ -205,6 +205,8 @@ class BioSLAM:
         self.submaps = SubmapCache()
         self._scans_since_look = 0
         self._last_forced = -np.inf
+        # a relaxation after a closure, left for the next scan (``SLAMConfig.defer_relaxation``)
+        self._relax_due = False
         self._released: dict[str, int] | None = None
 
     # --- the per-scan update ---------------------------------------------------------------
@@ -214,6 +216,9 @@ class BioSLAM:
         dp = self.self_motion.step(scan)
         self._pending = compose(self._pending, dp)
         self._scans_since_look += 1
+        if self._relax_due:
+            self._relax_due = False
+            self.cognitive_map.relax()
         if self._due():
             self._perceive(scan, self._pending)
             self._pending = np.zeros(3)
@@ -275,7 +280,10 @@ class BioSLAM:
             nearby=self._proposed,
         )
         if event.kind == "loop" or self._confirmed_earlier:
-            self.cognitive_map.relax()
+            if self.config.defer_relaxation:
+                self._relax_due = True  # not on the scan that paid for the registration
+            else:
+                self.cognitive_map.relax()
         self._confirmed_earlier = False
         self._travelled += float(np.hypot(dp[0], dp[1]))
         # every experience this look made (a closure also makes one of the robot's pose)
@@ -514,6 +522,9 @@ class BioSLAM:
     def finish(self) -> None:
         """Settle the cognitive map after the last scan (the final trajectory is re-derived
         from it)."""
+        if self._relax_due:
+            self._relax_due = False
+            self.cognitive_map.relax()
         if not self.cognitive_map.converged:
             self.cognitive_map.solve()
             self.cognitive_map.relax()
