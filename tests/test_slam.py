@@ -244,3 +244,41 @@ def test_scans_kept_on_disk_give_the_same_run(ring_drive, tmp_path):
     assert store.file_bytes > 0 and len(store) == len(on_disk.cognitive_map)
     assert on_disk.summary()["loop_closures"] == in_memory.summary()["loop_closures"] >= 1
     np.testing.assert_array_equal(on_disk.trajectory().poses, in_memory.trajectory().poses)
+
+
+def _per_scan_work(scans: list, config: SLAMConfig) -> tuple[BioSLAM, list[tuple[int, int]]]:
+    """Per scan: loop-closure checks registered, map relaxations run."""
+    slam = BioSLAM(config)
+    relaxed = [0]
+    relax = slam.cognitive_map.relax
+
+    def counted(*args, **kwargs):
+        relaxed[0] += 1
+        return relax(*args, **kwargs)
+
+    slam.cognitive_map.relax = counted  # type: ignore[method-assign]
+    work = []
+    for scan in scans:
+        checks, relaxes = len(slam.checks), relaxed[0]
+        slam.process(scan)
+        work.append((len(slam.checks) - checks, relaxed[0] - relaxes))
+    slam.finish()
+    return slam, work
+
+
+def test_the_map_relaxes_after_a_closure_on_the_next_scan_to_the_same_trajectory(ring_drive):
+    scans, _ = ring_drive
+    config = dataclasses.replace(SLAMConfig(), heading_bias=0.002)
+    slam, work = _per_scan_work(scans, config)
+    assert slam.summary()["loop_closures"] >= 1
+    registered = [k for k, (checks, _) in enumerate(work) if checks]
+    assert not any(work[k][1] for k in registered)
+    # every closure's relaxation ran, one scan later
+    closed = [k for k, r in enumerate(slam.records) if r.event == "loop"]
+    assert closed and sum(relaxes for _, relaxes in work) >= len(closed)
+    # on the registration's scan without deferring (so the test above can tell them apart),
+    # and the map ends where it does deferred
+    at_once, together = _per_scan_work(scans, dataclasses.replace(config, defer_relaxation=False))
+    assert any(checks and relaxes for checks, relaxes in together)
+    assert at_once.summary()["loop_closures"] == slam.summary()["loop_closures"]
+    np.testing.assert_allclose(at_once.trajectory().poses, slam.trajectory().poses, atol=1e-9)

@@ -248,6 +248,8 @@ class BoundaryCells:
         self._sorted_reach = bool(
             np.all(np.diff(self._reach_lo) >= 0) and np.all(np.diff(self._reach_hi) >= 0)
         )
+        self._coverage_key: tuple[float, float] | None = None
+        self._coverage = np.ones(self.config.cells_per_ring, dtype=bool)
         self._gain = (
             np.repeat(self._rings, self.config.cells_per_ring)
             if self.config.distance_gain
@@ -270,6 +272,14 @@ class BoundaryCells:
 
     def coverage_span(self, first: float, last: float) -> NDArray[np.bool_]:
         """``coverage`` for beams swept from ``first`` to ``last`` radians (counter-clockwise)."""
+        if self._coverage_key == (first, last):
+            return self._coverage  # the same scanner at every look
+        cover = self._coverage_of(first, last)
+        cover.flags.writeable = False
+        self._coverage_key, self._coverage = (first, last), cover
+        return cover
+
+    def _coverage_of(self, first: float, last: float) -> NDArray[np.bool_]:
         span = last - first
         if not np.isfinite(span) or span >= 2.0 * math.pi - self.config.sigma_alpha:
             return np.ones(self.config.cells_per_ring, dtype=bool)

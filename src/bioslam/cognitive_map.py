@@ -695,13 +695,18 @@ class CognitiveMap:
         before the first experience, when the offset is in the map frame."""
         return self._base, self._offset.copy()
 
-    def poses_of(self, experience_ids: ArrayLike, offsets: ArrayLike) -> FloatArray:
-        """Map poses ``p_e ⊕ offset`` for arrays of anchors (vectorised; id -1 = map origin)."""
+    def poses_of(
+        self, experience_ids: ArrayLike, offsets: ArrayLike,
+        experience_poses: ArrayLike | None = None,
+    ) -> FloatArray:
+        """Map poses ``p_e ⊕ offset`` for arrays of anchors (vectorised; id -1 = map origin),
+        ``p_e`` the map's experience poses or ``experience_poses`` ((N, 3), :meth:`solved`)."""
         ids = np.asarray(experience_ids, dtype=np.int64).reshape(-1)
         off = np.asarray(offsets, dtype=np.float64).reshape(-1, 3)
+        nodes = self._poses.view() if experience_poses is None else np.asarray(experience_poses)
         base = np.zeros((ids.shape[0], 3))
         known = ids >= 0
-        base[known] = self._poses.view()[ids[known]]
+        base[known] = nodes[ids[known]]
         return compose(base, off)
 
     def pose(self) -> FloatArray:
@@ -1011,6 +1016,31 @@ class CognitiveMap:
             scale[keep[loops]] = wanted
             if not changed.any():
                 break
+
+    def solved(self, dps: ArrayLike | None = None, loops: bool = True) -> FloatArray:
+        """(N, 3) the experience poses the whole map solves to (:meth:`solve`, every
+        experience free, the robust kernel started afresh) with every link's Δp replaced by
+        ``dps`` ((E, 3), e.g. the true relative poses) and, with ``loops`` False, without
+        its loop links; the map itself is left as it was. Measures how much of the
+        trajectory's error the closures' own errors cause (the closures given the truth)
+        and how much they correct (none at all)."""
+        view = self._poses.view()
+        saved = (view.copy(), self._link_dp.view().copy(), self._link_scale.view().copy(),
+                 self._link_info.view().copy())  # fmt: skip
+        try:
+            if dps is not None:
+                self._link_dp.view()[:] = np.asarray(dps, dtype=np.float64).reshape(-1, 3)
+            self._link_scale.view()[:] = 1.0
+            if not loops:
+                loop = np.array([k == "loop" for k in self._link_kind], dtype=bool)
+                self._link_info.view()[loop] = 1e-12  # a link without weight: as if absent
+            self.solve(window=None)
+            return view.copy()
+        finally:
+            view[:] = saved[0]
+            self._link_dp.view()[:] = saved[1]
+            self._link_scale.view()[:] = saved[2]
+            self._link_info.view()[:] = saved[3]
 
     # --- output ----------------------------------------------------------------------------
 

@@ -211,6 +211,8 @@ class BioSLAM:
         self.submaps = SubmapCache()
         self._scans_since_look = 0
         self._last_forced = -np.inf
+        # a relaxation after a closure, left for the next scan (``SLAMConfig.defer_relaxation``)
+        self._relax_due = False
         self._released: dict[str, int] | None = None
 
     # --- the per-scan update ---------------------------------------------------------------
@@ -220,6 +222,9 @@ class BioSLAM:
         dp = self.self_motion.step(scan)
         self._pending = compose(self._pending, dp)
         self._scans_since_look += 1
+        if self._relax_due:
+            self._relax_due = False
+            self.cognitive_map.relax()
         if self._due():
             self._perceive(scan, self._pending)
             self._pending = np.zeros(3)
@@ -281,7 +286,10 @@ class BioSLAM:
             nearby=self._proposed,
         )
         if event.kind == "loop" or self._confirmed_earlier:
-            self.cognitive_map.relax()
+            if self.config.defer_relaxation:
+                self._relax_due = True  # not on the scan that paid for the registration
+            else:
+                self.cognitive_map.relax()
         self._confirmed_earlier = False
         self._travelled += float(np.hypot(dp[0], dp[1]))
         # every experience this look made (a closure also makes one of the robot's pose)
@@ -520,6 +528,9 @@ class BioSLAM:
     def finish(self) -> None:
         """Settle the cognitive map after the last scan (the final trajectory is re-derived
         from it)."""
+        if self._relax_due:
+            self._relax_due = False
+            self.cognitive_map.relax()
         if not self.cognitive_map.converged:
             self.cognitive_map.solve()
             self.cognitive_map.relax()
@@ -534,12 +545,15 @@ class BioSLAM:
     def num_scans(self) -> int:
         return len(self._stamps)
 
-    def trajectory(self) -> Trajectory:
+    def trajectory(self, experience_poses: FloatArray | None = None) -> Trajectory:
         """Every scan's pose: its experience's relaxed pose composed with the odometry since,
-        so that the whole trajectory follows each correction of the map."""
+        so that the whole trajectory follows each correction of the map. With
+        ``experience_poses`` ((N, 3), e.g. :meth:`CognitiveMap.solved`) instead of the map's."""
         if not len(self._stamps):
             return Trajectory.empty()
-        poses = self.cognitive_map.poses_of(self._anchor_ids.view(), self._anchor_offsets.view())
+        poses = self.cognitive_map.poses_of(
+            self._anchor_ids.view(), self._anchor_offsets.view(), experience_poses
+        )
         return Trajectory(self._stamps.array(), poses)
 
     def odometry_trajectory(self) -> Trajectory:

@@ -247,6 +247,21 @@ def _fractional_shift(
     return best_s, best_f
 
 
+@njit(cache=True)
+def _key_distances(keys: FloatArray, n: int, key: FloatArray) -> FloatArray:
+    # Squared distances of the first ``n`` ring keys to ``key``, without the (n, rings)
+    # temporaries of the NumPy expression: this runs at every look of a partial scanner
+    # over every view learned (0.14 ms at 3000 views in NumPy, a fifth of it here).
+    out = np.empty(n)
+    for i in range(n):
+        acc = 0.0
+        for r in range(key.size):
+            diff = keys[i, r] - key[r]
+            acc += diff * diff
+        out[i] = acc
+    return out
+
+
 def _grow(a: NDArray) -> NDArray:
     grown = np.empty((2 * a.shape[0], *a.shape[1:]), dtype=a.dtype)
     grown[: a.shape[0]] = a
@@ -457,11 +472,10 @@ class ViewCells:
         n = self.num_views
         if n == 0:
             return np.empty(0, dtype=np.int64)
-        key = self._ring_key(b, cover)
-        d = np.sum((self._keys[:n] - key) ** 2, axis=1)
         k = self.config.partial_candidates
         if n <= k:
             return np.arange(n, dtype=np.int64)
+        d = _key_distances(self._keys, n, self._ring_key(b, cover))
         return np.sort(np.argpartition(d, k)[:k]).astype(np.int64)
 
     def coarse_feature(self, b: FloatArray, cover: NDArray[np.bool_]) -> int:
