@@ -1099,21 +1099,32 @@ class CognitiveMap:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready map: nodes (id, creation time, relaxed pose, view id) and links (from,
         to, Δp, Δt, creation time, kind)."""
+        return {k: list(v) if k != "loop_closures" else v for k, v in self.json_fields().items()}
+
+    def json_fields(self) -> dict[str, Any]:
+        """:meth:`to_dict`'s fields with the nodes and the links as generators of their
+        entries, for a writer that encodes them one at a time
+        (:func:`bioslam.io.jsonio.write_json_streamed`): an hour's map is 30,000 of each,
+        about 35 MB as Python objects."""
+        return {"nodes": self._json_nodes(), "links": self._json_links(),
+                "loop_closures": self.loop_closures}  # fmt: skip
+
+    def _json_nodes(self) -> Iterator[dict[str, Any]]:
         poses, stamps, view_ids = self._poses.view(), self._stamps.view(), self._view_ids.view()
-        nodes = [
-            {
+        for i in range(len(self)):
+            yield {
                 "id": i,
                 "time": float(stamps[i]),
                 "pose": [float(v) for v in poses[i]],
                 "view_id": int(view_ids[i]),
             }
-            for i in range(len(self))
-        ]
+
+    def _json_links(self) -> Iterator[dict[str, Any]]:
         ends = self._link_ends.view()
         dps = self._link_dp.view()
         link_dt, link_stamp = self._link_dt.view(), self._link_stamp.view()
-        links = [
-            {
+        for k in range(self.num_links):
+            yield {
                 "from": int(ends[k, 0]),
                 "to": int(ends[k, 1]),
                 "dp": [float(v) for v in dps[k]],
@@ -1121,6 +1132,3 @@ class CognitiveMap:
                 "time": float(link_stamp[k]),
                 "kind": self._link_kind[k],
             }
-            for k in range(self.num_links)
-        ]
-        return {"nodes": nodes, "links": links, "loop_closures": self.loop_closures}
