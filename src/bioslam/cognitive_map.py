@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import heapq
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, MutableSequence, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -522,7 +522,11 @@ class CognitiveMap:
         config: CognitiveMapConfig | None = None,
         cell_size: Sequence[float] | None = None,
         dims: Sequence[int] | None = None,
+        payloads: MutableSequence[Any] | None = None,
     ) -> None:
+        """``payloads``: where each experience's payload is appended (a list when None; an
+        empty store such as :class:`bioslam.io.spill.SpilledScans` keeps the stored scans
+        out of memory)."""
         self.config = config if config is not None else CognitiveMapConfig()
         pc_default = PoseCellConfig()
         self.cell_size = tuple(cell_size) if cell_size is not None else pc_default.cell_size
@@ -531,7 +535,7 @@ class CognitiveMap:
         self._centres = GrowingArray(np.float64, 3, capacity=64)
         self._stamps: list[float] = []
         self._view_ids: list[int] = []
-        self._payloads: list[Any] = []
+        self._payloads: MutableSequence[Any] = payloads if payloads is not None else []
         self._by_view: dict[int, list[int]] = {}
         self._link_ends = GrowingArray(np.float64, 2, capacity=64)
         self._link_dp = GrowingArray(np.float64, 3, capacity=64)
@@ -570,10 +574,13 @@ class CognitiveMap:
 
     @classmethod
     def from_pose_cells(
-        cls, config: CognitiveMapConfig | None, pc_config: PoseCellConfig
+        cls,
+        config: CognitiveMapConfig | None,
+        pc_config: PoseCellConfig,
+        payloads: MutableSequence[Any] | None = None,
     ) -> CognitiveMap:
         """A map whose cell distances use the pose cell network's geometry."""
-        return cls(config, cell_size=pc_config.cell_size, dims=pc_config.dims)
+        return cls(config, cell_size=pc_config.cell_size, dims=pc_config.dims, payloads=payloads)
 
     # --- accessors -------------------------------------------------------------------------
 
@@ -602,8 +609,8 @@ class CognitiveMap:
         return view
 
     @property
-    def payloads(self) -> list[Any]:
-        """The payload stored with each experience, by id (the map's own list: do not edit)."""
+    def payloads(self) -> MutableSequence[Any]:
+        """The payload stored with each experience, by id (the map's own store: do not edit)."""
         return self._payloads
 
     def link_distance(self, a: int, b: int, within: float) -> float | None:
@@ -688,13 +695,18 @@ class CognitiveMap:
         before the first experience, when the offset is in the map frame."""
         return self._base, self._offset.copy()
 
-    def poses_of(self, experience_ids: ArrayLike, offsets: ArrayLike) -> FloatArray:
-        """Map poses ``p_e ⊕ offset`` for arrays of anchors (vectorised; id -1 = map origin)."""
+    def poses_of(
+        self, experience_ids: ArrayLike, offsets: ArrayLike,
+        experience_poses: ArrayLike | None = None,
+    ) -> FloatArray:
+        """Map poses ``p_e ⊕ offset`` for arrays of anchors (vectorised; id -1 = map origin),
+        ``p_e`` the map's experience poses or ``experience_poses`` ((N, 3), :meth:`solved`)."""
         ids = np.asarray(experience_ids, dtype=np.int64).reshape(-1)
         off = np.asarray(offsets, dtype=np.float64).reshape(-1, 3)
+        nodes = self._poses.view() if experience_poses is None else np.asarray(experience_poses)
         base = np.zeros((ids.shape[0], 3))
         known = ids >= 0
-        base[known] = self._poses.view()[ids[known]]
+        base[known] = nodes[ids[known]]
         return compose(base, off)
 
     def pose(self) -> FloatArray:
@@ -1004,6 +1016,31 @@ class CognitiveMap:
             scale[keep[loops]] = wanted
             if not changed.any():
                 break
+
+    def solved(self, dps: ArrayLike | None = None, loops: bool = True) -> FloatArray:
+        """(N, 3) the experience poses the whole map solves to (:meth:`solve`, every
+        experience free, the robust kernel started afresh) with every link's Δp replaced by
+        ``dps`` ((E, 3), e.g. the true relative poses) and, with ``loops`` False, without
+        its loop links; the map itself is left as it was. Measures how much of the
+        trajectory's error the closures' own errors cause (the closures given the truth)
+        and how much they correct (none at all)."""
+        view = self._poses.view()
+        saved = (view.copy(), self._link_dp.view().copy(), self._link_scale.view().copy(),
+                 self._link_info.view().copy())  # fmt: skip
+        try:
+            if dps is not None:
+                self._link_dp.view()[:] = np.asarray(dps, dtype=np.float64).reshape(-1, 3)
+            self._link_scale.view()[:] = 1.0
+            if not loops:
+                loop = np.array([k == "loop" for k in self._link_kind], dtype=bool)
+                self._link_info.view()[loop] = 1e-12  # a link without weight: as if absent
+            self.solve(window=None)
+            return view.copy()
+        finally:
+            view[:] = saved[0]
+            self._link_dp.view()[:] = saved[1]
+            self._link_scale.view()[:] = saved[2]
+            self._link_info.view()[:] = saved[3]
 
     # --- output ----------------------------------------------------------------------------
 
