@@ -239,3 +239,39 @@ def test_handing_free_pages_back_during_the_run_changes_nothing(monkeypatch):
     plain, trimmed = run(0), run(3)
     assert calls and len(calls) == len(scans) // 3
     np.testing.assert_array_equal(trimmed.poses, plain.poses)
+
+
+def test_the_command_starts_numpy_with_one_blas_thread_unless_told_otherwise():
+    """``bioslam`` sizes NumPy's BLAS pool before NumPy loads (importing the command must
+    not load it); a thread count the user set is kept."""
+    from bioslam.cli import BLAS_THREAD_VARIABLES, single_threaded_blas
+
+    environ = {"OMP_NUM_THREADS": "4"}
+    single_threaded_blas(environ)
+    assert environ["OMP_NUM_THREADS"] == "4"
+    assert all(environ[name] == "1" for name in BLAS_THREAD_VARIABLES if name != "OMP_NUM_THREADS")
+    if not Path("/proc/self/status").exists():
+        pytest.skip("threads are counted from /proc")
+    script = """
+import os, re, sys
+import bioslam.cli
+assert "numpy" not in sys.modules, "importing the command loaded NumPy"
+if sys.argv[1] == "command":
+    bioslam.cli.single_threaded_blas(os.environ)
+import numpy as np
+a = np.random.default_rng(0).normal(size=(600, 600))
+for _ in range(3):
+    a = a @ a / 600.0  # large enough for OpenBLAS to use its whole pool
+print(re.search(r"Threads:\\s+(\\d+)", open("/proc/self/status").read()).group(1))
+"""
+    env = {k: v for k, v in os.environ.items() if k not in BLAS_THREAD_VARIABLES}
+    env["PYTHONPATH"] = str(SRC)
+
+    def threads(mode: str) -> int:
+        out = subprocess.run([sys.executable, "-c", script, mode], capture_output=True,
+                             text=True, env=env, check=True)  # fmt: skip
+        return int(out.stdout.strip().splitlines()[-1])
+
+    assert threads("command") == 1
+    if (os.cpu_count() or 1) > 1:
+        assert threads("default") > 1  # what the command avoids

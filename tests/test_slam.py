@@ -227,6 +227,24 @@ def test_closure_window_follows_the_shortest_chain_of_links_not_the_travel_since
     assert slam._odometry_relation(5)[1] == pytest.approx(45.2)
 
 
+def test_scans_kept_on_disk_give_the_same_run(ring_drive, tmp_path):
+    """The experiences' scans read back from a file (bioslam.io.spill) are the ones kept in
+    memory: the closures, and so the trajectory, are the same to the bit."""
+    from bioslam.io.spill import SpilledScans
+
+    scans, _ = ring_drive
+    config = dataclasses.replace(SLAMConfig(), heading_bias=0.002)  # closures that matter
+    in_memory = run(scans, config)
+    store = SpilledScans(tmp_path)
+    on_disk = BioSLAM(config, scan_store=store)
+    for scan in scans:
+        on_disk.process(scan)
+    on_disk.finish()
+    assert on_disk.cognitive_map.payloads is store and store.held_bytes == 0
+    assert store.file_bytes > 0 and len(store) == len(on_disk.cognitive_map)
+    assert on_disk.summary()["loop_closures"] == in_memory.summary()["loop_closures"] >= 1
+    np.testing.assert_array_equal(on_disk.trajectory().poses, in_memory.trajectory().poses)
+
 
 def _per_scan_work(scans: list, config: SLAMConfig) -> tuple[BioSLAM, list[tuple[int, int]]]:
     """Per scan: loop-closure checks registered, map relaxations run."""

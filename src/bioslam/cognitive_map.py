@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import heapq
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, MutableSequence, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -522,7 +522,11 @@ class CognitiveMap:
         config: CognitiveMapConfig | None = None,
         cell_size: Sequence[float] | None = None,
         dims: Sequence[int] | None = None,
+        payloads: MutableSequence[Any] | None = None,
     ) -> None:
+        """``payloads``: where each experience's payload is appended (a list when None; an
+        empty store such as :class:`bioslam.io.spill.SpilledScans` keeps the stored scans
+        out of memory)."""
         self.config = config if config is not None else CognitiveMapConfig()
         pc_default = PoseCellConfig()
         self.cell_size = tuple(cell_size) if cell_size is not None else pc_default.cell_size
@@ -531,7 +535,7 @@ class CognitiveMap:
         self._centres = GrowingArray(np.float64, 3, capacity=64)
         self._stamps: list[float] = []
         self._view_ids: list[int] = []
-        self._payloads: list[Any] = []
+        self._payloads: MutableSequence[Any] = payloads if payloads is not None else []
         self._by_view: dict[int, list[int]] = {}
         self._link_ends = GrowingArray(np.float64, 2, capacity=64)
         self._link_dp = GrowingArray(np.float64, 3, capacity=64)
@@ -570,10 +574,13 @@ class CognitiveMap:
 
     @classmethod
     def from_pose_cells(
-        cls, config: CognitiveMapConfig | None, pc_config: PoseCellConfig
+        cls,
+        config: CognitiveMapConfig | None,
+        pc_config: PoseCellConfig,
+        payloads: MutableSequence[Any] | None = None,
     ) -> CognitiveMap:
         """A map whose cell distances use the pose cell network's geometry."""
-        return cls(config, cell_size=pc_config.cell_size, dims=pc_config.dims)
+        return cls(config, cell_size=pc_config.cell_size, dims=pc_config.dims, payloads=payloads)
 
     # --- accessors -------------------------------------------------------------------------
 
@@ -602,8 +609,8 @@ class CognitiveMap:
         return view
 
     @property
-    def payloads(self) -> list[Any]:
-        """The payload stored with each experience, by id (the map's own list: do not edit)."""
+    def payloads(self) -> MutableSequence[Any]:
+        """The payload stored with each experience, by id (the map's own store: do not edit)."""
         return self._payloads
 
     def link_distance(self, a: int, b: int, within: float) -> float | None:

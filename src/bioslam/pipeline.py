@@ -28,6 +28,7 @@ from bioslam.growing import GrowingArray
 from bioslam.io.jsonio import write_json
 from bioslam.io.mapfile import OccupancyImage, write_map
 from bioslam.io.outdir import OutputDir
+from bioslam.io.spill import SpilledScans
 from bioslam.io.tum import write_tum
 from bioslam.memory import release_free_memory
 from bioslam.occupancy_grid import OccupancyGrid
@@ -75,6 +76,10 @@ class RunOptions:
             system (:func:`bioslam.memory.release_free_memory`, a millisecond or so, not
             billed to a scan): the blocks a scan's work frees between longer-lived ones
             would otherwise stay resident for the rest of the run. 0: never.
+        scan_store_dir: keep the scans stored with the experiences in an unlinked temporary
+            file in this directory instead of in memory (:mod:`bioslam.io.spill`: 4 kB an
+            experience, the largest part of what a long run accumulates; the run is the same
+            either way). None: in memory.
     """
 
     odometry_only: bool = False
@@ -89,6 +94,7 @@ class RunOptions:
     warm_up: bool = True
     release: bool = False
     trim_every: int = 2000
+    scan_store_dir: Path | None = None
 
 
 class OdometryOnly:
@@ -282,7 +288,7 @@ class RunResult:
 def cognitive_map_snapshot(system: BioSLAM, elapsed: float) -> Snapshot:
     """Experience positions and links as plain arrays (for figures and JSON)."""
     cmap = system.cognitive_map
-    nodes = np.array([e.pose[:2] for e in cmap.experiences]).reshape(-1, 2)
+    nodes = cmap.experience_poses_view[:, :2].copy()
     links = [(int(link.source), int(link.target), str(link.kind)) for link in cmap.links]
     return Snapshot(elapsed, nodes, links)
 
@@ -353,7 +359,7 @@ def run_slam(
     config = config or SLAMConfig()
     options = options or RunOptions()
     system: BioSLAM | OdometryOnly = (
-        OdometryOnly(config) if options.odometry_only else BioSLAM(config)
+        OdometryOnly(config) if options.odometry_only else BioSLAM(config, _scan_store(options))
     )
     max_range = config.odometry.max_range
     keyframes = KeyframeScans(
@@ -392,6 +398,17 @@ def run_slam(
             if wanted - (result.last_stamp - result.first_stamp) <= options.snapshot_tolerance
         ]
     return result
+
+
+def _scan_store(options: RunOptions) -> SpilledScans | None:
+    """The experiences' scan store :attr:`RunOptions.scan_store_dir` asks for (None: a list
+    in memory, also when no temporary file can be made there)."""
+    if options.scan_store_dir is None:
+        return None
+    try:
+        return SpilledScans(options.scan_store_dir)
+    except OSError:
+        return None
 
 
 def _feed(

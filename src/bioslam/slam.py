@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, MutableSequence
 from dataclasses import dataclass
-from typing import overload
+from typing import Any, overload
 
 import numpy as np
 from numpy.typing import NDArray
@@ -173,14 +173,20 @@ class SelfMotion:
 class BioSLAM:
     """The LiDAR-based biologically-inspired SLAM system (Sec. III)."""
 
-    def __init__(self, config: SLAMConfig | None = None) -> None:
+    def __init__(
+        self, config: SLAMConfig | None = None, scan_store: MutableSequence[Any] | None = None
+    ) -> None:
+        """``scan_store``: an empty store for the scans kept with the experiences (a list
+        when None; :class:`bioslam.io.spill.SpilledScans` keeps them on disk)."""
         self.config = config or SLAMConfig()
         cfg = self.config
         self.self_motion = SelfMotion(cfg)
         self.boundary_cells = BoundaryCells(cfg.boundary)
         self.view_cells = ViewCells(cfg.views, cells_per_ring=cfg.boundary.cells_per_ring)
         self.pose_cells = PoseCellNetwork(cfg.pose_cells)
-        self.cognitive_map = CognitiveMap.from_pose_cells(cfg.cognitive_map, cfg.pose_cells)
+        self.cognitive_map = CognitiveMap.from_pose_cells(
+            cfg.cognitive_map, cfg.pose_cells, scan_store
+        )
         # one row per scan for the whole run, so kept as arrays (bioslam.growing)
         self._stamps = GrowingArray(np.float64)
         self._anchor_ids = GrowingArray(np.int64)

@@ -191,7 +191,8 @@ def _run(task: Task, log_path: Path, out_path: Path) -> dict[str, Any]:
     out.prepare()
     scans = source if point.max_scans is None else islice(source, point.max_scans)
     options = RunOptions(
-        odometry_only=point.mode == "odometry-only", progress=False, release=True
+        odometry_only=point.mode == "odometry-only", progress=False, release=True,
+        scan_store_dir=out.path,
     )
     result = run_slam(scans, config, options)
     if task.reference is not None:

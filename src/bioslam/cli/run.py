@@ -84,7 +84,8 @@ def run_command(args: argparse.Namespace) -> dict[str, Any]:
     out = open_output(args.out, args.overwrite, needed, getattr(args, "argv", []))
     with signals.protected():
         options = RunOptions(
-            odometry_only=args.odometry_only, progress=not args.no_progress, release=True
+            odometry_only=args.odometry_only, progress=not args.no_progress, release=True,
+            scan_store_dir=out.path,  # the experiences' scans on disk, beside the outputs
         )
         with session:
             result = run_slam(source, config, options, observer=session.observer)
