@@ -400,3 +400,23 @@ def test_densify_scan_fills_a_wall_seen_along_but_no_opening_or_depth_jump():
     assert not between_walls.any()  # nothing across the depth jump
     short_only = densify_scan(pts, 0.05, 0.3)  # straight_angle 0: gaps up to 0.3 m only
     assert wall_gaps(short_only, 3.4, 7.0).max() > 0.3
+
+
+def test_the_search_window_grows_for_a_motion_hypothesis_at_or_beyond_its_edge():
+    """A log thinned to a scan per 1.5 m steps 2 m on: the typical step forward, a motion
+    hypothesis, must lie inside the wide-basin search's window around the last pose. One
+    that the window holds with room to spare leaves it as it was (a larger window finds
+    more look-alikes)."""
+    odo = LidarOdometry(OdometryConfig())
+    c = odo.config
+    previous = np.array([1.0, 2.0, 0.5])
+    far = compose(previous, np.array([2.2, 0.0, 0.9]))  # 2.2 m on, turned 52 degrees
+    near = compose(previous, np.array([0.6, 0.1, 0.2]))
+    centre, distance, angle = odo._search_window(previous, (previous, near))
+    assert np.allclose(centre, previous) and distance == c.search_distance
+    assert angle == c.search_angle
+    centre, distance, angle = odo._search_window(previous, (previous, near, far))
+    offset = between(centre, far)
+    assert abs(offset[0]) <= distance - c.search_distance + 1e-9 and abs(offset[1]) < distance
+    assert abs(offset[2]) <= angle - c.search_angle + 1e-9
+    assert distance < c.search_distance + 1.2 and angle < c.search_angle + 0.5
