@@ -30,6 +30,8 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
   without the wide search, from each scan of ``--starts`` (a wrong step changes the map
   every later scan is matched against, so the result depends on where the run starts);
   ``--figure PNG`` draws each run's step errors.
+- ``intelsparse``: the Intel log thinned further, to a scan per 1.5 m / 45 degrees of the
+  reference's motion (steps up to 2.2 m and 70 degrees), from each scan of ``--starts``.
 - ``warehouse``: the warehouse of identical aisles, 600 s, SICK (181 beams, 10 Hz) and
   UTM-30LX, with and without the wide-basin search: ATE, and jumps (the position error
   changing by more than 0.3 m between consecutive scans).
@@ -497,6 +499,11 @@ def main() -> None:
             for start in starts
             for label, config in (("", None), (", no search", NO_SEARCH))
             if start == starts[0] or config is None
+        ],
+        "intelsparse": lambda: [
+            log_case("intel thinned to 1.5 m / 45 deg" + (f" from scan {start}" if start else ""),
+                     "intel-corrected.log.gz", False, None, thinned(1.5, math.pi / 4), start)
+            for start in starts
         ],
         "warehouse": lambda: [
             sim_case(f"warehouse {lidar}{label}", LIDAR_PRESETS[lidar], duration, config,

@@ -557,6 +557,21 @@ class LidarOdometry:
         self._last_delta = between(previous, self.pose)
         return self._last_delta.copy()
 
+    def steps_to_insert(self, step: ArrayLike) -> float:
+        """How many more steps like ``step`` (the last one, in the robot's frame) until the
+        pose is ``insert_distance`` / ``insert_angle`` from the last scan fused into the map
+        and the next is fused: 0 when one is due now, inf when the step does not move."""
+        if self._last_inserted is None:
+            return 0.0
+        c = self.config
+        d = between(self._last_inserted, self.pose)
+        left = (c.insert_distance - math.hypot(d[0], d[1]), c.insert_angle - abs(d[2]))
+        if min(left) <= 0.0:
+            return 0.0
+        s = np.asarray(step, dtype=np.float64).reshape(3)
+        rates = (math.hypot(s[0], s[1]), abs(s[2]))
+        return min((lo / r for lo, r in zip(left, rates, strict=True) if r > 0.0), default=math.inf)
+
     def summary(self) -> dict[str, int]:
         """Counts over the run: scans, matches recovered by a search, scans with an
         unconstrained direction, scans with too few points (prediction only), scans whose
@@ -600,7 +615,7 @@ class LidarOdometry:
                 motion += tuple(compose(previous, m) for m in modes)
             # the next level's endpoints (twice as far apart) on the search level's grid
             points = level_pts[min(c.search_level + 1, c.levels - 1)]
-            centre, distance, angle = self._search_window(start, previous)
+            centre, distance, angle = self._search_window(start, (previous, *motion[1:]))
             seeds = self._search_seeds(points, centre, distance, angle, options[0][0])
             seeds += self._distinct_hypotheses(motion)
             options += [self._option(level_pts, seed, normals) for seed in seeds]
@@ -671,10 +686,12 @@ class LidarOdometry:
         recent ones (the step prior's density below ``implausible_density``)."""
         if option[2] or self._rejected(option[1]):
             return True
-        if not self._sparse():
-            return False
-        cost = self._step_prior.cost(between(previous, option[0]))
-        return cost > -math.log(self.config.implausible_density)
+        return self._sparse() and self._implausible(between(previous, option[0]))
+
+    def _implausible(self, step: FloatArray) -> bool:
+        """The step prior's density of ``step`` is below ``implausible_density``: a step
+        unlike the recent ones."""
+        return self._step_prior.cost(step) > -math.log(self.config.implausible_density)
 
     def _choose_sparse(
         self, options: list[tuple[FloatArray, MatchReport, bool]],
@@ -740,15 +757,26 @@ class LidarOdometry:
         return failed or dt > c.gap_time or large
 
     def _search_window(
-        self, start: FloatArray, previous: FloatArray
+        self, start: FloatArray, hold: tuple[FloatArray, ...]
     ) -> tuple[FloatArray, float, float]:
         """Centre and half-widths (metres, radians) of a window around ``start`` grown to
-        hold ``previous`` too."""
+        hold the last pose (the first of ``hold``), and grown again for any other pose of
+        ``hold`` (the motion hypotheses) outside it or in the outer fifth of its width: a
+        log thinned to a scan per 1.5 m steps 2 m on, beyond a window around the last
+        pose, and the typical step forward is then inside. (Grown for every hypothesis,
+        the larger windows found look-alikes on logs whose steps they already held:
+        intel from scan 7, RPE over 1 m 4.3 -> 5.9 cm.)"""
         c = self.config
-        half = 0.5 * between(start, previous)
-        centre = compose(start, half)
-        return centre, c.search_distance + max(abs(half[0]), abs(half[1])), (
-            c.search_angle + abs(half[2])
+        steps = np.array([np.zeros(3), between(start, hold[0])])
+        low, high = steps.min(axis=0), steps.max(axis=0)
+        spare = 0.8 * np.array([c.search_distance, c.search_distance, c.search_angle])
+        for h in hold[1:]:
+            d = between(start, h)
+            if np.any(d < low - spare) or np.any(d > high + spare):
+                low, high = np.minimum(low, d), np.maximum(high, d)
+        mid, half = 0.5 * (low + high), 0.5 * (high - low)
+        return compose(start, mid), c.search_distance + max(half[0], half[1]), (
+            c.search_angle + half[2]
         )
 
     def _search_seeds(
