@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from loop_world import ring_route, ring_world
 
-from bioslam.config import SLAMConfig, config_from_dict
+from bioslam.config import LoopClosureConfig, SLAMConfig, config_from_dict
 from bioslam.evaluation import ate
 from bioslam.geometry import between
 from bioslam.sim import LIDAR_PRESETS, simulate_scans
@@ -284,3 +284,52 @@ def test_the_map_relaxes_after_a_closure_on_the_next_scan_to_the_same_trajectory
     assert any(checks and relaxes for checks, relaxes in together)
     assert at_once.summary()["loop_closures"] == slam.summary()["loop_closures"]
     np.testing.assert_allclose(at_once.trajectory().poses, slam.trajectory().poses, atol=1e-9)
+
+
+def _sliding(slam: BioSLAM, at: int, slide: float) -> None:
+    """Make the odometry of ``slam`` slide ``slide`` metres forward at its ``at``-th scan
+    while tracking (no search, nothing flagged): a step no robot can make, but no break."""
+    odometry = slam.self_motion.odometry
+    update = odometry.update
+
+    def sliding_update(scan):
+        dp = np.array(update(scan), dtype=np.float64)
+        if odometry.num_scans == at:
+            dp[0] += slide
+        return dp
+
+    odometry.update = sliding_update
+
+
+def test_a_slide_the_odometry_tracked_weakens_its_map_link_so_closures_correct_it(ring_drive):
+    scans, gt = ring_drive
+    at = len(scans) // 4
+
+    def ate_of(weigh: bool) -> tuple[float, BioSLAM]:
+        slam = BioSLAM(SLAMConfig(loop_closure=LoopClosureConfig(weigh_jumps=weigh)))
+        _sliding(slam, at, 0.2)
+        for scan in scans:
+            slam.process(scan)
+        slam.finish()
+        return ate(slam.trajectory(), gt)["rmse"], slam
+
+    weighed, slam = ate_of(True)
+    assert slam.self_motion.breaks == 0  # tracked: no break for the closures' checks
+    assert slam.self_motion.jump_extent[0] >= 0.2
+    spread, plain = ate_of(False)
+    assert not plain.self_motion.jump_extent.any()
+    assert weighed < 0.7 * spread
+
+
+def test_a_jump_departs_from_the_last_step_whatever_the_stamps_say():
+    from bioslam.closure import jumped
+
+    cfg = LoopClosureConfig()
+    last = np.array([0.1, 0.0, 0.0])  # 0.1 m in 0.2 s, steadily
+    # stamps that jitter: the last step took 0.07 s by its stamps, this one 0.24 s, and
+    # the robot moved as steadily as before (the expectation scaled by time overshoots)
+    assert not jumped(np.array([0.1, 0.0, 0.0]), last, last * 0.24 / 0.07, 0.24, cfg)
+    # a slide 20 cm back within one scan of a steady motion
+    assert jumped(np.array([-0.1, 0.0, 0.0]), last, last, 0.2, cfg)
+    # a turn no robot makes in 0.1 s (40 deg)
+    assert jumped(np.array([0.1, 0.0, np.radians(40.0)]), last, last, 0.1, cfg)

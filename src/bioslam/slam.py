@@ -27,6 +27,7 @@ from bioslam.closure import (
     SubmapCache,
     Verdict,
     break_extent,
+    jumped,
     nearest_experience,
     odometry_broke,
     odometry_doubted,
@@ -136,6 +137,10 @@ class SelfMotion:
         #: the summed (m, rad) by which those breaks may have put the robot off
         #: (:func:`bioslam.closure.break_extent`)
         self.break_extent = np.zeros(2)
+        #: the same summed over the breaks and every other step no robot can make
+        #: (:func:`bioslam.closure.jumped`: a slide, and the return to the robot's motion
+        #: after it): how far the odometry may be off along each of the map's links
+        self.jump_extent = np.zeros(2)
 
     def step(self, scan: LaserScan) -> FloatArray:
         """The motion since the previous scan, in the previous robot frame."""
@@ -150,7 +155,13 @@ class SelfMotion:
                     report, dp, expected, dt, self.closure, self.odometry.config.max_speed
                 ):
                     self.breaks += 1
-                    self.break_extent += break_extent(dp, expected, dt, self.closure)
+                    extent = break_extent(dp, expected, dt, self.closure)
+                    self.break_extent += extent
+                    self.jump_extent += extent
+                elif self.closure.weigh_jumps and jumped(
+                    dp, self._last_step, expected, dt, self.closure
+                ):
+                    self.jump_extent += break_extent(dp, expected, dt, self.closure)
             self._last_step, self._last_dt = dp.copy(), dt
             if self.heading_bias:
                 dp[2] += self.heading_bias * dt
@@ -269,9 +280,10 @@ class BioSLAM:
         self.pose_cells.path_integrate(dp)
         self.pose_cells.inject_view(match.view_id, match.activity, match.is_new)
         self.pose_cells.step()
-        # the breaks of the odometry since the last look weaken the link that carries them
-        broken = self.self_motion.break_extent - self._extent_at_look
-        self._extent_at_look = self.self_motion.break_extent.copy()
+        # the breaks and jumps of the odometry since the last look weaken the link that
+        # carries them
+        broken = self.self_motion.jump_extent - self._extent_at_look
+        self._extent_at_look = self.self_motion.jump_extent.copy()
         self.cognitive_map.integrate_odometry(dp, scan.stamp, broken)
         self._stamp = scan.stamp
         self._proposed = self._nearby(self.cognitive_map.pose(), self._travelled)
