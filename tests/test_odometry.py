@@ -402,6 +402,28 @@ def test_densify_scan_fills_a_wall_seen_along_but_no_opening_or_depth_jump():
     assert wall_gaps(short_only, 3.4, 7.0).max() > 0.3
 
 
+def test_steps_to_insert_counts_steps_until_the_next_scan_is_fused():
+    odo = LidarOdometry()
+    c = odo.config
+    assert odo.steps_to_insert(np.array([0.05, 0.0, 0.0])) == 0.0  # nothing fused yet
+    odo.update(make_scan(ROOM, np.array([-1.0, 0.0, 0.0]), stamp=0.0))
+    assert odo.last_report.inserted
+    forward = 0.25 * c.insert_distance
+    assert odo.steps_to_insert(np.array([forward, 0.0, 0.0])) == pytest.approx(4.0)
+    # a turn reaches the angle first when it is the faster of the two
+    turn = np.array([0.01 * c.insert_distance, 0.0, 0.5 * c.insert_angle])
+    assert odo.steps_to_insert(turn) == pytest.approx(2.0)
+    assert odo.steps_to_insert(np.zeros(3)) == np.inf
+    # part of the way on: what is left of the distance from the fused scan, in steps
+    fused = odo.pose.copy()
+    odo.update(make_scan(ROOM, np.array([-1.0 + forward, 0.0, 0.0]), stamp=0.1))
+    assert not odo.last_report.inserted
+    moved = float(np.hypot(*(odo.pose - fused)[:2]))
+    assert 0.0 < moved < c.insert_distance
+    left = (c.insert_distance - moved) / forward
+    assert odo.steps_to_insert(np.array([forward, 0.0, 0.0])) == pytest.approx(left)
+
+
 def test_the_search_window_grows_for_a_motion_hypothesis_at_or_beyond_its_edge():
     """A log thinned to a scan per 1.5 m steps 2 m on: the typical step forward, a motion
     hypothesis, must lie inside the wide-basin search's window around the last pose. One

@@ -576,6 +576,21 @@ class LidarOdometry:
         self._last_delta = between(previous, self.pose)
         return self._last_delta.copy()
 
+    def steps_to_insert(self, step: ArrayLike) -> float:
+        """How many more steps like ``step`` (the last one, in the robot's frame) until the
+        pose is ``insert_distance`` / ``insert_angle`` from the last scan fused into the map
+        and the next is fused: 0 when one is due now, inf when the step does not move."""
+        if self._last_inserted is None:
+            return 0.0
+        c = self.config
+        d = between(self._last_inserted, self.pose)
+        left = (c.insert_distance - math.hypot(d[0], d[1]), c.insert_angle - abs(d[2]))
+        if min(left) <= 0.0:
+            return 0.0
+        s = np.asarray(step, dtype=np.float64).reshape(3)
+        rates = (math.hypot(s[0], s[1]), abs(s[2]))
+        return min((lo / r for lo, r in zip(left, rates, strict=True) if r > 0.0), default=math.inf)
+
     def summary(self) -> dict[str, int]:
         """Counts over the run: scans, matches recovered by a search, scans with an
         unconstrained direction, scans with too few points (prediction only), scans whose
