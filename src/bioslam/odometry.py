@@ -250,6 +250,16 @@ class OdometryConfig:
             thinned to a scan per metre went from RPE 1 m 72 / 131 cm to 32 / 84 cm (seeds
             0 / 1, lost at its corners either way) and intel from ten starts kept its median
             (6.1 cm), but freiburg-079 thinned to 1 m went from 4.2 to 5.2 cm.
+        first_straight_angle: ``straight_angle`` for the first scan of a thinned log, when
+            it gets its densified points (:meth:`LidarOdometry._densify_first`): the map is
+            then that one scan, and the next scan's 1° beams, placed back where it was taken,
+            land on its beam pattern exactly along a corridor's walls, so that standing
+            still outscored the true step a metre on (a corridor with doors, a scan per
+            metre: five steps stood still, RPE over 1 m 84 cm; 0.9 cm with its walls filled
+            as lines and, while every scan so far came after a gap, the best match kept as
+            on sparse scans, :meth:`LidarOdometry._choose_sparse`). Later scans keep
+            ``straight_angle``: the first few filled so too cost intel thinned to 1.5 m
+            from its first scan 34 -> 101 cm.
         break_score_ratio, break_turn, break_margin: on sparse scans the odometry reports a
             step as a break (``MatchReport.broken``, a break of its chain of relative poses
             for loop closure, :func:`bioslam.closure.odometry_broke`) when the match kept
@@ -343,6 +353,7 @@ class OdometryConfig:
     step_modes: int = 4
     implausible_density: float = 0.1
     straight_angle: float = 0.0
+    first_straight_angle: float = 0.05
     break_score_ratio: float = 0.4
     break_turn: float = math.radians(25.0)
     break_margin: float = 0.1
@@ -512,13 +523,15 @@ class LidarOdometry:
     def _densify_first(self, dt: float) -> None:
         """The second scan came after a gap (``gap_time``, a thinned log's seconds): the
         first scan, fused before anything told that the scans are sparse, gets the points
-        densifying would have added (:func:`densify_scan`)."""
+        densifying would have added (:func:`densify_scan`, with ``first_straight_angle``)."""
         pose, pts = self._first_fused
         self._first_fused = None
         if dt <= self.config.gap_time:
             return
         c = self.config
-        dense, added = densify_with_mask(pts, c.resolution, NORMAL_MAX_GAP, c.straight_angle)
+        dense, added = densify_with_mask(
+            pts, c.resolution, NORMAL_MAX_GAP, c.first_straight_angle
+        )
         if added.any():
             self._fuse(pose, dense[added], thinned_normals(dense)[added])
 
@@ -615,7 +628,9 @@ class LidarOdometry:
         the last step repeated, the typical step straight on: after a turn on the spot in
         a log thinned to a scan per metre the first two say "turning", the last "a metre
         on"; on sparse scans also the step prior's typical steps), keeping the plausible
-        match nearest ``start`` (:meth:`_choose`). When
+        match nearest ``start`` (:meth:`_choose`), or on sparse scans and while every scan
+        so far came after a gap (:meth:`_sparse_so_far`: standing still is then no motion
+        prior) the best one (:meth:`_choose_sparse`). When
         every match so found sees through walls, the search is repeated for a turn of about
         ``2 * search_angle`` either way from ``previous`` (thinned logs turn up to 80°
         between scans)."""
@@ -650,7 +665,7 @@ class LidarOdometry:
                 self._weigh_walls(options[weighed:], level_pts[0])
         jump = self._jump_limits()
         reach = (jump[0] + c.max_speed * dt, jump[1] + c.max_turn_rate * dt)
-        if self._sparse() and len(options) > 1:
+        if (self._sparse() or self._sparse_so_far()) and len(options) > 1:
             pose, report = self._choose_sparse(options, previous, reach)
         else:
             pose, report = self._choose(options, motion, previous, reach, jump)
