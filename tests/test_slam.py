@@ -162,6 +162,8 @@ def test_odometry_break_is_a_jump_between_scans_not_a_search_after_a_gap():
     assert odometry_broke(MatchReport(ambiguous=True), jumped, walking, 0.1, cfg)
     # ... but after 2 s without a scan the robot may have gone there (freiburg-079)
     assert not odometry_broke(recovered, jumped, walking * 20, 2.0, cfg)
+    # unless the odometry says it cannot vouch for the match (a thinned log's map turned)
+    assert odometry_broke(MatchReport(recovered=True, broken=True), jumped, walking * 20, 2.0, cfg)
     # the search confirming the motion is no break, nor is the match from the motion model
     assert not odometry_broke(recovered, walking + np.array([0.02, 0.0, 0.0]), walking, 0.1, cfg)
     assert not odometry_broke(MatchReport(), jumped, walking, 0.1, cfg)
@@ -282,6 +284,45 @@ def test_the_map_relaxes_after_a_closure_on_the_next_scan_to_the_same_trajectory
     assert any(checks and relaxes for checks, relaxes in together)
     assert at_once.summary()["loop_closures"] == slam.summary()["loop_closures"]
     np.testing.assert_allclose(at_once.trajectory().poses, slam.trajectory().poses, atol=1e-9)
+
+
+def _looks_and_fused(scans: list, config: SLAMConfig) -> tuple[BioSLAM, np.ndarray]:
+    """Per scan: whether the system looked, and whether the odometry fused the scan."""
+    slam = BioSLAM(config)
+    rows = []
+    for scan in scans:
+        looks = len(slam.records)
+        slam.process(scan)
+        rows.append((len(slam.records) > looks, slam.odometry.last_report.inserted))
+    slam.finish()
+    return slam, np.array(rows)
+
+
+def test_a_slow_scanners_looks_wait_for_the_scans_the_odometry_fuses(ring_drive):
+    # The URG-04LX at 10 Hz and 0.4 m/s moves 4 cm a scan: a look is due by distance after
+    # two scans and held by the scan count to the third, so it may wait for a fused scan.
+    scans, gt = ring_drive
+    config = dataclasses.replace(SLAMConfig(), heading_bias=0.002)
+    slam, rows = _looks_and_fused(scans, config)
+    _, at_once = _looks_and_fused(scans, dataclasses.replace(config, view_wait=0))
+    aligned, aligned_at_once = (np.mean(r[r[:, 0], 1]) for r in (rows, at_once))
+    assert aligned > 1.5 * aligned_at_once
+    # a few looks fewer: each waits two scans at most
+    assert rows[:, 0].sum() > 0.8 * at_once[:, 0].sum()
+    assert np.diff(np.flatnonzero(rows[:, 0])).max() <= config.view_min_scans + config.view_wait
+    assert slam.summary()["loop_closures"] >= 1
+    assert ate(slam.trajectory(), gt)["rmse"] < 0.5 * ate(slam.odometry_trajectory(), gt)["rmse"]
+
+
+def test_a_fast_scanners_looks_do_not_wait():
+    # At 40 Hz the robot moves 1 cm a scan: the distance, not the scan count, sets when a
+    # look is due, and the looks are those of a system that never waits.
+    route = ring_route(laps=0.6)
+    scans = [scan for scan, _ in simulate_scans(ring_world(), LIDAR_PRESETS["utm30lx"], route, 4)]
+    waits, _ = _looks_and_fused(scans, SLAMConfig())
+    never, _ = _looks_and_fused(scans, dataclasses.replace(SLAMConfig(), view_wait=0))
+    assert len(waits.records) > 100
+    np.testing.assert_array_equal(waits.records.stamps.array(), never.records.stamps.array())
 
 
 def _sliding(slam: BioSLAM, at: int, slide: float) -> None:

@@ -87,9 +87,10 @@ def odometry_broke(
     none 0.6 m from the motion after gaps of up to 2.3 s). Between consecutive scans of the
     simulated maze the odometry jumped 0.5 m along corridors (SICK) and 1.9 m (URG-04LX),
     and closures then confirmed the jump. A step along a direction the scan does not
-    constrain (``report.degenerate``) faster than ``max_speed`` (m/s) is a break too."""
-    if report.predicted_only:
-        return True
+    constrain (``report.degenerate``) faster than ``max_speed`` (m/s) is a break too, and
+    so is a step the odometry reports it cannot vouch for (``report.broken``)."""
+    if report.predicted_only or report.broken:
+        return True  # no match, or one the odometry itself cannot vouch for
     if report.degenerate and math.hypot(step[0], step[1]) > max_speed * dt:
         # blind along a corridor, the odometry ran faster than the robot can move (URG-04LX
         # maze: 2.9 m/s backwards while the robot drove on at 0.5 m/s)
@@ -313,10 +314,12 @@ class SubmapCache:
     fused along the old bend would not fit the new one). At most ``max_bytes`` are kept
     (each submap's registration pyramid is a few megabytes: 2.3 MB on the simulated maze),
     the most recently used first; a submap rebuilt is the same, so the limits change only
-    the time."""
+    the time. The reuse is of the last few (checks a fraction of a submap step apart at one
+    place): 8 MB gave the same hits as 24 MB (86 of 392 checks on the 600 s simulated maze,
+    68 of 360 on freiburg-079; 67 with 6 MB)."""
 
     def __init__(
-        self, size: int = 32, tolerance: float = 0.01, max_bytes: int = 24 * 2**20
+        self, size: int = 32, tolerance: float = 0.01, max_bytes: int = 8 * 2**20
     ) -> None:
         self.size = size
         self.tolerance = tolerance

@@ -224,6 +224,8 @@ class BioSLAM:
         self._last_forced = -np.inf
         # a relaxation after a closure, left for the next scan (``SLAMConfig.defer_relaxation``)
         self._relax_due = False
+        self._scans_waited = 0
+        self._far_before = False
         self._released: dict[str, int] | None = None
 
     # --- the per-scan update ---------------------------------------------------------------
@@ -236,26 +238,33 @@ class BioSLAM:
         if self._relax_due:
             self._relax_due = False
             self.cognitive_map.relax()
-        if self._due():
+        if self._due(dp):
             self._perceive(scan, self._pending)
             self._pending = np.zeros(3)
-            self._scans_since_look = 0
+            self._scans_since_look = self._scans_waited = 0
         self._record(scan.stamp)
         return Pose2D(*compose(self.cognitive_map.pose(), self._pending))
 
-    def _due(self) -> bool:
+    def _due(self, step: FloatArray) -> bool:
         """Whether to look again: the robot has moved or turned enough since the last look
         (and ``view_min_scans`` scans have passed), or the map puts it near an old
         experience while a registration is due (so that the path-integration cue is checked
         as often as registrations are allowed, however sparse the looks). Between two looks
         only the odometry runs; its motion reaches the pose cells and the map at the next
-        look (path integration takes steps of any size)."""
+        look (path integration takes steps of any size). A look that the scan count held
+        back (the robot moved far enough scans ago: a slow scanner) waits up to
+        ``view_wait`` scans more for one the odometry fuses into its map (:meth:`_waits`)."""
         cfg = self.config
         if len(self.cognitive_map) == 0:
             return True
         moved = float(np.hypot(self._pending[0], self._pending[1]))
         far = moved >= cfg.view_distance or abs(self._pending[2]) >= cfg.view_angle
+        # far already at the scan before: the scan count, not the motion, held the look
+        held, self._far_before = self._far_before, far
         if far and self._scans_since_look >= cfg.view_min_scans:
+            if held and self._waits(step):
+                return False
+            self._far_before = False
             return True
         if self._travelled + moved - self._last_forced < cfg.loop_closure.registration_interval:
             return False  # a candidate forces one look per registration interval at most
@@ -263,6 +272,19 @@ class BioSLAM:
         if self._nearby(here, self._travelled + moved) is None:
             return False
         self._last_forced = self._travelled + moved
+        return True
+
+    def _waits(self, step: FloatArray) -> bool:
+        """Whether a look due now waits for the scan the odometry fuses into its map next,
+        which steps like ``step`` reach within the scans the look may still wait
+        (``view_wait``). A fused scan costs the odometry about twice a matched one; a look
+        on another scan made a third slow scan of every three with a 10 Hz scanner."""
+        odometry = self.self_motion.odometry
+        if odometry.last_report.inserted or self._scans_waited >= self.config.view_wait:
+            return False
+        if odometry.steps_to_insert(step) > self.config.view_wait - self._scans_waited:
+            return False
+        self._scans_waited += 1
         return True
 
     def _perceive(self, scan: LaserScan, dp: FloatArray) -> None:
