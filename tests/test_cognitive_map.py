@@ -615,3 +615,44 @@ def test_biased_closures_still_beat_a_drifting_odometry():
     assert odometry > 0.15
     assert corrected < 0.3 * odometry
     assert corrected < best + 0.03
+
+
+def test_adjacency_lists_each_nodes_links_in_order_and_link_distance_is_shortest():
+    """The map's links kept in flat arrays give each node's links as a list of them would,
+    and the chain lengths are Dijkstra's over the same graph."""
+    import heapq
+
+    from bioslam.cognitive_map import Adjacency
+
+    rng = np.random.default_rng(5)
+    nodes = 60
+    adjacency, reference = Adjacency(), {n: [] for n in range(nodes + 5)}
+    edges = [(int(a), int(b), float(rng.uniform(0.1, 3.0)))
+             for a, b in rng.integers(0, nodes, size=(150, 2))]  # fmt: skip
+    for a, b, length in edges:  # repeated pairs and self-links included
+        adjacency.add(a, b, length)
+        reference[a].append((b, length))
+        reference[b].append((a, length))
+    for node in range(-1, nodes + 5):
+        assert list(adjacency.of(node)) == reference.get(node, [])
+
+    def shortest(a: int, b: int) -> float:
+        best, queue = {a: 0.0}, [(0.0, a)]
+        while queue:
+            dist, node = heapq.heappop(queue)
+            for other, length in reference[node]:
+                if dist + length < best.get(other, np.inf):
+                    best[other] = dist + length
+                    heapq.heappush(queue, (dist + length, other))
+        return best.get(b, np.inf)
+
+    cmap = CognitiveMap()
+    cmap._neighbours = adjacency
+    for a, b in rng.integers(0, nodes, size=(40, 2)):
+        true = shortest(int(a), int(b))
+        for within in (true, true * 0.999, 5.0):
+            got = cmap.link_distance(int(a), int(b), within)
+            if true <= within:
+                assert got == pytest.approx(true, abs=1e-12)
+            else:
+                assert got is None

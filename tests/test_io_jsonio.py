@@ -68,3 +68,44 @@ def test_atomic_writes_get_ordinary_permissions(tmp_path):
     finally:
         os.umask(mask)
     assert stat.S_IMODE(path.stat().st_mode) == 0o644
+
+
+@pytest.mark.parametrize("indent", [2, 4])
+def test_streamed_json_is_write_jsons_bytes_with_arrays_encoded_as_they_come(tmp_path, indent):
+    import numpy as np
+
+    from bioslam.io.jsonio import write_json, write_json_streamed
+
+    def items(n):
+        for k in range(n):
+            yield {"id": k, "pose": np.array([k * 0.1, -k, np.nan]), "nested": {"a": [k, []]},
+                   "kind": "loop\n\u00e9"}  # fmt: skip
+
+    cases = [
+        {"nodes": items(3), "links": items(0), "count": 7, "meta": {"x": [1, {"y": None}]}},
+        {"only": items(1)},
+        {"plain": 1.5, "empty": [], "text": "a\"b"},
+        {},
+    ]
+    for n, fields in enumerate(cases):
+        plain = {k: list(v) if hasattr(v, "__next__") else v for k, v in fields.items()}
+        fields = {k: items(len(v)) if hasattr(v, "__next__") else v for k, v in plain.items()}
+        expected = write_json(tmp_path / f"a{n}.json", plain, indent=indent).read_bytes()
+        got = write_json_streamed(tmp_path / f"b{n}.json", fields, indent=indent).read_bytes()
+        assert got == expected, n
+
+
+def test_the_cognitive_maps_streamed_json_is_its_dict(tmp_path):
+    import json
+
+    from bioslam.cognitive_map import CognitiveMap
+    from bioslam.io.jsonio import write_json_streamed
+
+    cmap = CognitiveMap()
+    for k in range(6):  # a square driven past its start: links, and a loop
+        cmap.integrate_odometry((1.0, 0.0, 1.5707963), stamp=float(k))
+        cmap.update(k % 4, k < 4, (1.0, 1.0, 0.0), float(k))
+    whole = cmap.to_dict()
+    assert len(whole["nodes"]) >= 4 and len(whole["links"]) >= 4
+    path = write_json_streamed(tmp_path / "map.json", cmap.json_fields())
+    assert json.loads(path.read_text()) == whole

@@ -313,10 +313,12 @@ class SubmapCache:
     fused along the old bend would not fit the new one). At most ``max_bytes`` are kept
     (each submap's registration pyramid is a few megabytes: 2.3 MB on the simulated maze),
     the most recently used first; a submap rebuilt is the same, so the limits change only
-    the time."""
+    the time. The reuse is of the last few (checks a fraction of a submap step apart at one
+    place): 8 MB gave the same hits as 24 MB (86 of 392 checks on the 600 s simulated maze,
+    68 of 360 on freiburg-079; 67 with 6 MB)."""
 
     def __init__(
-        self, size: int = 32, tolerance: float = 0.01, max_bytes: int = 24 * 2**20
+        self, size: int = 32, tolerance: float = 0.01, max_bytes: int = 8 * 2**20
     ) -> None:
         self.size = size
         self.tolerance = tolerance

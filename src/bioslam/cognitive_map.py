@@ -52,7 +52,8 @@ from __future__ import annotations
 
 import heapq
 import math
-from collections.abc import Callable, MutableSequence, Sequence
+from array import array
+from collections.abc import Callable, Iterator, MutableSequence, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -514,6 +515,55 @@ def relaxation_correction(
     return a * out
 
 
+def _pair_key(source: int, target: int) -> int:
+    """One integer for an ordered pair of experience ids (a set of them takes a third of
+    the memory of a set of tuples)."""
+    return (int(source) << 32) | int(target)
+
+
+class Adjacency:
+    """The links at each experience, both directions, with their lengths: for the
+    shortest chains of :meth:`CognitiveMap.link_distance`. Kept as linked lists in flat
+    arrays (each node's first and last link end, each end's next), 48 bytes a link, instead
+    of a list of tuples per node (about 330); a node's links come in the order they were
+    added."""
+
+    def __init__(self) -> None:
+        self._first = array("q")
+        self._last = array("q")
+        self._next = array("q")
+        self._other = array("q")
+        self._length = array("d")
+
+    def add(self, a: int, b: int, length: float) -> None:
+        """A link of ``length`` between nodes ``a`` and ``b`` (either direction)."""
+        grow = max(a, b) + 1 - len(self._first)
+        if grow > 0:
+            self._first.extend([-1] * grow)
+            self._last.extend([-1] * grow)
+        self._end(a, b, length)
+        self._end(b, a, length)
+
+    def _end(self, node: int, other: int, length: float) -> None:
+        end = len(self._other)
+        self._other.append(other)
+        self._length.append(length)
+        self._next.append(-1)
+        if self._first[node] < 0:
+            self._first[node] = end
+        else:
+            self._next[self._last[node]] = end
+        self._last[node] = end
+
+    def of(self, node: int) -> Iterator[tuple[int, float]]:
+        """``(other node, length)`` of each link at ``node``, oldest first."""
+        end = self._first[node] if 0 <= node < len(self._first) else -1
+        other, length, following = self._other, self._length, self._next
+        while end >= 0:
+            yield other[end], length[end]
+            end = following[end]
+
+
 class CognitiveMap:
     """The topological-metric map of experiences (Eq. 12-14)."""
 
@@ -533,14 +583,16 @@ class CognitiveMap:
         self.dims: tuple[int, int, int] = tuple(int(d) for d in (dims or pc_default.dims))  # type: ignore[assignment]
         self._poses = GrowingArray(np.float64, 3, capacity=64)
         self._centres = GrowingArray(np.float64, 3, capacity=64)
-        self._stamps: list[float] = []
-        self._view_ids: list[int] = []
+        # per experience and per link for the whole run (about 30,000 of each an hour at
+        # 40 Hz), so in arrays: 8 bytes a value rather than a Python object's 30-100
+        self._stamps = GrowingArray(np.float64, capacity=64)
+        self._view_ids = GrowingArray(np.int64, capacity=64)
         self._payloads: MutableSequence[Any] = payloads if payloads is not None else []
-        self._by_view: dict[int, list[int]] = {}
+        self._by_view: dict[int, array[int]] = {}
         self._link_ends = GrowingArray(np.float64, 2, capacity=64)
         self._link_dp = GrowingArray(np.float64, 3, capacity=64)
-        self._link_dt: list[float] = []
-        self._link_stamp: list[float] = []
+        self._link_dt = GrowingArray(np.float64, capacity=64)
+        self._link_stamp = GrowingArray(np.float64, capacity=64)
         self._link_kind: list[LinkKind] = []
         # Eq. 14's weights: each link's (position, heading) information, and the robust
         # kernel's factor on it (loop links; 1 = fully trusted)
@@ -549,9 +601,10 @@ class CognitiveMap:
         # each link's position information shape in its source's frame (ISOTROPIC, or a
         # registration's: registration_shape)
         self._link_shape = GrowingArray(np.float64, 3, capacity=64)
-        self._linked: set[tuple[int, int]] = set()
+        # (source, target) of every link, as one integer each (:func:`_pair_key`)
+        self._linked: set[int] = set()
         # undirected, with each link's length: for the odometry distance between two places
-        self._neighbours: dict[int, list[tuple[int, float]]] = {}
+        self._neighbours = Adjacency()
         # the recognised place (topology) and the experience the robot's pose is composed from
         # (``_base ⊕ _offset``): the same, except after a measured loop closure, when the
         # robot is at the recognised place while its pose still hangs off its own chain
@@ -626,7 +679,7 @@ class CognitiveMap:
                 return dist
             if dist > best.get(node, math.inf):
                 continue
-            for other, length in self._neighbours.get(node, ()):
+            for other, length in self._neighbours.of(node):
                 reached = dist + length
                 if reached <= within and reached < best.get(other, math.inf):
                     best[other] = reached
@@ -637,9 +690,9 @@ class CognitiveMap:
         """A snapshot of experience ``eid``."""
         return Experience(
             id=eid,
-            stamp=self._stamps[eid],
+            stamp=float(self._stamps[eid]),
             pose=self._poses.view()[eid].copy(),
-            view_id=self._view_ids[eid],
+            view_id=int(self._view_ids[eid]),
             pc_centre=self._centres.view()[eid].copy(),
             payload=self._payloads[eid],
         )
@@ -655,8 +708,8 @@ class CognitiveMap:
             source=int(s),
             target=int(t),
             dp=self._link_dp.view()[index].copy(),
-            dt=self._link_dt[index],
-            stamp=self._link_stamp[index],
+            dt=float(self._link_dt[index]),
+            stamp=float(self._link_stamp[index]),
             kind=self._link_kind[index],
         )
 
@@ -666,7 +719,7 @@ class CognitiveMap:
         return [self.link(i) for i in range(self.num_links)]
 
     def experiences_of_view(self, view_id: int) -> list[int]:
-        return list(self._by_view.get(int(view_id), []))
+        return list(self._by_view.get(int(view_id), ()))
 
     # --- odometry and poses ----------------------------------------------------------------
 
@@ -782,7 +835,7 @@ class CognitiveMap:
         self._stamps.append(stamp)
         self._view_ids.append(vid)
         self._payloads.append(payload)
-        self._by_view.setdefault(vid, []).append(eid)
+        self._by_view.setdefault(vid, array("q")).append(eid)
         return eid
 
     def _add_link(
@@ -808,10 +861,9 @@ class CognitiveMap:
         self._link_info.append(link.info)
         self._link_scale.append(1.0)
         self._link_shape.append(link.shape)
-        self._linked.add((link.source, link.target))
+        self._linked.add(_pair_key(link.source, link.target))
         length = math.hypot(float(link.dp[0]), float(link.dp[1]))
-        self._neighbours.setdefault(link.source, []).append((link.target, length))
-        self._neighbours.setdefault(link.target, []).append((link.source, length))
+        self._neighbours.add(int(link.source), int(link.target), length)
         self._csr = None
 
     def _enter(self, eid: int, offset: FloatArray, stamp: float, measured: bool = False) -> None:
@@ -855,7 +907,7 @@ class CognitiveMap:
             return MapEvent("none", current, matched=target)
         if refine is None:
             kind: EventKind = "link"
-            if (current, target) not in self._linked:
+            if _pair_key(current, target) not in self._linked:
                 self._close(target, np.zeros(3), stamp)
                 kind = "loop"
             self._enter(target, np.zeros(3), stamp, measured=True)
@@ -1047,27 +1099,36 @@ class CognitiveMap:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready map: nodes (id, creation time, relaxed pose, view id) and links (from,
         to, Δp, Δt, creation time, kind)."""
-        poses = self._poses.view()
-        nodes = [
-            {
+        return {k: list(v) if k != "loop_closures" else v for k, v in self.json_fields().items()}
+
+    def json_fields(self) -> dict[str, Any]:
+        """:meth:`to_dict`'s fields with the nodes and the links as generators of their
+        entries, for a writer that encodes them one at a time
+        (:func:`bioslam.io.jsonio.write_json_streamed`): an hour's map is 30,000 of each,
+        about 35 MB as Python objects."""
+        return {"nodes": self._json_nodes(), "links": self._json_links(),
+                "loop_closures": self.loop_closures}  # fmt: skip
+
+    def _json_nodes(self) -> Iterator[dict[str, Any]]:
+        poses, stamps, view_ids = self._poses.view(), self._stamps.view(), self._view_ids.view()
+        for i in range(len(self)):
+            yield {
                 "id": i,
-                "time": self._stamps[i],
+                "time": float(stamps[i]),
                 "pose": [float(v) for v in poses[i]],
-                "view_id": self._view_ids[i],
+                "view_id": int(view_ids[i]),
             }
-            for i in range(len(self))
-        ]
+
+    def _json_links(self) -> Iterator[dict[str, Any]]:
         ends = self._link_ends.view()
         dps = self._link_dp.view()
-        links = [
-            {
+        link_dt, link_stamp = self._link_dt.view(), self._link_stamp.view()
+        for k in range(self.num_links):
+            yield {
                 "from": int(ends[k, 0]),
                 "to": int(ends[k, 1]),
                 "dp": [float(v) for v in dps[k]],
-                "dt": self._link_dt[k],
-                "time": self._link_stamp[k],
+                "dt": float(link_dt[k]),
+                "time": float(link_stamp[k]),
                 "kind": self._link_kind[k],
             }
-            for k in range(self.num_links)
-        ]
-        return {"nodes": nodes, "links": links, "loop_closures": self.loop_closures}

@@ -25,7 +25,7 @@ from bioslam.config import SLAMConfig
 from bioslam.evaluation import evaluate, position_errors
 from bioslam.geometry import Pose2D, compose, inverse
 from bioslam.growing import GrowingArray
-from bioslam.io.jsonio import write_json
+from bioslam.io.jsonio import write_json, write_json_streamed
 from bioslam.io.mapfile import OccupancyImage, write_map
 from bioslam.io.outdir import OutputDir
 from bioslam.io.spill import SpilledScans
@@ -510,7 +510,8 @@ def write_results(
         out.save("trajectory.tum", write_tum, trajectory)
         out.save("odometry.tum", write_tum, odometry)
         if isinstance(system, BioSLAM):
-            out.save("cognitive_map.json", write_json, system.cognitive_map.to_dict())
+            out.save("cognitive_map.json", write_json_streamed,
+                     system.cognitive_map.json_fields())  # fmt: skip
         if gt is not None and len(trajectory) > 1:
             gt = _evaluate_into(summary, trajectory, odometry, gt)
     if len(trajectory):

@@ -107,6 +107,37 @@ def write_json(path: str | Path, value: Any, indent: int | None = 2) -> Path:
     return path
 
 
+def write_json_streamed(path: str | Path, fields: Mapping[str, Any], indent: int = 2) -> Path:
+    """:func:`write_json` of the object ``fields`` (the same bytes), where a value that is an
+    iterator (a generator) is written as an array whose entries are encoded and written one
+    at a time as it yields them: a long array of small objects is never held whole, neither
+    as objects nor as text."""
+    path = Path(path)
+    pad = " " * indent
+
+    def encoded(value: Any, depth: int) -> str:
+        text = json.dumps(to_jsonable(value), indent=indent, allow_nan=False)
+        return text.replace("\n", "\n" + pad * depth)
+
+    with atomic_path(path) as tmp, tmp.open("w", encoding="utf-8") as fh:
+        if not fields:
+            fh.write("{}\n")
+            return path
+        fh.write("{")
+        for n, (key, value) in enumerate(fields.items()):
+            fh.write(("," if n else "") + "\n" + pad + json.dumps(str(key)) + ": ")
+            if not isinstance(value, Iterator):
+                fh.write(encoded(value, 1))
+                continue
+            empty = True
+            for item in value:
+                fh.write(("[" if empty else ",") + "\n" + pad * 2 + encoded(item, 2))
+                empty = False
+            fh.write("[]" if empty else "\n" + pad + "]")
+        fh.write("\n}\n")
+    return path
+
+
 def read_json(path: str | Path) -> Any:
     """Read a JSON file; a parse error names the file, line and column."""
     path = Path(path)
