@@ -442,3 +442,22 @@ def test_the_search_window_grows_for_a_motion_hypothesis_at_or_beyond_its_edge()
     assert abs(offset[0]) <= distance - c.search_distance + 1e-9 and abs(offset[1]) < distance
     assert abs(offset[2]) <= angle - c.search_angle + 1e-9
     assert distance < c.search_distance + 1.2 and angle < c.search_angle + 0.5
+
+
+def test_a_thinned_log_reports_a_step_it_cannot_vouch_for_as_broken():
+    """Scans 2 s and 0.4 m apart in the room (a thinned log: the search runs for each, the
+    scans count as sparse), then one from a place the map has never seen (another building
+    stands in for a hard turn into unseen space): no match fits it, and the step is
+    reported broken, a break of the chain for loop closure, while the right steps are not."""
+    rng = np.random.default_rng(41)
+    odo = LidarOdometry(initial_pose=(-3.0, 0.5, 0.0))
+    broken = []
+    for k in range(9):
+        pose = (-3.0 + 0.4 * k, 0.5 + 0.1 * np.sin(k), 0.1 * k)
+        odo.update(make_scan(ROOM, pose, stamp=2.0 * k, sigma=0.01, rng=rng))
+        broken.append(odo.last_report.broken)
+        assert pose_error(pose, odo.pose)[0] < 0.05
+    assert odo._sparse() and not any(broken)
+    elsewhere = np.array(box(-1.0, -7.0, 1.0, 7.0), dtype=float)  # a long narrow hall
+    odo.update(make_scan(elsewhere, (0.0, 0.0, 0.0), stamp=18.0, sigma=0.01, rng=rng))
+    assert odo.last_report.broken and odo.summary()["odometry_broken"] == 1

@@ -162,6 +162,8 @@ def test_odometry_break_is_a_jump_between_scans_not_a_search_after_a_gap():
     assert odometry_broke(MatchReport(ambiguous=True), jumped, walking, 0.1, cfg)
     # ... but after 2 s without a scan the robot may have gone there (freiburg-079)
     assert not odometry_broke(recovered, jumped, walking * 20, 2.0, cfg)
+    # unless the odometry says it cannot vouch for the match (a thinned log's map turned)
+    assert odometry_broke(MatchReport(recovered=True, broken=True), jumped, walking * 20, 2.0, cfg)
     # the search confirming the motion is no break, nor is the match from the motion model
     assert not odometry_broke(recovered, walking + np.array([0.02, 0.0, 0.0]), walking, 0.1, cfg)
     assert not odometry_broke(MatchReport(), jumped, walking, 0.1, cfg)

@@ -250,6 +250,20 @@ class OdometryConfig:
             thinned to a scan per metre went from RPE 1 m 72 / 131 cm to 32 / 84 cm (seeds
             0 / 1, lost at its corners either way) and intel from ten starts kept its median
             (6.1 cm), but freiburg-079 thinned to 1 m went from 4.2 to 5.2 cm.
+        break_score_ratio, break_turn, break_margin: on sparse scans the odometry reports a
+            step as a break (``MatchReport.broken``, a break of its chain of relative poses
+            for loop closure, :func:`bioslam.closure.odometry_broke`) when the match kept
+            scores below ``break_score_ratio`` times the recent matches' median (it fits
+            nowhere: a hard turn into space the map has not seen), or a match turned by
+            more than ``break_turn`` radians from it, not rejected by the map, comes within
+            ``break_margin`` of its merit (:meth:`LidarOdometry._choose_sparse`: the scan
+            cannot tell which way the robot turned). A break's extent after a gap of seconds
+            is the motion a robot can change in that time, so a thinned log's steps never
+            broke before, and a map turned by 90-180 degrees went unreported. Intel thinned
+            to a scan per 1.5 m / 45 degrees: 20 of its 29 steps with more than 30 degrees
+            of heading error from scan 10 are flagged, and 13 of 349 right steps; intel as
+            logged 3 of 903 right steps (16-18 breaks by the motion thresholds), freiburg-079
+            thinned to 1 m from scan 1 one of its two wrong turns and one of 478 right steps.
         step_prior, step_prior_weight: the density of the recent steps for which the search
             ran (:class:`bioslam.step_prior.StepPrior`; a run that turns sparse halfway is not
             then held to the millimetre steps of its dense part, and dense scans pay nothing
@@ -329,6 +343,9 @@ class OdometryConfig:
     step_modes: int = 4
     implausible_density: float = 0.1
     straight_angle: float = 0.0
+    break_score_ratio: float = 0.4
+    break_turn: float = math.radians(25.0)
+    break_margin: float = 0.1
     log_odds: LogOddsConfig = field(default_factory=LogOddsConfig)
 
     def __post_init__(self) -> None:
@@ -390,6 +407,7 @@ class LidarOdometry:
         self.num_recovered = 0
         self.num_degenerate = 0
         self.num_ambiguous = 0
+        self.num_broken = 0
         self._searcher = WideBasinMatcher()
         self._motion = ConstantVelocityModel(
             c.velocity_window, c.velocity_scans, c.length_scale, c.degeneracy_ratio,
@@ -546,6 +564,7 @@ class LidarOdometry:
             self.num_recovered += self.last_report.recovered
             self.num_degenerate += self.last_report.degenerate
             self.num_ambiguous += self.last_report.ambiguous
+            self.num_broken += self.last_report.broken
         if not self.last_report.predicted_only and self._should_insert():
             # every endpoint is fused, each with the normal of the kept one before it
             self._insert(pts, thinned_normals(pts, keep))
@@ -575,13 +594,15 @@ class LidarOdometry:
     def summary(self) -> dict[str, int]:
         """Counts over the run: scans, matches recovered by a search, scans with an
         unconstrained direction, scans with too few points (prediction only), scans whose
-        search found a look-alike as plausible as the match kept."""
+        search found a look-alike as plausible as the match kept, sparse scans whose match
+        the odometry cannot vouch for (``MatchReport.broken``)."""
         return {
             "odometry_scans": self.num_scans,
             "odometry_recovered": self.num_recovered,
             "odometry_degenerate": self.num_degenerate,
             "odometry_predicted_only": self.num_predicted_only,
             "odometry_ambiguous": self.num_ambiguous,
+            "odometry_broken": self.num_broken,
         }
 
     def _match(
@@ -730,6 +751,12 @@ class LidarOdometry:
         report.recovered = chosen is not first
         report.ambiguous = any(
             quality[id(o)] >= floor and self._distinct(o[0], chosen[0]) for o in pool
+        )
+        report.broken = report.score < c.break_score_ratio * self._typical_score or any(
+            abs(between(chosen[0], o[0])[2]) > c.break_turn
+            and merit(o) > merit(chosen) - c.break_margin
+            for o in pool
+            if not self._rejected(o[1])
         )
         return chosen[0], report
 
