@@ -302,7 +302,7 @@ def test_a_slow_scanners_looks_wait_for_the_scans_the_odometry_fuses(ring_drive)
     # The URG-04LX at 10 Hz and 0.4 m/s moves 4 cm a scan: a look is due by distance after
     # two scans and held by the scan count to the third, so it may wait for a fused scan.
     scans, gt = ring_drive
-    config = dataclasses.replace(SLAMConfig(), heading_bias=0.002)
+    config = dataclasses.replace(SLAMConfig(), heading_bias=0.002, view_wait=2)
     slam, rows = _looks_and_fused(scans, config)
     _, at_once = _looks_and_fused(scans, dataclasses.replace(config, view_wait=0))
     aligned, aligned_at_once = (np.mean(r[r[:, 0], 1]) for r in (rows, at_once))
@@ -319,7 +319,7 @@ def test_a_fast_scanners_looks_do_not_wait():
     # look is due, and the looks are those of a system that never waits.
     route = ring_route(laps=0.6)
     scans = [scan for scan, _ in simulate_scans(ring_world(), LIDAR_PRESETS["utm30lx"], route, 4)]
-    waits, _ = _looks_and_fused(scans, SLAMConfig())
+    waits, _ = _looks_and_fused(scans, dataclasses.replace(SLAMConfig(), view_wait=2))
     never, _ = _looks_and_fused(scans, dataclasses.replace(SLAMConfig(), view_wait=0))
     assert len(waits.records) > 100
     np.testing.assert_array_equal(waits.records.stamps.array(), never.records.stamps.array())
