@@ -93,9 +93,10 @@ def test_step_records_are_a_sequence_of_the_records_appended():
         records[2000]
 
 
-def _jumping(slam: BioSLAM, at: int, jump: float) -> None:
+def _jumping(slam: BioSLAM, at: int, jump: float, recovered: bool = True) -> None:
     """Make the odometry of ``slam`` jump ``jump`` metres forward at its ``at``-th scan, as a
-    search that replaced a failed match with a look-alike's pose does (flagged recovered)."""
+    search that replaced a failed match with a look-alike's pose does (flagged recovered),
+    or, with ``recovered`` False, as a slide while tracking (nothing flagged)."""
     odometry = slam.self_motion.odometry
     update = odometry.update
 
@@ -103,7 +104,7 @@ def _jumping(slam: BioSLAM, at: int, jump: float) -> None:
         dp = np.array(update(scan), dtype=np.float64)
         if odometry.num_scans == at:
             dp[0] += jump
-            odometry.last_report.recovered = True
+            odometry.last_report.recovered = recovered
         return dp
 
     odometry.update = jumping_update
@@ -325,28 +326,13 @@ def test_a_fast_scanners_looks_do_not_wait():
     np.testing.assert_array_equal(waits.records.stamps.array(), never.records.stamps.array())
 
 
-def _sliding(slam: BioSLAM, at: int, slide: float) -> None:
-    """Make the odometry of ``slam`` slide ``slide`` metres forward at its ``at``-th scan
-    while tracking (no search, nothing flagged): a step no robot can make, but no break."""
-    odometry = slam.self_motion.odometry
-    update = odometry.update
-
-    def sliding_update(scan):
-        dp = np.array(update(scan), dtype=np.float64)
-        if odometry.num_scans == at:
-            dp[0] += slide
-        return dp
-
-    odometry.update = sliding_update
-
-
 def test_a_slide_the_odometry_tracked_weakens_its_map_link_so_closures_correct_it(ring_drive):
     scans, gt = ring_drive
     at = len(scans) // 4
 
     def ate_of(weigh: bool) -> tuple[float, BioSLAM]:
         slam = BioSLAM(SLAMConfig(loop_closure=LoopClosureConfig(weigh_jumps=weigh)))
-        _sliding(slam, at, 0.2)
+        _jumping(slam, at, 0.2, recovered=False)
         for scan in scans:
             slam.process(scan)
         slam.finish()
