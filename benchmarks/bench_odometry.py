@@ -125,6 +125,7 @@ def summary(name: str, est: Trajectory, gt: Trajectory, ms: np.ndarray, extra: d
         "predicted_only": extra["odometry_predicted_only"],
         "recovered": extra["odometry_recovered"],
         "ambiguous": extra["odometry_ambiguous"],
+        "broken": extra["odometry_broken"],
         "max_error_change_m": round(float(change.max(initial=0.0)), 3),
         "jumps_over_0.3m": int(np.sum(change > 0.3)),
     }
@@ -219,7 +220,7 @@ def log_case(name: str, filename: str, make_png: bool, config=None, select=None,
         errors = step_errors(est, ref)
         row.update(rpe1m_cm=round(100 * rpe["trans_rmse_m"], 2),
                    rpe1m_deg=round(rpe["rot_rmse_deg"], 3), pairs=rpe["pairs"],
-                   recovered=extra["odometry_recovered"],
+                   recovered=extra["odometry_recovered"], broken=extra["odometry_broken"],
                    wrong_steps=int(np.sum(errors > 0.2)), _step_errors=errors)  # fmt: skip
         if make_png:
             row.update(reference_check(est, ref, extra["scans"], source.odometry))

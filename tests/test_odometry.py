@@ -442,3 +442,53 @@ def test_the_search_window_grows_for_a_motion_hypothesis_at_or_beyond_its_edge()
     assert abs(offset[0]) <= distance - c.search_distance + 1e-9 and abs(offset[1]) < distance
     assert abs(offset[2]) <= angle - c.search_angle + 1e-9
     assert distance < c.search_distance + 1.2 and angle < c.search_angle + 0.5
+
+
+def test_a_thinned_log_reports_a_step_it_cannot_vouch_for_as_broken():
+    """Scans 2 s and 0.4 m apart in the room (a thinned log: the search runs for each, the
+    scans count as sparse), then one from a place the map has never seen (another building
+    stands in for a hard turn into unseen space): no match fits it, and the step is
+    reported broken, a break of the chain for loop closure, while the right steps are not."""
+    rng = np.random.default_rng(41)
+    odo = LidarOdometry(initial_pose=(-3.0, 0.5, 0.0))
+    broken = []
+    for k in range(9):
+        pose = (-3.0 + 0.4 * k, 0.5 + 0.1 * np.sin(k), 0.1 * k)
+        odo.update(make_scan(ROOM, pose, stamp=2.0 * k, sigma=0.01, rng=rng))
+        broken.append(odo.last_report.broken)
+        assert pose_error(pose, odo.pose)[0] < 0.05
+    assert odo._sparse() and not any(broken)
+    elsewhere = np.array(box(-1.0, -7.0, 1.0, 7.0), dtype=float)  # a long narrow hall
+    odo.update(make_scan(elsewhere, (0.0, 0.0, 0.0), stamp=18.0, sigma=0.01, rng=rng))
+    assert odo.last_report.broken and odo.summary()["odometry_broken"] == 1
+
+
+def _corridor_with_doors(length: float = 40.0) -> np.ndarray:
+    """A corridor 2 m wide along x with a 1 m door recess 0.5 m deep every 6 m on either
+    side (3 m apart, alternating): its walls say nothing along it, the doors do."""
+    segs = []
+    for side, first in ((1.0, 6.0), (-1.0, 3.0)):
+        x, out = 0.0, side * 1.5
+        for d in np.arange(first, length - 2.0, 6.0):
+            segs += [((x, side), (d, side)), ((d, side), (d, out)), ((d, out), (d + 1.0, out)),
+                     ((d + 1.0, out), (d + 1.0, side))]  # fmt: skip
+            x = d + 1.0
+        segs.append(((x, side), (length, side)))
+    return np.array(segs, dtype=float)
+
+
+def test_a_thinned_corridor_with_doors_is_tracked_from_its_first_step():
+    """A 180-degree 181-beam scanner (the SICK of most public logs) a metre a scan, 2 s
+    apart, along a corridor whose end is out of range. The first map is one scan whose 1°
+    beams hit the walls metres apart; placed back where it was taken, the next scan's
+    beams land on that pattern exactly, and standing still outscored the true step a metre
+    on (the pose stood still for five steps). Walls densified as lines while the map is
+    the first scans, and the best match kept, the doors fix the step."""
+    world = _corridor_with_doors()
+    rng = np.random.default_rng(5)
+    odo = LidarOdometry(initial_pose=(1.0, 0.2, 0.0))
+    for k in range(8):
+        true = (1.0 + 1.0 * k, 0.2 + 0.1 * np.sin(k), 0.0)
+        scan = make_scan(world, true, stamp=2.0 * k, beams=181, fov=np.pi, sigma=0.01, rng=rng)
+        odo.update(scan)
+        assert pose_error(true, odo.pose)[0] < 0.1, k

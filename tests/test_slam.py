@@ -93,9 +93,10 @@ def test_step_records_are_a_sequence_of_the_records_appended():
         records[2000]
 
 
-def _jumping(slam: BioSLAM, at: int, jump: float) -> None:
+def _jumping(slam: BioSLAM, at: int, jump: float, recovered: bool = True) -> None:
     """Make the odometry of ``slam`` jump ``jump`` metres forward at its ``at``-th scan, as a
-    search that replaced a failed match with a look-alike's pose does (flagged recovered)."""
+    search that replaced a failed match with a look-alike's pose does (flagged recovered),
+    or, with ``recovered`` False, as a slide while tracking (nothing flagged)."""
     odometry = slam.self_motion.odometry
     update = odometry.update
 
@@ -103,7 +104,7 @@ def _jumping(slam: BioSLAM, at: int, jump: float) -> None:
         dp = np.array(update(scan), dtype=np.float64)
         if odometry.num_scans == at:
             dp[0] += jump
-            odometry.last_report.recovered = True
+            odometry.last_report.recovered = recovered
         return dp
 
     odometry.update = jumping_update
@@ -162,6 +163,8 @@ def test_odometry_break_is_a_jump_between_scans_not_a_search_after_a_gap():
     assert odometry_broke(MatchReport(ambiguous=True), jumped, walking, 0.1, cfg)
     # ... but after 2 s without a scan the robot may have gone there (freiburg-079)
     assert not odometry_broke(recovered, jumped, walking * 20, 2.0, cfg)
+    # unless the odometry says it cannot vouch for the match (a thinned log's map turned)
+    assert odometry_broke(MatchReport(recovered=True, broken=True), jumped, walking * 20, 2.0, cfg)
     # the search confirming the motion is no break, nor is the match from the motion model
     assert not odometry_broke(recovered, walking + np.array([0.02, 0.0, 0.0]), walking, 0.1, cfg)
     assert not odometry_broke(MatchReport(), jumped, walking, 0.1, cfg)
@@ -300,7 +303,7 @@ def test_a_slow_scanners_looks_wait_for_the_scans_the_odometry_fuses(ring_drive)
     # The URG-04LX at 10 Hz and 0.4 m/s moves 4 cm a scan: a look is due by distance after
     # two scans and held by the scan count to the third, so it may wait for a fused scan.
     scans, gt = ring_drive
-    config = dataclasses.replace(SLAMConfig(), heading_bias=0.002)
+    config = dataclasses.replace(SLAMConfig(), heading_bias=0.002, view_wait=2)
     slam, rows = _looks_and_fused(scans, config)
     _, at_once = _looks_and_fused(scans, dataclasses.replace(config, view_wait=0))
     aligned, aligned_at_once = (np.mean(r[r[:, 0], 1]) for r in (rows, at_once))
@@ -317,25 +320,10 @@ def test_a_fast_scanners_looks_do_not_wait():
     # look is due, and the looks are those of a system that never waits.
     route = ring_route(laps=0.6)
     scans = [scan for scan, _ in simulate_scans(ring_world(), LIDAR_PRESETS["utm30lx"], route, 4)]
-    waits, _ = _looks_and_fused(scans, SLAMConfig())
+    waits, _ = _looks_and_fused(scans, dataclasses.replace(SLAMConfig(), view_wait=2))
     never, _ = _looks_and_fused(scans, dataclasses.replace(SLAMConfig(), view_wait=0))
     assert len(waits.records) > 100
     np.testing.assert_array_equal(waits.records.stamps.array(), never.records.stamps.array())
-
-
-def _sliding(slam: BioSLAM, at: int, slide: float) -> None:
-    """Make the odometry of ``slam`` slide ``slide`` metres forward at its ``at``-th scan
-    while tracking (no search, nothing flagged): a step no robot can make, but no break."""
-    odometry = slam.self_motion.odometry
-    update = odometry.update
-
-    def sliding_update(scan):
-        dp = np.array(update(scan), dtype=np.float64)
-        if odometry.num_scans == at:
-            dp[0] += slide
-        return dp
-
-    odometry.update = sliding_update
 
 
 def test_a_slide_the_odometry_tracked_weakens_its_map_link_so_closures_correct_it(ring_drive):
@@ -344,7 +332,7 @@ def test_a_slide_the_odometry_tracked_weakens_its_map_link_so_closures_correct_i
 
     def ate_of(weigh: bool) -> tuple[float, BioSLAM]:
         slam = BioSLAM(SLAMConfig(loop_closure=LoopClosureConfig(weigh_jumps=weigh)))
-        _sliding(slam, at, 0.2)
+        _jumping(slam, at, 0.2, recovered=False)
         for scan in scans:
             slam.process(scan)
         slam.finish()

@@ -87,9 +87,10 @@ def odometry_broke(
     none 0.6 m from the motion after gaps of up to 2.3 s). Between consecutive scans of the
     simulated maze the odometry jumped 0.5 m along corridors (SICK) and 1.9 m (URG-04LX),
     and closures then confirmed the jump. A step along a direction the scan does not
-    constrain (``report.degenerate``) faster than ``max_speed`` (m/s) is a break too."""
-    if report.predicted_only:
-        return True
+    constrain (``report.degenerate``) faster than ``max_speed`` (m/s) is a break too, and
+    so is a step the odometry reports it cannot vouch for (``report.broken``)."""
+    if report.predicted_only or report.broken:
+        return True  # no match, or one the odometry itself cannot vouch for
     if report.degenerate and math.hypot(step[0], step[1]) > max_speed * dt:
         # blind along a corridor, the odometry ran faster than the robot can move (URG-04LX
         # maze: 2.9 m/s backwards while the robot drove on at 0.5 m/s)

@@ -250,6 +250,30 @@ class OdometryConfig:
             thinned to a scan per metre went from RPE 1 m 72 / 131 cm to 32 / 84 cm (seeds
             0 / 1, lost at its corners either way) and intel from ten starts kept its median
             (6.1 cm), but freiburg-079 thinned to 1 m went from 4.2 to 5.2 cm.
+        first_straight_angle: ``straight_angle`` for the first scan of a thinned log, when
+            it gets its densified points (:meth:`LidarOdometry._densify_first`): the map is
+            then that one scan, and the next scan's 1° beams, placed back where it was taken,
+            land on its beam pattern exactly along a corridor's walls, so that standing
+            still outscored the true step a metre on (a corridor with doors, a scan per
+            metre: five steps stood still, RPE over 1 m 84 cm; 0.9 cm with its walls filled
+            as lines and, while every scan so far came after a gap, the best match kept as
+            on sparse scans, :meth:`LidarOdometry._choose_sparse`). Later scans keep
+            ``straight_angle``: the first few filled so too cost intel thinned to 1.5 m
+            from its first scan 34 -> 101 cm.
+        break_score_ratio, break_turn, break_margin: on sparse scans the odometry reports a
+            step as a break (``MatchReport.broken``, a break of its chain of relative poses
+            for loop closure, :func:`bioslam.closure.odometry_broke`) when the match kept
+            scores below ``break_score_ratio`` times the recent matches' median (it fits
+            nowhere: a hard turn into space the map has not seen), or a match turned by
+            more than ``break_turn`` radians from it, not rejected by the map, comes within
+            ``break_margin`` of its merit (:meth:`LidarOdometry._choose_sparse`: the scan
+            cannot tell which way the robot turned). A break's extent after a gap of seconds
+            is the motion a robot can change in that time, so a thinned log's steps never
+            broke before, and a map turned by 90-180 degrees went unreported. Intel thinned
+            to a scan per 1.5 m / 45 degrees: 20 of its 29 steps with more than 30 degrees
+            of heading error from scan 10 are flagged, and 13 of 349 right steps; intel as
+            logged 3 of 903 right steps (16-18 breaks by the motion thresholds), freiburg-079
+            thinned to 1 m from scan 1 one of its two wrong turns and one of 478 right steps.
         step_prior, step_prior_weight: the density of the recent steps for which the search
             ran (:class:`bioslam.step_prior.StepPrior`; a run that turns sparse halfway is not
             then held to the millimetre steps of its dense part, and dense scans pay nothing
@@ -329,6 +353,10 @@ class OdometryConfig:
     step_modes: int = 4
     implausible_density: float = 0.1
     straight_angle: float = 0.0
+    first_straight_angle: float = 0.05
+    break_score_ratio: float = 0.4
+    break_turn: float = math.radians(25.0)
+    break_margin: float = 0.1
     log_odds: LogOddsConfig = field(default_factory=LogOddsConfig)
 
     def __post_init__(self) -> None:
@@ -390,6 +418,7 @@ class LidarOdometry:
         self.num_recovered = 0
         self.num_degenerate = 0
         self.num_ambiguous = 0
+        self.num_broken = 0
         self._searcher = WideBasinMatcher()
         self._motion = ConstantVelocityModel(
             c.velocity_window, c.velocity_scans, c.length_scale, c.degeneracy_ratio,
@@ -494,13 +523,15 @@ class LidarOdometry:
     def _densify_first(self, dt: float) -> None:
         """The second scan came after a gap (``gap_time``, a thinned log's seconds): the
         first scan, fused before anything told that the scans are sparse, gets the points
-        densifying would have added (:func:`densify_scan`)."""
+        densifying would have added (:func:`densify_scan`, with ``first_straight_angle``)."""
         pose, pts = self._first_fused
         self._first_fused = None
         if dt <= self.config.gap_time:
             return
         c = self.config
-        dense, added = densify_with_mask(pts, c.resolution, NORMAL_MAX_GAP, c.straight_angle)
+        dense, added = densify_with_mask(
+            pts, c.resolution, NORMAL_MAX_GAP, c.first_straight_angle
+        )
         if added.any():
             self._fuse(pose, dense[added], thinned_normals(dense)[added])
 
@@ -546,6 +577,7 @@ class LidarOdometry:
             self.num_recovered += self.last_report.recovered
             self.num_degenerate += self.last_report.degenerate
             self.num_ambiguous += self.last_report.ambiguous
+            self.num_broken += self.last_report.broken
         if not self.last_report.predicted_only and self._should_insert():
             # every endpoint is fused, each with the normal of the kept one before it
             self._insert(pts, thinned_normals(pts, keep))
@@ -575,13 +607,15 @@ class LidarOdometry:
     def summary(self) -> dict[str, int]:
         """Counts over the run: scans, matches recovered by a search, scans with an
         unconstrained direction, scans with too few points (prediction only), scans whose
-        search found a look-alike as plausible as the match kept."""
+        search found a look-alike as plausible as the match kept, sparse scans whose match
+        the odometry cannot vouch for (``MatchReport.broken``)."""
         return {
             "odometry_scans": self.num_scans,
             "odometry_recovered": self.num_recovered,
             "odometry_degenerate": self.num_degenerate,
             "odometry_predicted_only": self.num_predicted_only,
             "odometry_ambiguous": self.num_ambiguous,
+            "odometry_broken": self.num_broken,
         }
 
     def _match(
@@ -594,7 +628,9 @@ class LidarOdometry:
         the last step repeated, the typical step straight on: after a turn on the spot in
         a log thinned to a scan per metre the first two say "turning", the last "a metre
         on"; on sparse scans also the step prior's typical steps), keeping the plausible
-        match nearest ``start`` (:meth:`_choose`). When
+        match nearest ``start`` (:meth:`_choose`), or on sparse scans and while every scan
+        so far came after a gap (:meth:`_sparse_so_far`: standing still is then no motion
+        prior) the best one (:meth:`_choose_sparse`). When
         every match so found sees through walls, the search is repeated for a turn of about
         ``2 * search_angle`` either way from ``previous`` (thinned logs turn up to 80°
         between scans)."""
@@ -629,7 +665,7 @@ class LidarOdometry:
                 self._weigh_walls(options[weighed:], level_pts[0])
         jump = self._jump_limits()
         reach = (jump[0] + c.max_speed * dt, jump[1] + c.max_turn_rate * dt)
-        if self._sparse() and len(options) > 1:
+        if (self._sparse() or self._sparse_so_far()) and len(options) > 1:
             pose, report = self._choose_sparse(options, previous, reach)
         else:
             pose, report = self._choose(options, motion, previous, reach, jump)
@@ -730,6 +766,12 @@ class LidarOdometry:
         report.recovered = chosen is not first
         report.ambiguous = any(
             quality[id(o)] >= floor and self._distinct(o[0], chosen[0]) for o in pool
+        )
+        report.broken = report.score < c.break_score_ratio * self._typical_score or any(
+            abs(between(chosen[0], o[0])[2]) > c.break_turn
+            and merit(o) > merit(chosen) - c.break_margin
+            for o in pool
+            if not self._rejected(o[1])
         )
         return chosen[0], report
 

@@ -61,6 +61,10 @@ class MatchReport:
             kept (a look-alike); the match nearest the prediction was kept.
         restarted: the pyramid's descent ended worse on the finest level than its start,
             and the finest level was matched again from the start (:func:`match_scan_to_map`).
+        broken: on sparse scans (a thinned log), the match kept fits far worse than recent
+            ones, or a match turned the other way fits about as well
+            (``OdometryConfig.break_score_ratio``): the odometry cannot vouch for the step,
+            a break of its chain (:func:`bioslam.closure.odometry_broke`).
     """
 
     iterations: int = 0
@@ -78,6 +82,7 @@ class MatchReport:
     recovered: bool = False
     ambiguous: bool = False
     restarted: bool = False
+    broken: bool = False
 
 
 # --------------------------------------------------------------------------------------------
