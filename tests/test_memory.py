@@ -148,6 +148,8 @@ def test_releasing_the_working_memory_writes_the_same_results(tmp_path, odometry
     released_options = RunOptions(progress=False, odometry_only=odometry_only, release=True)
     released = write_results(result, tmp_path / "released", options=released_options)
     assert result.system.self_motion.odometry is None and len(result.keyframes) == 0
+    assert len(result.system.trajectory()) == 0  # the per-scan columns went after use
+    assert released["scans"] == kept["scans"] == len(scans)
     assert {k: v for k, v in released.items() if k not in TIMING} == {
         k: v for k, v in kept.items() if k not in TIMING
     }

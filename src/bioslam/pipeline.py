@@ -128,6 +128,11 @@ class OdometryOnly:
 
     odometry_trajectory = trajectory
 
+    def release_scans(self) -> None:
+        """See :meth:`BioSLAM.release_scans`."""
+        self._stamps = GrowingArray(np.float64, capacity=1)
+        self._poses = GrowingArray(np.float64, 3, capacity=1)
+
     def finish(self) -> None:
         """Nothing to settle: the odometry is final as it goes."""
 
@@ -507,6 +512,8 @@ def write_results(
         trajectory = system.trajectory()
         odometry = system.odometry_trajectory()
         summary: dict[str, Any] = {"scans": len(trajectory), **timing_summary(result, trajectory)}
+        if options.release:
+            system.release_scans()  # the trajectories are made: the figures go without them
         summary.update(system.summary())
         out.save("trajectory.tum", write_tum, trajectory)
         out.save("odometry.tum", write_tum, odometry)
