@@ -656,3 +656,17 @@ def test_adjacency_lists_each_nodes_links_in_order_and_link_distance_is_shortest
                 assert got == pytest.approx(true, abs=1e-12)
             else:
                 assert got is None
+
+
+def test_link_table_is_the_links_ends_and_kinds():
+    cmap = CognitiveMap()
+    for k in range(7):  # a square driven past its start: odometry links and a loop
+        cmap.integrate_odometry((1.0, 0.0, math.pi / 2), stamp=float(k))
+        cmap.update(k % 4, k < 4, (1.0, 1.0, 0.0), float(k))
+    ends, kinds = cmap.link_table()
+    links = cmap.links
+    assert ends.dtype == np.int64 and ends.shape == (len(links), 2)
+    assert [(int(a), int(b), k) for (a, b), k in zip(ends, kinds, strict=True)] == [
+        (link.source, link.target, link.kind) for link in links
+    ]
+    assert "loop" in kinds and "odometry" in kinds

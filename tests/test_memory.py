@@ -275,3 +275,21 @@ print(re.search(r"Threads:\\s+(\\d+)", open("/proc/self/status").read()).group(1
     assert threads("command") == 1
     if (os.cpu_count() or 1) > 1:
         assert threads("default") > 1  # what the command avoids
+
+
+def test_the_command_exits_with_its_code_its_output_flushed_and_its_exit_handlers_run(tmp_path):
+    """``bioslam`` skips the interpreter's teardown at exit, not what a normal exit does."""
+    marker = tmp_path / "handler-ran"
+    script = f"""
+import atexit, sys
+from bioslam.cli import exit_without_teardown
+atexit.register(lambda: open({str(marker)!r}, "w").write("yes"))
+sys.stdout.write("buffered, no newline")
+sys.stderr.write("to stderr")
+exit_without_teardown(3)
+"""
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env)
+    assert out.returncode == 3
+    assert out.stdout == "buffered, no newline" and out.stderr == "to stderr"
+    assert marker.read_text() == "yes"

@@ -289,7 +289,8 @@ def cognitive_map_snapshot(system: BioSLAM, elapsed: float) -> Snapshot:
     """Experience positions and links as plain arrays (for figures and JSON)."""
     cmap = system.cognitive_map
     nodes = cmap.experience_poses_view[:, :2].copy()
-    links = [(int(link.source), int(link.target), str(link.kind)) for link in cmap.links]
+    ends, kinds = cmap.link_table()
+    links = [(a, b, str(kind)) for (a, b), kind in zip(ends.tolist(), kinds, strict=True)]
     return Snapshot(elapsed, nodes, links)
 
 

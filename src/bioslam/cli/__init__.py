@@ -7,10 +7,13 @@ arguments and returning a dict: the one-line JSON summary printed last on stdout
 from __future__ import annotations
 
 import argparse
+import atexit
+import contextlib
 import importlib
 import os
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
 from bioslam import __version__, signals
 
@@ -115,7 +118,23 @@ def console_main() -> None:
     from bioslam.memory import map_large_blocks
 
     map_large_blocks()  # a process of its own: the allocator's settings are ours to choose
-    sys.exit(main(exiting=True))
+    exit_without_teardown(main(exiting=True))
+
+
+def exit_without_teardown(code: int) -> NoReturn:
+    """End the process once the command is done: the exit handlers run and the standard
+    streams are flushed, but the interpreter's teardown (freeing every module and object one
+    by one, Numba's and LLVM's included) is skipped, as the system frees the memory at once:
+    0.37 s of CPU after a run (1.7 % of the 600 s route's per-scan time, a quarter of a short
+    log's). Every output is written and closed before the command returns."""
+    run_exit_handlers = getattr(atexit, "_run_exitfuncs", None)
+    if run_exit_handlers is None:  # not CPython: the ordinary exit
+        sys.exit(code)
+    run_exit_handlers()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(code)
 
 
 if __name__ == "__main__":
