@@ -580,12 +580,12 @@ def within(correction: FloatArray, distance: float, angle: float) -> bool:
 class Candidate:
     """A closure the verification accepted, waiting for another to confirm it
     (:class:`ClosureConsensus`): at ``stamp`` the robot was at ``measured`` in experience
-    ``target``'s frame (``verdict``: the whole outcome, ``check``: its index among the
-    system's checks). ``odometry`` / ``target_odometry`` are the robot's odometry pose then
-    and when ``target`` was made, ``travelled`` / ``target_travelled`` the odometry distance
-    at those times and ``breaks`` / ``target_breaks`` the count of odometry breaks before
-    them: the two chains of relative poses the pairwise test runs along. ``link`` is what
-    enters the map once confirmed (opaque here)."""
+    ``target``'s frame (``check``: the index of its check among the system's).
+    ``odometry`` / ``target_odometry`` are the robot's odometry pose then and when
+    ``target`` was made, ``travelled`` / ``target_travelled`` the odometry distance at those
+    times and ``breaks`` / ``target_breaks`` the count of odometry breaks before them: the
+    two chains of relative poses the pairwise test runs along. ``link`` is what enters the
+    map once confirmed (opaque here)."""
 
     stamp: float
     target: int

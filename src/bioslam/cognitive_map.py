@@ -187,7 +187,7 @@ ISOTROPIC = np.array([1.0, 0.0, 1.0])
 
 
 @dataclass(frozen=True)
-class LoopLink:
+class NewLink:
     """A link as it enters the map: from ``source`` to ``target``, ``dp`` in the source's
     frame, made at ``stamp`` ``dt`` seconds after the source was entered, with its
     (position, heading) information ``info`` (:func:`link_information`) and position
@@ -849,15 +849,21 @@ class CognitiveMap:
     ) -> None:
         """Eq. 13: l_ij = <Δp^ij, Δt^ij>, weighted by the odometry and registrations it
         composes (:func:`link_information`)."""
-        registrations = int(kind == "loop") + int(self._entered_measured)
-        info = link_information(*self._travel, registrations, self.config, self._broken_var)
+        info = self._information(registrations=int(kind == "loop"))
         self._append_link(
-            LoopLink(source, target, np.asarray(dp, dtype=np.float64), stamp,
+            NewLink(source, target, np.asarray(dp, dtype=np.float64), stamp,
                      stamp - self._entered, info, np.asarray(shape, dtype=np.float64)),
             kind,
         )  # fmt: skip
 
-    def _append_link(self, link: LoopLink, kind: LinkKind) -> None:
+    def _information(self, registrations: int) -> tuple[float, float]:
+        """The information of a link from the current experience to the robot's pose now:
+        the odometry and breaks since it was entered, ``registrations`` at the robot's end
+        and one more if the experience was entered by one (:func:`link_information`)."""
+        registrations += int(self._entered_measured)
+        return link_information(*self._travel, registrations, self.config, self._broken_var)
+
+    def _append_link(self, link: NewLink, kind: LinkKind) -> None:
         self._link_ends.append((link.source, link.target))
         self._link_dp.append(link.dp)
         self._link_dt.append(link.dt)
@@ -936,7 +942,7 @@ class CognitiveMap:
         the measurement's position information in the robot's frame."""
         self.add_loop_link(self.loop_link(target, Measurement(arrival, shape), stamp))
 
-    def loop_link(self, target: int, measurement: Measurement, stamp: float) -> LoopLink:
+    def loop_link(self, target: int, measurement: Measurement, stamp: float) -> NewLink:
         """The loop link that ``measurement`` (the robot's pose in ``target``'s frame, now)
         makes, from the experience the robot's pose hangs off, to enter the map now or
         later (:meth:`add_loop_link`): a closure held until another confirms it
@@ -948,11 +954,10 @@ class CognitiveMap:
         dp = compose(self._offset, inverse(arrival))
         shape = np.asarray(measurement.shape, dtype=np.float64)
         shape = rotate_shape(shape, float(self._offset[2]))
-        registrations = 1 + int(self._entered_measured)
-        info = link_information(*self._travel, registrations, self.config, self._broken_var)
-        return LoopLink(self._base, int(target), dp, stamp, stamp - self._entered, info, shape)
+        info = self._information(registrations=1)
+        return NewLink(self._base, int(target), dp, stamp, stamp - self._entered, info, shape)
 
-    def add_loop_link(self, link: LoopLink) -> None:
+    def add_loop_link(self, link: NewLink) -> None:
         """Enter a loop link made by :meth:`loop_link`; the next :meth:`relax` solves."""
         self._append_link(link, "loop")
         self.loop_closures += 1

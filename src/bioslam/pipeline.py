@@ -102,8 +102,7 @@ class OdometryOnly:
 
     def __init__(self, config: SLAMConfig) -> None:
         self.self_motion = SelfMotion(config)
-        self._stamps = GrowingArray(np.float64)
-        self._poses = GrowingArray(np.float64, 3)
+        self._new_scan_columns()
         self.records = StepRecords()
         self._released: dict[str, int] | None = None
 
@@ -130,8 +129,12 @@ class OdometryOnly:
 
     def release_scans(self) -> None:
         """See :meth:`BioSLAM.release_scans`."""
-        self._stamps = GrowingArray(np.float64, capacity=1)
-        self._poses = GrowingArray(np.float64, 3, capacity=1)
+        self._new_scan_columns(capacity=1)
+
+    def _new_scan_columns(self, capacity: int = 1024) -> None:
+        """Empty per-scan columns: each scan's stamp and odometry pose."""
+        self._stamps = GrowingArray(np.float64, capacity=capacity)
+        self._poses = GrowingArray(np.float64, 3, capacity=capacity)
 
     def finish(self) -> None:
         """Nothing to settle: the odometry is final as it goes."""

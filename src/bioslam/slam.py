@@ -188,10 +188,7 @@ class BioSLAM:
             cfg.cognitive_map, cfg.pose_cells, scan_store
         )
         # one row per scan for the whole run, so kept as arrays (bioslam.growing)
-        self._stamps = GrowingArray(np.float64)
-        self._anchor_ids = GrowingArray(np.int64)
-        self._anchor_offsets = GrowingArray(np.float64, 3)
-        self._odometry_poses = GrowingArray(np.float64, 3)
+        self._new_scan_columns()
         self.records = StepRecords()
         self._travelled = 0.0
         # odometry distance at which each experience was made, by id (a doubling buffer:
@@ -235,15 +232,19 @@ class BioSLAM:
         dp = self.self_motion.step(scan)
         self._pending = compose(self._pending, dp)
         self._scans_since_look += 1
-        if self._relax_due:
-            self._relax_due = False
-            self.cognitive_map.relax()
+        self._relax_if_due()
         if self._due(dp):
             self._perceive(scan, self._pending)
             self._pending = np.zeros(3)
             self._scans_since_look = self._scans_waited = 0
         self._record(scan.stamp)
         return Pose2D(*compose(self.cognitive_map.pose(), self._pending))
+
+    def _relax_if_due(self) -> None:
+        """The relaxation a closure left for the scan after it (``defer_relaxation``)."""
+        if self._relax_due:
+            self._relax_due = False
+            self.cognitive_map.relax()
 
     def _due(self, step: FloatArray) -> bool:
         """Whether to look again: the robot has moved or turned enough since the last look
@@ -562,9 +563,7 @@ class BioSLAM:
     def finish(self) -> None:
         """Settle the cognitive map after the last scan (the final trajectory is re-derived
         from it)."""
-        if self._relax_due:
-            self._relax_due = False
-            self.cognitive_map.relax()
+        self._relax_if_due()
         if not self.cognitive_map.converged:
             self.cognitive_map.solve()
             self.cognitive_map.relax()
@@ -601,10 +600,15 @@ class BioSLAM:
         ``release``): drop the per-scan columns they are made from (72 bytes a scan, 10 MB
         after an hour at 40 Hz), so that the figures are drawn without them.
         :meth:`trajectory` and :meth:`odometry_trajectory` are empty after."""
-        self._stamps = GrowingArray(np.float64, capacity=1)
-        self._anchor_ids = GrowingArray(np.int64, capacity=1)
-        self._anchor_offsets = GrowingArray(np.float64, 3, capacity=1)
-        self._odometry_poses = GrowingArray(np.float64, 3, capacity=1)
+        self._new_scan_columns(capacity=1)
+
+    def _new_scan_columns(self, capacity: int = 1024) -> None:
+        """Empty per-scan columns: each scan's stamp, the experience its pose hangs off
+        with the offset from it, and its odometry pose."""
+        self._stamps = GrowingArray(np.float64, capacity=capacity)
+        self._anchor_ids = GrowingArray(np.int64, capacity=capacity)
+        self._anchor_offsets = GrowingArray(np.float64, 3, capacity=capacity)
+        self._odometry_poses = GrowingArray(np.float64, 3, capacity=capacity)
 
     def _check_counts(self) -> dict[str, int]:
         """Loop-closure verifications by cue, and refusals by reason (``closure.verify``)."""

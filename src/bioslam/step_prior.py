@@ -97,15 +97,23 @@ class StepPrior:
         step equals every recent one); 1 while fewer than ``min_steps`` are known."""
         if len(self._steps) < self.config.min_steps:
             return 1.0
+        s = np.asarray(step, dtype=np.float64).reshape(3)
+        return float(np.mean(self._kernel(self._history(), s)))
+
+    def _history(self) -> np.ndarray:
+        """The recent steps as an (n, 3) array, made once per new step."""
         if self._array is None:
             self._array = np.array(self._steps)
-        h = self._array
-        s = np.asarray(step, dtype=np.float64).reshape(3)
+        return self._array
+
+    def _kernel(self, steps: np.ndarray, step: np.ndarray) -> np.ndarray:
+        """The Gaussian kernel between ``steps`` and ``step`` (broadcast over their
+        leading axes; the last holds x, y, θ)."""
         c = self.config
-        turn = wrap_angle(h[:, 2] - s[2])
-        e = ((h[:, 0] - s[0]) ** 2 + (h[:, 1] - s[1]) ** 2) / c.sigma_distance**2
-        e += turn**2 / c.sigma_angle**2
-        return float(np.mean(np.exp(-0.5 * e)))
+        turn = wrap_angle(steps[..., 2] - step[..., 2])
+        e = ((steps[..., 0] - step[..., 0]) ** 2 + (steps[..., 1] - step[..., 1]) ** 2)
+        e = e / c.sigma_distance**2 + turn**2 / c.sigma_angle**2
+        return np.exp(-0.5 * e)
 
     def cost(self, step: ArrayLike) -> float:
         """``-log((1 - f) * density + f)`` with ``f`` the floor: 0 for a step like all recent
@@ -123,13 +131,9 @@ class StepPrior:
         spot or along an arc, and which one it did last says little about the next."""
         if len(self._steps) < self.config.min_steps or count < 1:
             return []
-        if self._array is None:
-            self._array = np.array(self._steps)
-        h = self._array
+        h = self._history()
         c = self.config
-        dd = (h[:, None, 0] - h[None, :, 0]) ** 2 + (h[:, None, 1] - h[None, :, 1]) ** 2
-        da = wrap_angle(h[:, None, 2] - h[None, :, 2])
-        density = np.exp(-0.5 * (dd / c.sigma_distance**2 + da**2 / c.sigma_angle**2)).sum(1)
+        density = self._kernel(h[:, None, :], h[None, :, :]).sum(1)
         chosen: list[np.ndarray] = []
         for i in np.argsort(-density, kind="stable"):
             far = all(
