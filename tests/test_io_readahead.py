@@ -121,7 +121,7 @@ def test_the_run_command_writes_the_same_either_way(tmp_path):
     for mode in ("ahead", "in-process"):
         out = tmp_path / mode
         cmd = [sys.executable, "-m", "bioslam.cli", "run", str(log), "--out", str(out),
-               "--no-progress"] + (["--no-read-ahead"] if mode == "in-process" else [])
+               "--no-progress"] + (["--one-process"] if mode == "in-process" else [])
         done = subprocess.run(cmd, capture_output=True, text=True, timeout=300,
                               env={**os.environ, "PYTHONPATH": str(SRC)})  # fmt: skip
         assert done.returncode == 0, done.stderr

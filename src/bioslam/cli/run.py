@@ -48,7 +48,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     parser.add_argument(
-        "--no-read-ahead", action="store_true",
+        "--one-process", action="store_true",
         help="read the log in the run's own process (by default a child process reads it "
         "ahead of the run when there is a second core)",
     )
@@ -96,7 +96,7 @@ def run_command(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def start_reading(args: argparse.Namespace) -> tuple[Any, Exception | None]:
-    """The log opened and, unless ``--no-read-ahead``, being read ahead in a child process
+    """The log opened and, unless ``--one-process``, being read ahead in a child process
     (:func:`bioslam.io.readahead.read_ahead`); or ``None`` and why it cannot be read."""
     from bioslam.io.logs import open_log
     from bioslam.io.readahead import read_ahead
@@ -106,7 +106,7 @@ def start_reading(args: argparse.Namespace) -> tuple[Any, Exception | None]:
         source = open_log(args.input, topic=args.topic)
     except (OSError, ValueError) as exc:
         return None, exc
-    return (source if args.no_read_ahead else read_ahead(source)), None
+    return (source if args.one_process else read_ahead(source)), None
 
 
 def _run(args: argparse.Namespace, source: Any, config: Any, gt: Trajectory | None,
