@@ -419,9 +419,16 @@ class BioSLAM:
         # registered in the submap anchor's frame, reported in the experience's
         poses = self.cognitive_map.experience_poses_view
         anchor_in_experience = between(experience.pose, poses[submap.anchor])
+        # Across a step the odometry doubted (blind along a corridor, a look-alike match) it
+        # may have slid farther than the drift bound says: an accepted pose is challenged by
+        # the best fits over the whole search window, so that a look-alike the map's error
+        # put inside the bound is not taken for the place unchallenged (maze, SICK scanner:
+        # a closure 0.98 m off, the true place outside a 0.4 m window).
+        trusted = self._trusted(min(anchor, experience.id))
         verdict = verify(
             submap.points, points, between(poses[submap.anchor], self.cognitive_map.pose()),
             (drift, drift_angle), cfg, submap.seen, submap.pyramid,
+            None if trusted else (cfg.search_distance, cfg.search_angle),
         )  # fmt: skip
         verdict = dataclasses.replace(verdict, pose=compose(anchor_in_experience, verdict.pose))
         self._note_check(experience, verdict)
@@ -451,11 +458,7 @@ class BioSLAM:
         cmap, eid = self.cognitive_map, experience.id
         # the measurement relates the robot to the submap's ``anchor``, and the map the
         # anchor to the experience: both through the odometry since the earlier of them
-        since = min(anchor, eid)
-        trusted = bool(
-            self.self_motion.doubts == self._doubts_at[since]
-            and self.self_motion.breaks == self._breaks_at[since]
-        )
+        trusted = self._trusted(min(anchor, eid))
         candidate = Candidate(
             self._stamp, eid, np.asarray(measured.pose, dtype=np.float64),
             self.self_motion.pose.copy(), self._odometry_at[eid].copy(), self._travelled,
@@ -476,6 +479,15 @@ class BioSLAM:
             self.checks[earlier.check] = dataclasses.replace(old, verdict=accepted)
             self._confirmed_earlier = True
         return True
+
+    def _trusted(self, experience_id: int) -> bool:
+        """Whether the odometry since ``experience_id`` was made has neither doubted a step
+        (:func:`bioslam.closure.odometry_doubted`) nor broken: only then is the drift bound
+        a bound on the map's error relative to it."""
+        return bool(
+            self.self_motion.doubts == self._doubts_at[experience_id]
+            and self.self_motion.breaks == self._breaks_at[experience_id]
+        )
 
     def _break_since(self, experience_id: int) -> FloatArray | None:
         """The summed extent (m, rad) of the odometry breaks since ``experience_id`` was
