@@ -87,7 +87,7 @@ def test_same_scans_and_read_outs_at_every_scan(tmp_path):
 def test_a_run_that_stops_half_way_reports_what_it_took(tmp_path):
     path = adversarial_log(tmp_path / "room-corrected.log")
     direct, ahead = open_log(path), ReadAhead(open_log(path), batch=64)
-    pid = ahead._pid
+    pid = ahead.pid
     for a, b in zip(ahead, direct, strict=True):  # the child is a batch or more ahead
         same_scan(a, b)
         if a.stamp - direct.time_plan.stamps[0] > 12.0:
