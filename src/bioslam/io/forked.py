@@ -22,7 +22,7 @@ import pickle
 import signal
 from collections.abc import Callable
 from types import TracebackType
-from typing import IO, Any
+from typing import IO, Any, Self
 
 #: Bytes a pipe may hold (Linux lets anyone raise its 64 kB to 1 MiB): one side writes ahead
 #: while the other works, and a reader finds whole messages waiting instead of waking the
@@ -66,7 +66,23 @@ class Channel:
         self.incoming = self.outgoing = None
 
 
-class Forked(Channel):
+class Closing:
+    """A context manager that calls ``close()`` on leaving."""
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self, kind: type[BaseException] | None, exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+class Forked(Channel, Closing):
     """``work(channel)`` run in a forked child; this object is the parent's side of the
     channel. Use it as a context manager or call :meth:`close`."""
 
@@ -100,14 +116,22 @@ class Forked(Channel):
                 os.waitpid(self.pid, 0)
             self.pid = None
 
-    def __enter__(self) -> Forked:
-        return self
 
-    def __exit__(
-        self, kind: type[BaseException] | None, exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
+
+class Helper(Closing):
+    """The parent's side of a helper process built on :class:`Forked` (``self._child``):
+    closing it stops and reaps the child."""
+
+    _child: Forked
+
+    @property
+    def pid(self) -> int | None:
+        """The child's process id (None once it was reaped)."""
+        return self._child.pid
+
+    def close(self) -> None:
+        """Stop the child (if it still runs) and reap it."""
+        self._child.close()
 
 
 def can_fork() -> bool:

@@ -25,10 +25,9 @@ from __future__ import annotations
 import functools
 import pickle
 from collections.abc import Iterator
-from types import TracebackType
 from typing import Any
 
-from bioslam.io.forked import Channel, ChildEndedError, Forked, can_fork
+from bioslam.io.forked import Channel, ChildEndedError, Forked, Helper, can_fork
 from bioslam.io.logs import LogSource, Pose, ReadState, _trajectory
 from bioslam.io.timestamps import TimePlan
 from bioslam.scan import LaserScan
@@ -46,7 +45,7 @@ def read_ahead(source: LogSource) -> ReadAhead | LogSource:
     return ReadAhead(source) if can_fork() else source
 
 
-class ReadAhead:
+class ReadAhead(Helper):
     """A :class:`LogSource` iterated in a child process (module doc); iterate it once, then
     :meth:`close` it (or use it as a context manager). Its read-outs are the source's."""
 
@@ -58,11 +57,6 @@ class ReadAhead:
         self._references: list[tuple[float, Pose]] = []
         self._iterated = False
         self._child = Forked(functools.partial(_send_scans, source, batch))
-
-    @property
-    def pid(self) -> int | None:
-        """The reading child's process id (None once it ended and was reaped)."""
-        return self._child.pid
 
     # -- iteration ------------------------------------------------------------------------------
     def __iter__(self) -> Iterator[LaserScan]:
@@ -88,19 +82,6 @@ class ReadAhead:
                 else:  # the end
                     self.close()
                     return
-
-    def close(self) -> None:
-        """Stop the child (if it is still reading) and reap it."""
-        self._child.close()
-
-    def __enter__(self) -> ReadAhead:
-        return self
-
-    def __exit__(
-        self, kind: type[BaseException] | None, exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
     # -- read-outs (LogSource's, as at the last scan taken) -------------------------------------
     @property

@@ -15,10 +15,9 @@ stays the parent's. A figure that fails comes back as its error, the others stil
 from __future__ import annotations
 
 import io
-from types import TracebackType
 from typing import Any
 
-from bioslam.io.forked import Channel, Forked
+from bioslam.io.forked import Channel, Forked, Helper
 
 #: A figure to draw: its file name, the :mod:`bioslam.plots.figures` function that draws it
 #: and that function's arguments after the path.
@@ -27,7 +26,7 @@ Job = tuple[str, str, tuple[Any, ...]]
 Drawn = tuple[str, bytes | None, str | None]
 
 
-class FigureWorker:
+class FigureWorker(Helper):
     """A child process that draws figures (module doc). Send it jobs with :meth:`draw` as
     their data is ready; :meth:`drawn` waits for all of them."""
 
@@ -44,18 +43,6 @@ class FigureWorker:
         result: list[Drawn] = self._child.receive()
         return result
 
-    def close(self) -> None:
-        """Stop the child (drawing or not) and reap it."""
-        self._child.close()
-
-    def __enter__(self) -> FigureWorker:
-        return self
-
-    def __exit__(
-        self, kind: type[BaseException] | None, exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def draw_png(job: Job) -> Drawn:
