@@ -107,7 +107,11 @@ def implausible(
     its motion in ``dt`` seconds (:func:`_break_thresholds`), however the odometry matched
     it: on the simulated rooms the odometry, tracking without a search, slid 20 cm back in
     one scan and forward again seconds later."""
-    return bool(np.any(_departure(step, expected) > _break_thresholds(dt, config)))
+    (moved, turned), (max_moved, max_turned) = (
+        _departure(step, expected),
+        _break_thresholds(dt, config),
+    )
+    return moved > max_moved or turned > max_turned
 
 
 def jumped(
@@ -128,7 +132,7 @@ def break_extent(
     have put the robot from where it went: its departure from the ``expected`` motion, at
     least what a robot could have changed its motion by in ``dt`` (a step without a match,
     or one blind along a corridor, has no departure of its own to tell)."""
-    return np.maximum(_departure(step, expected), _break_thresholds(dt, config))
+    return np.maximum(np.array(_departure(step, expected)), np.array(_break_thresholds(dt, config)))
 
 
 def odometry_doubted(report: MatchReport) -> bool:
@@ -142,25 +146,23 @@ def odometry_doubted(report: MatchReport) -> bool:
     return bool(report.predicted_only or report.degenerate or report.ambiguous)
 
 
-def _departure(step: FloatArray, expected: FloatArray) -> FloatArray:
+# (m, rad) pairs as plain floats: both run twice at every scan (:func:`jumped`), where
+# two-element arrays cost more than the comparison.
+def _departure(step: FloatArray, expected: FloatArray) -> tuple[float, float]:
     """How far (m, rad) ``step`` lands from the ``expected`` motion."""
-    return np.array(
-        [
-            math.hypot(step[0] - expected[0], step[1] - expected[1]),
-            abs(wrap_angle(step[2] - expected[2])),
-        ]
+    return (
+        math.hypot(step[0] - expected[0], step[1] - expected[1]),
+        abs(float(wrap_angle(float(step[2] - expected[2])))),
     )
 
 
-def _break_thresholds(dt: float, config: LoopClosureConfig) -> FloatArray:
+def _break_thresholds(dt: float, config: LoopClosureConfig) -> tuple[float, float]:
     """The most (m, rad) a robot's motion can change in ``dt`` seconds: ``break_distance``
     / ``break_angle`` plus half the break accelerations times dt²."""
     slack = 0.5 * dt * dt
-    return np.array(
-        [
-            config.break_distance + config.break_acceleration * slack,
-            config.break_angle + config.break_angular_acceleration * slack,
-        ]
+    return (
+        config.break_distance + config.break_acceleration * slack,
+        config.break_angle + config.break_angular_acceleration * slack,
     )
 
 
