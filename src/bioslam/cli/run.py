@@ -88,8 +88,8 @@ def run_command(args: argparse.Namespace) -> dict[str, Any]:
     source, bad_input = start_reading(args)
     helpers: list[Any] = [source] if isinstance(source, ReadAhead) else []
     try:
-        # likewise the figures' process imports matplotlib while the run goes on; forked now,
-        # it shares little of this process (Numba and the system come next)
+        # the figures' process, forked now, shares little of this process (Numba and the
+        # system come next); it waits for the end of the run
         figures = _figure_worker() if not args.one_process and can_fork() else None
         helpers += [figures] if figures is not None else []
         check_system(config, args.odometry_only, args.config)

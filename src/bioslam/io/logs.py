@@ -93,6 +93,9 @@ class LogSource(ABC):
     alternative_stamps: ClassVar[str] = ""
     #: Seconds a record may arrive late and still be put back in order (see ``_Reorder``).
     reorder_window_s: float = 2.0
+    #: Bytes of ranges the time plan's pass keeps for the first iteration (see
+    #: :data:`REPLAY_BUDGET_BYTES`); 0 parses the log twice and keeps nothing.
+    replay_budget: int = REPLAY_BUDGET_BYTES
 
     def __init__(self, path: str | Path, topic: str | None = None, strict: bool = False) -> None:
         self.path = Path(path)
@@ -204,14 +207,14 @@ class LogSource(ABC):
         """Read the log once and decide each scan record's stamp from all of them.
 
         What the reader reports while doing so (records, skips, odometry) is kept, up to
-        :data:`REPLAY_BUDGET_BYTES` of ranges, so that the first iteration replays it instead
+        :attr:`replay_budget` bytes of ranges, so that the first iteration replays it instead
         of parsing the file again; a longer log is parsed again.
         """
         self._reset()
         self._recording = []
         self._odometry_slots = []
         stamps: list[float] = []
-        budget = REPLAY_BUDGET_BYTES
+        budget = self.replay_budget
         try:
             for record in self._records():
                 stamps.append(record[0].stamp)

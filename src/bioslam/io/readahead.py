@@ -30,6 +30,7 @@ from typing import Any
 from bioslam.io.forked import Channel, ChildEndedError, Forked, Helper, can_fork
 from bioslam.io.logs import LogSource, Pose, ReadState, _trajectory
 from bioslam.io.timestamps import TimePlan
+from bioslam.memory import release_free_memory
 from bioslam.scan import LaserScan
 from bioslam.trajectory import Trajectory
 
@@ -132,6 +133,11 @@ def _send_scans(source: LogSource, batch: int, channel: Channel) -> None:
     taken = 0
     scans = 0
     try:
+        # parsed twice rather than up to 32 MB held: the time is this process's, the memory
+        # would be on top of the run's; what the time plan's pass freed goes back at once
+        source.replay_budget = 0
+        source.time_plan  # noqa: B018 - the pass over the stamps, before the first scan
+        release_free_memory()
         for scan in source:
             now = source.read_state_key()
             if now != key:

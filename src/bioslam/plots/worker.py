@@ -3,9 +3,11 @@
 Importing matplotlib and drawing a run's figures take about a second of CPU once the last scan
 is processed (on the 600 s simulated route: the import 0.4 s, the figures 0.6 s), in which
 the command otherwise only waits. A :class:`FigureWorker` is forked when the command starts,
-while its process is still small (what the child shares of it), imports matplotlib there
-while the run goes on, and at the end draws what it is sent beside the parent's writing of
-the trajectories, the cognitive map and the occupancy map.
+while its process is still small (what the child shares of it), and waits. The figures that
+need no occupancy map are sent to it as soon as the trajectories are made: it imports
+matplotlib and draws them while the parent writes the trajectories, the cognitive map and the
+occupancy map, then draws the map's figure. Importing matplotlib only then keeps its 45 MB out
+of the run's memory; it would gain about 0.1 s more if imported at the start.
 
 It returns each figure as PNG bytes and the parent writes them: a worker stopped half-way
 (a signal, a crash) leaves no file behind, and the output directory's record of its files
@@ -59,9 +61,7 @@ def draw_png(job: Job) -> Drawn:
 
 
 def _serve(channel: Channel) -> None:
-    """In the child: import the plotting code at once, then draw until the parent leaves."""
-    from bioslam.plots import figures  # noqa: F401 - the import is the point: before the jobs
-
+    """In the child: draw what comes until the parent leaves."""
     drawn: list[Drawn] = []
     while True:
         jobs = channel.receive()
