@@ -62,6 +62,11 @@ REPLAY_BUDGET_BYTES = 32 * 2**20
 _SCAN, _SKIP, _ODOMETRY = 0, 1, 2
 
 
+class BadRecordError(ValueError):
+    """A strict read's first unusable record (the message names the file and the record).
+    A reader's own parsing errors must let it through unchanged."""
+
+
 @dataclasses.dataclass(frozen=True)
 class ReadState:
     """A source's read-outs as they stood at one moment of an iteration: what a copy of the
@@ -93,9 +98,6 @@ class LogSource(ABC):
     alternative_stamps: ClassVar[str] = ""
     #: Seconds a record may arrive late and still be put back in order (see ``_Reorder``).
     reorder_window_s: float = 2.0
-    #: Bytes of ranges the time plan's pass keeps for the first iteration (see
-    #: :data:`REPLAY_BUDGET_BYTES`); 0 parses the log twice and keeps nothing.
-    replay_budget: int = REPLAY_BUDGET_BYTES
 
     def __init__(self, path: str | Path, topic: str | None = None, strict: bool = False) -> None:
         self.path = Path(path)
@@ -144,7 +146,7 @@ class LogSource(ABC):
             return
         message = f"{where}: {reason}" + (f": {detail}" if detail else "")
         if self.strict:
-            raise ValueError(f"{self.path}: {message}")
+            raise BadRecordError(f"{self.path}: {message}")
         self._skipped[reason] += count
         self.skip_examples.setdefault(reason, message)
 
@@ -207,14 +209,14 @@ class LogSource(ABC):
         """Read the log once and decide each scan record's stamp from all of them.
 
         What the reader reports while doing so (records, skips, odometry) is kept, up to
-        :attr:`replay_budget` bytes of ranges, so that the first iteration replays it instead
+        :data:`REPLAY_BUDGET_BYTES` of ranges, so that the first iteration replays it instead
         of parsing the file again; a longer log is parsed again.
         """
         self._reset()
         self._recording = []
         self._odometry_slots = []
         stamps: list[float] = []
-        budget = self.replay_budget
+        budget = REPLAY_BUDGET_BYTES
         try:
             for record in self._records():
                 stamps.append(record[0].stamp)

@@ -133,11 +133,8 @@ def _send_scans(source: LogSource, batch: int, channel: Channel) -> None:
     taken = 0
     scans = 0
     try:
-        # parsed twice rather than up to 32 MB held: the time is this process's, the memory
-        # would be on top of the run's; what the time plan's pass freed goes back at once
-        source.replay_budget = 0
         source.time_plan  # noqa: B018 - the pass over the stamps, before the first scan
-        release_free_memory()
+        release_free_memory()  # what that pass kept and freed (a long log's records)
         for scan in source:
             now = source.read_state_key()
             if now != key:
