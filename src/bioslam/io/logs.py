@@ -62,6 +62,11 @@ REPLAY_BUDGET_BYTES = 32 * 2**20
 _SCAN, _SKIP, _ODOMETRY = 0, 1, 2
 
 
+class BadRecordError(ValueError):
+    """A strict read's first unusable record (the message names the file and the record).
+    A reader's own parsing errors must let it through unchanged."""
+
+
 @dataclasses.dataclass(frozen=True)
 class ReadState:
     """A source's read-outs as they stood at one moment of an iteration: what a copy of the
@@ -141,7 +146,7 @@ class LogSource(ABC):
             return
         message = f"{where}: {reason}" + (f": {detail}" if detail else "")
         if self.strict:
-            raise ValueError(f"{self.path}: {message}")
+            raise BadRecordError(f"{self.path}: {message}")
         self._skipped[reason] += count
         self.skip_examples.setdefault(reason, message)
 

@@ -15,26 +15,22 @@ when it takes the next scan. A run interrupted half-way therefore reports what i
 what the child had read ahead. An exception the source raises (a strict read's bad record)
 is raised in the parent at the same scan.
 
-The child ignores SIGINT and SIGTERM (the command decides what a signal means: a Ctrl-C
-reaches the whole process group), dies with its parent, and is killed by :meth:`close` when
-the run stops early. Where there is no ``fork`` or a single core, :func:`read_ahead` returns
-the source itself.
+The child is a :class:`bioslam.io.forked.Forked` helper (it ignores signals, dies with its
+parent) and is killed by :meth:`ReadAhead.close` when the run stops early. Where there is no
+``fork`` or a single core, :func:`read_ahead` returns the source itself.
 """
 
 from __future__ import annotations
 
-import contextlib
-import ctypes
-import ctypes.util
-import os
+import functools
 import pickle
-import signal
 from collections.abc import Iterator
-from types import TracebackType
-from typing import IO, Any
+from typing import Any
 
+from bioslam.io.forked import Channel, ChildEndedError, Forked, Helper, can_fork
 from bioslam.io.logs import LogSource, Pose, ReadState, _trajectory
 from bioslam.io.timestamps import TimePlan
+from bioslam.memory import release_free_memory
 from bioslam.scan import LaserScan
 from bioslam.trajectory import Trajectory
 
@@ -42,30 +38,15 @@ from bioslam.trajectory import Trajectory
 #: unchanged sensor shares are sent once a batch), small enough that the first scan comes
 #: soon and that little is held in the pipe (64 scans of 1081 beams: 350 kB).
 BATCH_SCANS = 64
-#: Bytes the pipe may hold (Linux allows up to 1 MiB to anyone): about three batches.
-PIPE_BYTES = 2**20
-_SIGNALS = (signal.SIGINT, signal.SIGTERM)
-_PR_SET_PDEATHSIG = 1
-_MAX_FD = 65536
-
-
-def cores() -> int:
-    """Cores this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        return os.cpu_count() or 1
 
 
 def read_ahead(source: LogSource) -> ReadAhead | LogSource:
     """``source`` read in a child process (:class:`ReadAhead`) where that can gain time (a
     second core and ``fork``), else ``source`` itself."""
-    if not hasattr(os, "fork") or cores() < 2:
-        return source
-    return ReadAhead(source)
+    return ReadAhead(source) if can_fork() else source
 
 
-class ReadAhead:
+class ReadAhead(Helper):
     """A :class:`LogSource` iterated in a child process (module doc); iterate it once, then
     :meth:`close` it (or use it as a context manager). Its read-outs are the source's."""
 
@@ -76,43 +57,18 @@ class ReadAhead:
         self._consumed = 0
         self._references: list[tuple[float, Pose]] = []
         self._iterated = False
-        self._pid: int | None = None
-        self._pipe: IO[bytes] | None = None
-        self._start(batch)
-
-    # -- the child ------------------------------------------------------------------------------
-    def _start(self, batch: int) -> None:
-        read_end, write_end = os.pipe()
-        _widen(write_end)
-        # No signal between the fork and the child's ignoring it: the parent's handlers
-        # would run in the child and raise there.
-        parent = os.getpid()
-        blocked = signal.pthread_sigmask(signal.SIG_BLOCK, _SIGNALS)
-        try:
-            pid = os.fork()
-            if pid == 0:  # the child: never returns
-                os.close(read_end)
-                _child(self.source, write_end, batch, parent)
-        finally:
-            signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
-        os.close(write_end)
-        self._pid = pid
-        self._pipe = os.fdopen(read_end, "rb")
+        self._child = Forked(functools.partial(_send_scans, source, batch))
 
     # -- iteration ------------------------------------------------------------------------------
     def __iter__(self) -> Iterator[LaserScan]:
         if self._iterated:
             raise RuntimeError(f"{self.path}: a read-ahead log is read once")
         self._iterated = True
-        pipe = self._pipe
-        if pipe is None:
-            raise RuntimeError(f"{self.path}: the read-ahead log was closed")
         while True:
             try:
-                items = pickle.load(pipe)
-            except (EOFError, pickle.UnpicklingError, OSError) as exc:
-                raise RuntimeError(f"{self.path}: the reading process ended early "
-                                   f"({type(exc).__name__})") from None
+                items = self._child.receive()
+            except ChildEndedError as exc:
+                raise ChildEndedError(f"{self.path}: reading the log: {exc}") from None
             for item in items:
                 if isinstance(item, ReadState):
                     self._state = item
@@ -127,27 +83,6 @@ class ReadAhead:
                 else:  # the end
                     self.close()
                     return
-
-    def close(self) -> None:
-        """Stop the child (if it is still reading) and reap it."""
-        if self._pipe is not None:
-            self._pipe.close()
-            self._pipe = None
-        if self._pid is not None:
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(self._pid, signal.SIGKILL)
-            with contextlib.suppress(ChildProcessError):
-                os.waitpid(self._pid, 0)
-            self._pid = None
-
-    def __enter__(self) -> ReadAhead:
-        return self
-
-    def __exit__(
-        self, kind: type[BaseException] | None, exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
     # -- read-outs (LogSource's, as at the last scan taken) -------------------------------------
     @property
@@ -189,41 +124,17 @@ class ReadAhead:
         return self.time_plan.describe()
 
 
-def _child(source: LogSource, fd: int, batch: int, parent: int) -> None:
-    """Iterate ``source``, sending batches of scans and read-out snapshots to ``fd``; exit."""
-    code = 0
-    try:
-        for sig in _SIGNALS:
-            signal.signal(sig, signal.SIG_IGN)
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, _SIGNALS)
-        # the parent's other pipes (a recorder's, a subprocess's) must see their end when
-        # the parent closes them, not when this child exits: only the sources' own files
-        # (opened as they are read) and the standard streams are used here
-        os.closerange(3, fd)
-        os.closerange(fd + 1, _MAX_FD)
-        _die_with_parent()
-        if os.getppid() != parent:  # it ended before the request
-            return
-        with os.fdopen(fd, "wb") as pipe:
-            _send_scans(source, pipe, batch)
-    except BaseException:  # a child must never return into the parent's code
-        code = 1
-    finally:
-        os._exit(code)
-
-
-def _send_scans(source: LogSource, pipe: IO[bytes], batch: int) -> None:
+def _send_scans(source: LogSource, batch: int, channel: Channel) -> None:
+    """In the child: iterate ``source``, sending batches of scans (each with its reference
+    pose) and, before a scan, the read-outs whenever they changed; then the last read-outs
+    and the end (None) or the exception the source raised."""
     items: list[Any] = []
     key: tuple[int, ...] | None = None
     taken = 0
     scans = 0
-
-    def send() -> None:
-        pickle.dump(items, pipe, protocol=pickle.HIGHEST_PROTOCOL)
-        pipe.flush()
-        items.clear()
-
     try:
+        source.time_plan  # noqa: B018 - the pass over the stamps, before the first scan
+        release_free_memory()  # what that pass kept and freed (a long log's records)
         for scan in source:
             now = source.read_state_key()
             if now != key:
@@ -235,13 +146,12 @@ def _send_scans(source: LogSource, pipe: IO[bytes], batch: int) -> None:
             items.append((scan, ref))
             scans += 1
             if scans % batch == 0:
-                send()
-        items.append(source.read_state())
-        items.append(None)
+                channel.send(items)
+                items = []
+        items += [source.read_state(), None]
     except Exception as exc:
-        items.append(source.read_state())
-        items.append(_picklable(exc))
-    send()
+        items += [source.read_state(), _picklable(exc)]
+    channel.send(items)
 
 
 def _picklable(exc: Exception) -> Exception:
@@ -251,21 +161,3 @@ def _picklable(exc: Exception) -> Exception:
     except Exception:
         return RuntimeError(f"{type(exc).__name__}: {exc}")
     return exc
-
-
-def _widen(fd: int) -> None:
-    """Let the pipe hold a few batches (Linux: 64 kB by default, less than one): the child
-    then writes ahead while the parent works, and the parent finds a whole batch waiting
-    instead of waking the child for every 64 kB of it."""
-    with contextlib.suppress(Exception):
-        import fcntl  # POSIX only, as is fork
-
-        fcntl.fcntl(fd, fcntl.F_SETPIPE_SZ, PIPE_BYTES)
-
-
-def _die_with_parent() -> None:
-    """Ask Linux to kill this process when its parent ends (elsewhere: the pipe's closing
-    ends it at its next write)."""
-    with contextlib.suppress(Exception):
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
