@@ -135,7 +135,9 @@ def check_outcome(child: Child, total_scans: int) -> dict | None:
 
 
 def test_signals_at_start_up_while_processing_and_while_drawing(tmp_path):
-    long_log = write_carmen(tmp_path / "long.log", scans=600)
+    # long enough that the scans (read ahead by a child process, a fraction of a millisecond
+    # each) are still being processed when the signal comes on a loaded machine
+    long_log = write_carmen(tmp_path / "long.log", scans=3000)
     short_log = write_carmen(tmp_path / "short.log", scans=120)
     start = Child(short_log, tmp_path / "start", "--no-progress")
     middle = Child(long_log, tmp_path / "middle")  # the progress bar tells when it processes
@@ -149,8 +151,8 @@ def test_signals_at_start_up_while_processing_and_while_drawing(tmp_path):
 
     summary = check_outcome(start, 120)
     assert start.proc.returncode == 130 and summary is not None
-    summary = check_outcome(middle, 600)
-    assert middle.proc.returncode == 143 and 5 <= summary["scans"] < 600
+    summary = check_outcome(middle, 3000)
+    assert middle.proc.returncode == 143 and 5 <= summary["scans"] < 3000
     summary = check_outcome(drawing, 120)
     assert drawing.proc.returncode == 130 and summary["scans"] == 120
     assert (tmp_path / "drawing" / "map.pgm").is_file()

@@ -355,3 +355,38 @@ def test_a_sparse_pass_still_gives_its_submap_several_scans():
     members = pass_neighbours(sparse, 10, reach, step, np.inf)
     assert members == [8, 9, 10, 11, 12]  # with the dense settings, the anchor alone
     assert pass_neighbours(sparse, 10, 1.5, 0.5, np.inf) == [10]
+
+
+def test_a_look_alike_inside_the_window_is_refused_when_the_true_place_lies_outside_it():
+    # The map is one door (1.2 m) off along a corridor of identical doors and claims 0.3 m:
+    # within that window only the look-alike fits, with no rival in it. Searched for rivals
+    # over the whole search window, the true place outside it is one, and the check refuses.
+    walls = _corridor_with_doors(1.2, 12)
+    around = [(6.0 + 0.5 * k, 1.0, 0.0) for k in range(-2, 3)]
+    submap, seen = _submap(walls, 2, around)
+    robot = (7.2, 1.0, 0.0)
+    query = _points(walls, robot)
+    predicted = compose(between(around[2], (6.0, 1.0, 0.0)), (0.03, -0.02, 0.01))
+    config = LoopClosureConfig()
+    narrow = verify(submap, query, predicted, (0.3, 0.1), config, seen)
+    assert narrow.accepted  # the gap: the look-alike, 1.2 m from the truth, passes
+    assert math.hypot(*between(between(around[2], robot), narrow.pose)[:2]) > 1.0
+    wide = verify(submap, query, predicted, (0.3, 0.1), config, seen, rival_window=(1.5, 0.5))
+    assert not wide.accepted
+    assert wide.reason in ("ambiguous", "beyond drift")
+
+
+def test_a_unique_place_still_closes_with_rivals_sought_over_the_whole_search_window():
+    around = [(5.0 + 0.5 * k, 1.5, 0.0) for k in range(5)]
+    submap, seen = _submap(HALL, 2, around)
+    robot = _offset(around[2], 0.3, 0.2)
+    truth = between(around[2], robot)
+    predicted = compose(truth, (0.1, -0.05, math.radians(2.0)))
+    config = LoopClosureConfig()
+    verdict = verify(
+        submap, _points(HALL, robot), predicted, (0.3, 0.1), config, seen,
+        rival_window=(config.search_distance, config.search_angle),
+    )  # fmt: skip
+    assert verdict.accepted, verdict.reason
+    err = between(truth, verdict.pose)
+    assert math.hypot(err[0], err[1]) < 0.03 and abs(err[2]) < math.radians(0.5)

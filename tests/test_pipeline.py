@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -129,3 +130,37 @@ def test_demo_writes_the_papers_figures(tmp_path, capsys):
     for name in ("gt.tum", "trajectory.tum", "world.png", "figures/mapping_progress.png",
                  "figures/views_and_error.png"):
         assert (out / name).exists()
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="the figure worker forks")
+def test_figures_drawn_by_a_worker_are_those_drawn_here(short_drive, tmp_path, monkeypatch):
+    from bioslam.plots import figures
+    from bioslam.plots.worker import FigureWorker
+
+    scans, gt = short_drive
+    end = float(gt.stamps[-1] - gt.stamps[0])
+    result = run_slam(scans, options=RunOptions(progress=False, snapshot_times=(5.0, end)))
+
+    def written(folder, broken: bool = False) -> tuple[dict, dict]:
+        with FigureWorker() as worker:  # forked after the patch below: the child has it too
+            options = RunOptions(progress=False, figure_worker=worker)
+            summary = write_results(result, tmp_path / folder, gt, options)
+        files = {p.name: p.read_bytes() for p in (tmp_path / folder / "figures").iterdir()}
+        here = write_results(result, tmp_path / f"{folder}-here", gt, RunOptions(progress=False))
+        assert here.get("figures_error") == summary.get("figures_error")
+        assert files == {p.name: p.read_bytes()
+                         for p in (tmp_path / f"{folder}-here" / "figures").iterdir()}
+        return summary, files
+
+    summary, files = written("worker")
+    assert "figures_error" not in summary
+    assert set(files) == {"map.png", "cognitive_map.png", "active_view.png", "error.png",
+                          "views_and_error.png", "mapping_progress.png"}
+
+    def refuse(*args, **kwargs):
+        raise ValueError("no views to draw")
+
+    monkeypatch.setattr(figures, "plot_active_view", refuse)
+    summary, files = written("broken")  # the figures before the failing one are kept
+    assert summary["figures_error"] == "ValueError: no views to draw"
+    assert set(files) == {"map.png", "cognitive_map.png"}

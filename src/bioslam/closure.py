@@ -107,7 +107,11 @@ def implausible(
     its motion in ``dt`` seconds (:func:`_break_thresholds`), however the odometry matched
     it: on the simulated rooms the odometry, tracking without a search, slid 20 cm back in
     one scan and forward again seconds later."""
-    return bool(np.any(_departure(step, expected) > _break_thresholds(dt, config)))
+    (moved, turned), (max_moved, max_turned) = (
+        _departure(step, expected),
+        _break_thresholds(dt, config),
+    )
+    return moved > max_moved or turned > max_turned
 
 
 def jumped(
@@ -128,7 +132,7 @@ def break_extent(
     have put the robot from where it went: its departure from the ``expected`` motion, at
     least what a robot could have changed its motion by in ``dt`` (a step without a match,
     or one blind along a corridor, has no departure of its own to tell)."""
-    return np.maximum(_departure(step, expected), _break_thresholds(dt, config))
+    return np.maximum(np.array(_departure(step, expected)), np.array(_break_thresholds(dt, config)))
 
 
 def odometry_doubted(report: MatchReport) -> bool:
@@ -142,25 +146,23 @@ def odometry_doubted(report: MatchReport) -> bool:
     return bool(report.predicted_only or report.degenerate or report.ambiguous)
 
 
-def _departure(step: FloatArray, expected: FloatArray) -> FloatArray:
+# (m, rad) pairs as plain floats: both run twice at every scan (:func:`jumped`), where
+# two-element arrays cost more than the comparison.
+def _departure(step: FloatArray, expected: FloatArray) -> tuple[float, float]:
     """How far (m, rad) ``step`` lands from the ``expected`` motion."""
-    return np.array(
-        [
-            math.hypot(step[0] - expected[0], step[1] - expected[1]),
-            abs(wrap_angle(step[2] - expected[2])),
-        ]
+    return (
+        math.hypot(step[0] - expected[0], step[1] - expected[1]),
+        abs(float(wrap_angle(float(step[2] - expected[2])))),
     )
 
 
-def _break_thresholds(dt: float, config: LoopClosureConfig) -> FloatArray:
+def _break_thresholds(dt: float, config: LoopClosureConfig) -> tuple[float, float]:
     """The most (m, rad) a robot's motion can change in ``dt`` seconds: ``break_distance``
     / ``break_angle`` plus half the break accelerations times dt²."""
     slack = 0.5 * dt * dt
-    return np.array(
-        [
-            config.break_distance + config.break_acceleration * slack,
-            config.break_angle + config.break_angular_acceleration * slack,
-        ]
+    return (
+        config.break_distance + config.break_acceleration * slack,
+        config.break_angle + config.break_angular_acceleration * slack,
     )
 
 
@@ -445,6 +447,7 @@ def verify(
     config: LoopClosureConfig,
     seen: SeenArea | None = None,
     pyramid: MapPyramid | None = None,
+    rival_window: tuple[float, float] | None = None,
 ) -> Verdict:
     """Register ``query`` (the current scan, robot frame) against ``reference`` (a submap in
     a candidate experience's frame) within ``window`` (m, rad) of ``predicted``, and judge it.
@@ -462,22 +465,18 @@ def verify(
 
     ``seen``: where the submap's scans looked; points of the current scan elsewhere are not
     judged (:class:`SeenArea`, :func:`seen_hit_fraction`). None judges every point.
-    ``pyramid``: ``reference`` already rasterised (:class:`Submap`), else built here."""
+    ``pyramid``: ``reference`` already rasterised (:class:`Submap`), else built here.
+    ``rival_window``: where the map's prediction may be farther off than ``window`` (m, rad;
+    capped as it): an accepted pose is then challenged by the best poses outside ``window``
+    within it (:func:`outside_rival`). A window that holds a look-alike but not the true
+    place has no rival in it (the maze's SICK route: the map 0.98 m off along a corridor,
+    a 0.4 m window, the look-alike at the prediction); the true place outside then fits as
+    well, and the check is refused as ambiguous."""
     reg = config.registration
     distance = min(window[0], config.search_distance)
     angle = min(window[1], config.search_angle)
     pyramid = pyramid or _submap_pyramid(reference, reg)
-    matcher = WideBasinMatcher(
-        WideBasinConfig(
-            distance=distance,
-            angle=angle,
-            rival_distance=config.rival_distance,
-            rival_angle=config.rival_angle,
-            min_rival_ratio=config.max_ambiguity,
-        )
-    )
-    matcher.set_map(pyramid.grids[min(config.search_level, len(pyramid.grids) - 1)])
-    found = matcher.search(query, predicted)
+    found = _wide_search(pyramid, query, predicted, (distance, angle), config)
     judge = pyramid.grids[reg.score_level]
     # Gauss-Newton from the lattice pose on the searched level and finer only: a coarser
     # level's blur would let it slide along a corridor, away from what the search found.
@@ -499,7 +498,7 @@ def verify(
         pose, fit, report = kept, kept_fit, kept_report
     score = seen_hit_fraction(judge, pose, query, reg.hit_level, seen, config.min_seen)
     kept_score = seen_hit_fraction(judge, kept, query, reg.hit_level, seen, config.min_seen)
-    slid = not within(between(found.pose, pose), 2.0 * matcher.resolution, config.rival_angle)
+    slid = not within(between(found.pose, pose), 2.0 * found.resolution, config.rival_angle)
     reason = ""
     if score < config.min_score:
         reason = "score"
@@ -524,7 +523,85 @@ def verify(
         reason = "slid"
     elif not within(between(predicted, pose), distance, angle):
         reason = "beyond drift"
+    elif rival_window is not None and outside_rival(
+        pyramid, query, predicted, (distance, angle), rival_window, fit, config
+    ):
+        reason = "ambiguous"
     return Verdict(not reason, pose, score, found.ambiguity, reason, kept_score)
+
+
+@dataclass(frozen=True)
+class _Found:
+    """The wide-basin search's best lattice pose, its rival ratio and the lattice spacing."""
+
+    pose: FloatArray
+    ambiguity: float
+    rival_pose: FloatArray | None
+    resolution: float
+
+
+def _wide_search(
+    pyramid: MapPyramid,
+    query: FloatArray,
+    centre: FloatArray,
+    window: tuple[float, float],
+    config: LoopClosureConfig,
+) -> _Found:
+    """Branch and bound over ``window`` (m, rad) around ``centre`` on the search level."""
+    matcher = WideBasinMatcher(
+        WideBasinConfig(
+            distance=window[0],
+            angle=window[1],
+            rival_distance=config.rival_distance,
+            rival_angle=config.rival_angle,
+            min_rival_ratio=config.max_ambiguity,
+        )
+    )
+    matcher.set_map(pyramid.grids[min(config.search_level, len(pyramid.grids) - 1)])
+    found = matcher.search(query, centre)
+    return _Found(found.pose, found.ambiguity, found.rival_pose, matcher.resolution)
+
+
+def outside_rival(
+    pyramid: MapPyramid,
+    query: FloatArray,
+    predicted: FloatArray,
+    window: tuple[float, float],
+    rival_window: tuple[float, float],
+    fit: float,
+    config: LoopClosureConfig,
+) -> bool:
+    """Whether a pose outside ``window`` (m, rad) around ``predicted`` but within
+    ``rival_window`` (capped at the search window) fits ``query`` as well as the pose
+    accepted in it (share ``fit`` of every point on the submap), to within ``prior_tie``
+    (the score's own noise). The best and the best distinct rival of a search over the
+    wider window are refined (Gauss-Newton, as the accepted pose) where they lie outside
+    ``window``. Where the odometry may have slid farther than the drift bound (blind along
+    a corridor), the window's lone fit may be a look-alike of the place outside it; the
+    place itself then fits at least as well as its look-alike, whatever the world, and the
+    scan cannot say which it is. A pose outside that fits clearly worse is no such place:
+    the window, which the map's prediction favours, keeps its fit (with ``prior_margin``
+    instead, the URG-04LX hall lost half its recognised revisits, 0.327 -> 0.163)."""
+    wide = (
+        max(window[0], min(rival_window[0], config.search_distance)),
+        max(window[1], min(rival_window[1], config.search_angle)),
+    )
+    if wide[0] <= window[0] and wide[1] <= window[1]:
+        return False
+    reg = config.registration
+    found = _wide_search(pyramid, query, predicted, wide, config)
+    level = min(config.search_level, len(pyramid.grids) - 1)
+    iterations = _levels_up_to(reg.max_iterations, level)
+    judge = pyramid.grids[reg.score_level]
+    for start in (found.pose, found.rival_pose):
+        if start is None or within(between(predicted, start), *window):
+            continue
+        pose, _ = refine(pyramid, start, query, iterations)
+        if within(between(predicted, pose), *window):
+            continue  # slid back into the window: the accepted pose's own peak
+        if seen_hit_fraction(judge, pose, query, reg.hit_level) >= fit - config.prior_tie:
+            return True
+    return False
 
 
 def _levels_up_to(iterations: tuple[int, ...], level: int) -> tuple[int, ...]:

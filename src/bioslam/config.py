@@ -231,11 +231,13 @@ class SLAMConfig:
             twice a matched one; a look on another scan made a third of the scans slow with
             a 10 Hz scanner (one look every three scans), which set the full system's median
             at the odometry's 75th percentile. On the scans the odometry fuses, the looks
-            leave the others as fast as the odometry alone; the mean is unchanged. Off (0,
-            look as soon as due) by default: with 2 the slow scanners' median scan went from
-            1.75-2.04 to 1.23-1.43 times the odometry's, but freiburg-079 closed 143 loops
-            instead of 156 and the maze's SICK weaving route accepted a closure 0.98 m off
-            (benchmarks README, "Loop closure").
+            leave the others as fast as the odometry alone; the mean is unchanged. With 2
+            the slow scanners' median scan went from 1.75-2.04 to 1.23-1.43 times the
+            odometry's; freiburg-079 closed 143 loops instead of 156. It once let the maze's
+            SICK weaving route accept a closure 0.98 m off, the true place outside the
+            verification's window: closures across doubted odometry steps are now
+            challenged from outside it (:func:`bioslam.closure.outside_rival`). 0 looks as
+            soon as due (benchmarks README, "Loop closure").
         defer_relaxation: after a loop closure the map relaxes (Eq. 14) on the next scan,
             not on the one that registered the closure: the check (fusing its submap,
             registering) and the relaxation (a sparse solve over the map's recent window)
@@ -256,7 +258,7 @@ class SLAMConfig:
     view_distance: float = 0.05
     view_angle: float = 0.05
     view_min_scans: int = 3
-    view_wait: int = 0
+    view_wait: int = 2
     defer_relaxation: bool = True
     heading_bias: float = 0.0
 

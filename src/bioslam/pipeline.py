@@ -7,13 +7,14 @@ computed and still writes it.
 
 from __future__ import annotations
 
+import itertools
 import math
 import sys
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -25,7 +26,8 @@ from bioslam.config import SLAMConfig
 from bioslam.evaluation import evaluate, position_errors
 from bioslam.geometry import Pose2D, compose, inverse
 from bioslam.growing import GrowingArray
-from bioslam.io.jsonio import write_json, write_json_streamed
+from bioslam.io.forked import ChildEndedError
+from bioslam.io.jsonio import atomic_write_bytes, write_json, write_json_streamed
 from bioslam.io.mapfile import OccupancyImage, write_map
 from bioslam.io.outdir import OutputDir
 from bioslam.io.spill import SpilledScans
@@ -36,6 +38,9 @@ from bioslam.odometry import LidarOdometry, register_scans
 from bioslam.scan import LaserScan
 from bioslam.slam import BioSLAM, SelfMotion, StepRecords, thin_points
 from bioslam.trajectory import Trajectory
+
+if TYPE_CHECKING:
+    from bioslam.plots.worker import FigureWorker, Job
 
 FloatArray = NDArray[np.float64]
 
@@ -80,6 +85,9 @@ class RunOptions:
             file in this directory instead of in memory (:mod:`bioslam.io.spill`: 4 kB an
             experience, the largest part of what a long run accumulates; the run is the same
             either way). None: in memory.
+        figure_worker: draws the figures in a child process (:mod:`bioslam.plots.worker`,
+            started by ``bioslam run`` with the command), beside the writing of the other
+            outputs. None: drawn in this process.
     """
 
     odometry_only: bool = False
@@ -95,6 +103,7 @@ class RunOptions:
     release: bool = False
     trim_every: int = 2000
     scan_store_dir: Path | None = None
+    figure_worker: FigureWorker | None = None
 
 
 class OdometryOnly:
@@ -518,15 +527,17 @@ def write_results(
         if options.release:
             system.release_scans()  # the trajectories are made: the figures go without them
         summary.update(system.summary())
+        if gt is not None and len(trajectory) > 1:
+            gt = _evaluate_into(summary, trajectory, odometry, gt)
+        # the worker draws these while the files below and the map are written
+        sent = _send_figures(options.figure_worker, result, trajectory, odometry, gt)
         out.save("trajectory.tum", write_tum, trajectory)
         out.save("odometry.tum", write_tum, odometry)
         if isinstance(system, BioSLAM):
             out.save("cognitive_map.json", write_json_streamed,
                      system.cognitive_map.json_fields())  # fmt: skip
-        if gt is not None and len(trajectory) > 1:
-            gt = _evaluate_into(summary, trajectory, odometry, gt)
     if len(trajectory):
-        _write_map_and_figures(result, out, trajectory, odometry, gt, options, summary)
+        _write_map_and_figures(result, out, trajectory, odometry, gt, options, summary, sent)
     if result.interrupted or signals.received() is not None:
         summary["interrupted"] = True
     if result.error:
@@ -564,6 +575,7 @@ def _write_map_and_figures(
     gt: Trajectory | None,
     options: RunOptions,
     summary: dict[str, Any],
+    sent: _SentFigures | None = None,
 ) -> None:
     """The occupancy map and the figures: long to draw, so a signal abandons them (what was
     written stays), and a plotting failure is reported rather than losing the summary."""
@@ -574,11 +586,43 @@ def _write_map_and_figures(
                 result.keyframes = KeyframeScans(result.map_max_range)
                 release_free_memory()
             out.write(["map.pgm", "map.yaml"], lambda: write_map(out.path, image))
-            _write_figures(result, out, trajectory, odometry, gt, image)
+            if sent is None or not _write_drawn(sent, out, image, trajectory, summary):
+                _write_figures(result, out, trajectory, odometry, gt, image)
     except KeyboardInterrupt:
         result.interrupted = True
     except Exception as exc:  # a figure must not cost the summary
         summary["figures_error"] = f"{type(exc).__name__}: {exc}"
+
+
+def _map_figure(image: OccupancyImage, trajectory: Trajectory) -> Job:
+    return "map.png", "plot_occupancy", (image, trajectory.poses[:, :2])
+
+
+def _other_figures(
+    result: RunResult, trajectory: Trajectory, odometry: Trajectory, gt: Trajectory | None
+) -> Iterator[Job]:
+    """The figures after the map's, in order, each made when asked for (an error in making
+    one leaves those before it to draw)."""
+    system = result.system
+    if not isinstance(system, BioSLAM):
+        return
+    final = cognitive_map_snapshot(system, float(trajectory.stamps[-1] - trajectory.stamps[0]))
+    aligned_gt = _gt_in_map_frame(trajectory, gt) if gt is not None else None
+    yield "cognitive_map.png", "plot_cognitive_map", (final.nodes_xy, final.links, aligned_gt)
+    records = system.records
+    stamps, view_ids = records.stamps.view(), records.view_ids.view()
+    new_mask = records.new_views.view()
+    yield "active_view.png", "plot_active_view", (stamps, view_ids, new_mask)
+    if gt is None:
+        return
+    err_t, err = position_errors(trajectory, gt)
+    odo_t, odo_err = position_errors(odometry, gt)
+    yield "error.png", "plot_error_over_time", (err_t, err, (odo_t, odo_err))
+    yield "views_and_error.png", "plot_views_and_errors", (
+        stamps, view_ids, new_mask, err_t, err, (odo_t, odo_err))
+    if result.snapshots:
+        yield "mapping_progress.png", "plot_mapping_progress", (
+            [(s.elapsed, s.nodes_xy, s.links) for s in result.snapshots], aligned_gt)
 
 
 def _write_figures(
@@ -589,35 +633,73 @@ def _write_figures(
     gt: Trajectory | None,
     image: OccupancyImage,
 ) -> None:
+    """Draw the figures in this process, in order; the first failure ends them."""
     # matplotlib costs ~50 MB and a second to import: only once the run is over
     from bioslam.plots import figures
 
-    system = result.system
-
-    def draw(name: str, plot: Any, *args: Any) -> None:
-        out.save(f"figures/{name}", plot, *args)
+    jobs = _other_figures(result, trajectory, odometry, gt)
+    for name, plot, args in itertools.chain([_map_figure(image, trajectory)], jobs):
+        out.save(f"figures/{name}", getattr(figures, plot), *args)
         release_free_memory()  # the next figure is drawn on what this one left (module doc)
 
-    draw("map.png", figures.plot_occupancy, image, trajectory.poses[:, :2])
-    if not isinstance(system, BioSLAM):
-        return
-    final = cognitive_map_snapshot(system, float(trajectory.stamps[-1] - trajectory.stamps[0]))
-    aligned_gt = _gt_in_map_frame(trajectory, gt) if gt is not None else None
-    draw("cognitive_map.png", figures.plot_cognitive_map, final.nodes_xy, final.links, aligned_gt)
-    records = system.records
-    stamps, view_ids = records.stamps.view(), records.view_ids.view()
-    new_mask = records.new_views.view()
-    draw("active_view.png", figures.plot_active_view, stamps, view_ids, new_mask)
-    if gt is None:
-        return
-    err_t, err = position_errors(trajectory, gt)
-    odo_t, odo_err = position_errors(odometry, gt)
-    draw("error.png", figures.plot_error_over_time, err_t, err, (odo_t, odo_err))
-    draw("views_and_error.png", figures.plot_views_and_errors, stamps, view_ids, new_mask,
-         err_t, err, (odo_t, odo_err))
-    if result.snapshots:
-        draw("mapping_progress.png", figures.plot_mapping_progress,
-             [(s.elapsed, s.nodes_xy, s.links) for s in result.snapshots], aligned_gt)
+
+@dataclass
+class _SentFigures:
+    """Figures sent to a worker before the map was drawn: their names in order, and the
+    error that ended their making (the figures after it are not sent), if any."""
+
+    worker: FigureWorker
+    names: list[str]
+    failure: str | None
+
+
+def _send_figures(
+    worker: FigureWorker | None,
+    result: RunResult,
+    trajectory: Trajectory,
+    odometry: Trajectory,
+    gt: Trajectory | None,
+) -> _SentFigures | None:
+    """Send the figures that need no map to ``worker``; None: none, or the worker is gone
+    (the figures are then drawn here)."""
+    if worker is None or not len(trajectory):
+        return None
+    jobs: list[Job] = []
+    failure = None
+    try:
+        jobs.extend(_other_figures(result, trajectory, odometry, gt))
+    except Exception as exc:  # reported after the figures before it, as when drawn here
+        failure = f"{type(exc).__name__}: {exc}"
+    try:
+        worker.draw(jobs)
+    except ChildEndedError:
+        return None
+    return _SentFigures(worker, [job[0] for job in jobs], failure)
+
+
+def _write_drawn(
+    sent: _SentFigures,
+    out: OutputDir,
+    image: OccupancyImage,
+    trajectory: Trajectory,
+    summary: dict[str, Any],
+) -> bool:
+    """Have the worker draw the map's figure too and write what it drew, in order, up to
+    the first failure (then in ``figures_error``); False when the worker is gone."""
+    try:
+        sent.worker.draw([_map_figure(image, trajectory)])
+        drawn = {name: (png, error) for name, png, error in sent.worker.drawn()}
+    except ChildEndedError:
+        return False
+    for name in ["map.png", *sent.names]:
+        png, error = drawn[name]
+        if error is not None:
+            summary["figures_error"] = error
+            return True
+        out.save(f"figures/{name}", atomic_write_bytes, png)
+    if sent.failure is not None:
+        summary["figures_error"] = sent.failure
+    return True
 
 
 def _gt_in_map_frame(trajectory: Trajectory, gt: Trajectory) -> FloatArray:

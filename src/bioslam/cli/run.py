@@ -47,6 +47,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--odometry-only", action="store_true", help="run the LiDAR odometry alone"
     )
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    parser.add_argument(
+        "--one-process", action="store_true",
+        help="read the log and draw the figures in the run's own process (by default, "
+        "where there is a second core, child processes read the log ahead of the run and "
+        "draw the figures while the other results are written)",
+    )
     add_output_options(parser)
     add_read_options(parser)
     recording.add_arguments(parser)
@@ -70,22 +76,63 @@ def reference_trajectory(
 def run_command(args: argparse.Namespace) -> dict[str, Any]:
     # Imported here so that `bioslam --help` and the light subcommands start fast.
     from bioslam.config import load_config
-    from bioslam.io.logs import open_log
-    from bioslam.pipeline import RunOptions, run_slam, write_results
+    from bioslam.io.forked import can_fork
+    from bioslam.io.readahead import ReadAhead
 
     # Everything that can be checked is checked before the first scan.
     session = recording.Session.from_args(args, args.odometry_only, input=args.input)
     config = load_config(args.config)
-    check_system(config, args.odometry_only, args.config)
-    gt = read_reference(args.gt) if args.gt is not None else None
-    check_input(args.input)
-    source = open_log(args.input, topic=args.topic)
+    # The log is opened first so that its reading (the time plan's pass first) runs while the
+    # settings are checked and the run starts up; a bad log is still reported after bad
+    # settings or a bad --gt.
+    source, bad_input = start_reading(args)
+    helpers: list[Any] = [source] if isinstance(source, ReadAhead) else []
+    try:
+        # the figures' process, forked now, shares little of this process (Numba and the
+        # system come next); it waits for the end of the run
+        figures = _figure_worker() if not args.one_process and can_fork() else None
+        helpers += [figures] if figures is not None else []
+        check_system(config, args.odometry_only, args.config)
+        gt = read_reference(args.gt) if args.gt is not None else None
+        if bad_input is not None:
+            raise bad_input
+        return _run(args, source, config, gt, session, figures)
+    finally:
+        for helper in helpers:
+            helper.close()
+
+
+def _figure_worker() -> Any:
+    from bioslam.plots.worker import FigureWorker
+
+    return FigureWorker()
+
+
+def start_reading(args: argparse.Namespace) -> tuple[Any, Exception | None]:
+    """The log opened and, unless ``--one-process``, being read ahead in a child process
+    (:func:`bioslam.io.readahead.read_ahead`); or ``None`` and why it cannot be read."""
+    from bioslam.io.logs import open_log
+    from bioslam.io.readahead import read_ahead
+
+    try:
+        check_input(args.input)
+        source = open_log(args.input, topic=args.topic)
+    except (OSError, ValueError) as exc:
+        return None, exc
+    return (source if args.one_process else read_ahead(source)), None
+
+
+def _run(args: argparse.Namespace, source: Any, config: Any, gt: Trajectory | None,
+         session: recording.Session, figures: Any) -> dict[str, Any]:
+    from bioslam.pipeline import RunOptions, run_slam, write_results
+
     needed = expected_output_bytes(input_bytes=path_bytes(args.input))
     out = open_output(args.out, args.overwrite, needed, getattr(args, "argv", []))
     with signals.protected():
         options = RunOptions(
             odometry_only=args.odometry_only, progress=not args.no_progress, release=True,
             scan_store_dir=out.path,  # the experiences' scans on disk, beside the outputs
+            figure_worker=figures,
         )
         with session:
             result = run_slam(source, config, options, observer=session.observer)

@@ -29,7 +29,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from bioslam.io.logs import MALFORMED, ODOMETRY_MALFORMED, WRONG_BEAM_COUNT, LogSource, Pose
+from bioslam.io.logs import (
+    MALFORMED,
+    ODOMETRY_MALFORMED,
+    WRONG_BEAM_COUNT,
+    BadRecordError,
+    LogSource,
+    Pose,
+)
 from bioslam.scan import LaserScan
 
 # Preference when a log holds several laser messages and no topic is given: messages carrying
@@ -167,6 +174,8 @@ class CarmenLog(LogSource):
                     self._parse_odom(line.split(None, 8), where)
                     continue
                 record = parse(line.split(), where)
+            except BadRecordError:
+                raise  # strict: the parser's own report, not a malformed line
             except (ValueError, IndexError, OverflowError) as exc:
                 # a bad ODOM line is side data: it must not count as a scan record
                 reason = ODOMETRY_MALFORMED if word == "ODOM" else MALFORMED

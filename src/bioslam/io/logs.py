@@ -62,6 +62,25 @@ REPLAY_BUDGET_BYTES = 32 * 2**20
 _SCAN, _SKIP, _ODOMETRY = 0, 1, 2
 
 
+class BadRecordError(ValueError):
+    """A strict read's first unusable record (the message names the file and the record).
+    A reader's own parsing errors must let it through unchanged."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ReadState:
+    """A source's read-outs as they stood at one moment of an iteration: what a copy of the
+    source read elsewhere (:class:`bioslam.io.readahead.ReadAhead`) reports in its place."""
+
+    scans_read: int
+    records_seen: int
+    complete: bool
+    skipped: dict[str, int]
+    skip_examples: dict[str, str]
+    notes: list[str]
+    time_plan: TimePlan | None
+
+
 class LogSource(ABC):
     """A LiDAR log opened for reading. Subclasses implement :meth:`_records`.
 
@@ -127,7 +146,7 @@ class LogSource(ABC):
             return
         message = f"{where}: {reason}" + (f": {detail}" if detail else "")
         if self.strict:
-            raise ValueError(f"{self.path}: {message}")
+            raise BadRecordError(f"{self.path}: {message}")
         self._skipped[reason] += count
         self.skip_examples.setdefault(reason, message)
 
@@ -334,6 +353,23 @@ class LogSource(ABC):
         """Reason -> number of records skipped (complete after a full iteration)."""
         self._ensure_read()
         return dict(self._skipped)
+
+    def read_state(self) -> ReadState:
+        """The read-outs as they stand now (no reading: unlike :attr:`skipped`)."""
+        return ReadState(self._yielded, self.records_seen, self._complete, dict(self._skipped),
+                         dict(self.skip_examples), self.notes(), self._plan)
+
+    def read_state_key(self) -> tuple[int, int, int]:
+        """Changes whenever :meth:`read_state` would say more than one more scan read: a
+        record skipped, a scan put back in order, a note of the reader (cheap, per scan)."""
+        late = self._order.reordered if self._order is not None else 0
+        return sum(self._skipped.values()), late, len(self._format_notes())
+
+    @property
+    def references_so_far(self) -> list[tuple[float, Pose]]:
+        """``(stamp, reference pose)`` of the scans yielded so far that carry one (no reading,
+        unlike :attr:`reference`; the list itself, not a copy: do not change it)."""
+        return self._reference
 
     @property
     def reference(self) -> Trajectory | None:

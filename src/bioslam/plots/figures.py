@@ -13,7 +13,7 @@ import io
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, BinaryIO, Protocol
 
 import numpy as np
 from matplotlib import colormaps
@@ -31,6 +31,10 @@ Link = tuple[int, int, Any]
 loop closure (a link to an experience created long before), anything else an ordinary link."""
 
 LOOP_KINDS = frozenset({"loop", "loop_closure", "closure"})
+
+Target = str | Path | BinaryIO
+"""Where a figure goes: a PNG file (written atomically), or a binary stream that gets the
+PNG's bytes (a child process drawing for the command, :mod:`bioslam.plots.worker`)."""
 
 
 @dataclass
@@ -70,11 +74,14 @@ class OccupancyLike(Protocol):
 # --- helpers -------------------------------------------------------------------------------
 
 
-def _save(fig: Figure, path: str | Path, dpi: int) -> Path:
+def _save(fig: Figure, path: Target, dpi: int) -> Target:
     FigureCanvasAgg(fig)
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=dpi)
-    return atomic_write_bytes(path, buffer.getvalue())
+    if isinstance(path, (str, Path)):
+        return atomic_write_bytes(path, buffer.getvalue())
+    path.write(buffer.getvalue())
+    return path
 
 
 def _xy(points: ArrayLike | None, what: str) -> FloatArray:
@@ -230,12 +237,12 @@ def _display_cells(prob: NDArray[np.float32], max_pixels: int) -> tuple[NDArray[
 
 
 def plot_cognitive_map(
-    path: str | Path,
+    path: Target,
     nodes_xy: ArrayLike,
     links: Sequence[Link],
     gt_xy: ArrayLike | None = None,
     title: str = "Cognitive map",
-) -> Path:
+) -> Target:
     """The cognitive map: experience nodes (Eq. 12), their links, loop links highlighted.
 
     ``nodes_xy`` (N, 2) experience positions; ``links`` ``(from, to, kind)`` node indices;
@@ -252,12 +259,12 @@ def plot_cognitive_map(
 
 
 def plot_active_view(
-    path: str | Path,
+    path: Target,
     stamps: ArrayLike,
     view_ids: ArrayLike,
     new_mask: ArrayLike,
     t0: float | None = None,
-) -> Path:
+) -> Target:
     """Active view ID over time (top of the paper's Fig. 6).
 
     ``new_mask`` marks scans whose view was new; the others re-recognised an older view (the
@@ -273,12 +280,12 @@ def plot_active_view(
 
 
 def plot_error_over_time(
-    path: str | Path,
+    path: Target,
     stamps: ArrayLike,
     errors: ArrayLike,
     odometry_errors: tuple[ArrayLike, ArrayLike] | None = None,
     t0: float | None = None,
-) -> Path:
+) -> Target:
     """Position error against ground truth over time (bottom of the paper's Fig. 6).
 
     ``odometry_errors`` is an optional ``(stamps, errors)`` of the odometry-only trajectory,
@@ -293,14 +300,14 @@ def plot_error_over_time(
 
 
 def plot_views_and_errors(
-    path: str | Path,
+    path: Target,
     stamps: ArrayLike,
     view_ids: ArrayLike,
     new_mask: ArrayLike,
     error_stamps: ArrayLike,
     errors: ArrayLike,
     odometry_errors: tuple[ArrayLike, ArrayLike] | None = None,
-) -> Path:
+) -> Target:
     """The paper's Fig. 6 in one picture: active view ID above, position error below, on a
     shared time axis starting at the first scan."""
     t0 = float(np.asarray(stamps, dtype=np.float64).reshape(-1)[0])
@@ -314,10 +321,10 @@ def plot_views_and_errors(
 
 
 def plot_mapping_progress(
-    path: str | Path,
+    path: Target,
     snapshots: Sequence[tuple[float, ArrayLike, Sequence[Link]]],
     gt_xy: ArrayLike | None,
-) -> Path:
+) -> Target:
     """The paper's Fig. 5: the cognitive map at several times beside the ground-truth path.
 
     ``snapshots`` ``[(t, nodes_xy, links), ...]`` with ``t`` in seconds since the start (one
@@ -351,11 +358,11 @@ def plot_mapping_progress(
 
 
 def plot_occupancy(
-    path: str | Path,
+    path: Target,
     grid: OccupancyLike | tuple[ArrayLike, float, Sequence[float]],
     trajectory_xy: ArrayLike | None = None,
     gt_xy: ArrayLike | None = None,
-) -> Path:
+) -> Target:
     """The occupancy map (black occupied, white free, grey unknown) with the trajectory.
 
     ``grid`` is a ``bioslam.io.mapfile.OccupancyImage`` or ``(probability, resolution,
