@@ -59,12 +59,11 @@ from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 from bioslam.geometry import wrap_angle
+from bioslam.growing import GrowingArray
+from bioslam.view_store import CHUNK_MASK, CHUNK_SHIFT, VIEW_DTYPE, ViewStore, decode_cells
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
-
-#: How the learned views are stored (``ViewCells._learn``).
-VIEW_DTYPE = np.float32
 
 #: Whole-bin shifts are screened against this multiple of ``s_t`` before the fractional one.
 _COARSE_SLACK = 4.0
@@ -99,36 +98,36 @@ def block_sums(B: FloatArray, block: int) -> FloatArray:
 
 @njit(cache=True)
 def _similarities(
-    store: FloatArray,
-    sums: FloatArray,
-    idx: IntArray,
-    B: FloatArray,
-    b_sums: FloatArray,
-    block: int,
-    limit: float,
+    chunks: Any, idx: IntArray, B: FloatArray, b_sums: FloatArray, block: int, limit: float
 ) -> FloatArray:
-    # Eq. 8 for many stored views, reading rows in place instead of gathering a copy. Values
-    # at or above ``limit`` are not needed exactly (they give V = 0), so a view is dropped as
-    # soon as a lower bound reaches it: first Cauchy-Schwarz over block sums,
-    # sum_k (sum_{i in k} diff_i)^2 / |k| <= sum_i diff_i^2, which costs one operation per
-    # block instead of per cell, then the running sum itself. Dropped views get inf.
+    # Eq. 8 for many stored views (bioslam.view_store chunks), decoding each view's cells
+    # only as far as they are read. Values at or above ``limit`` are not needed exactly
+    # (they give V = 0), so a view is dropped as soon as a lower bound reaches it: first
+    # Cauchy-Schwarz over block sums, sum_k (sum_{i in k} diff_i)^2 / |k| <= sum_i diff_i^2,
+    # which costs one operation per block instead of per cell, then the running sum itself.
+    # Dropped views get inf.
     m = B.size
     n_blocks = b_sums.size
     budget = limit * m
     out = np.full(idx.size, np.inf)
+    row = np.empty(m)
     for n in range(idx.size):
         v = idx[n]
+        bits, segments, sums, _, _, values = chunks[v >> CHUNK_SHIFT]
+        at = v & CHUNK_MASK
         bound = 0.0
         for k in range(n_blocks):
             size = min(block, m - k * block)
-            diff = sums[v, k] - b_sums[k]
+            diff = sums[at, k] - b_sums[k]
             bound += diff * diff / size
         if bound >= budget:
             continue
-        row = store[v]
+        pos = segments[at, 0]
         acc = 0.0
         for k in range(n_blocks):
-            for i in range(k * block, min(m, (k + 1) * block)):
+            stop = min(m, (k + 1) * block)
+            pos = decode_cells(bits[at], values, pos, k * block, stop - k * block, row)
+            for i in range(k * block, stop):
                 diff = row[i] - B[i]
                 acc += diff * diff
             if acc >= budget:
@@ -140,9 +139,7 @@ def _similarities(
 
 @njit(cache=True)
 def _shift_similarities(
-    store: FloatArray,
-    cover: NDArray[np.bool_],
-    ring_sums: FloatArray,
+    chunks: Any,
     idx: IntArray,
     lo: IntArray,
     hi: IntArray,
@@ -158,31 +155,36 @@ def _shift_similarities(
     # smallest S below ``limit`` and its shift; inf when none. When both views cover the whole
     # ring, the ring sums do not change with the shift and bound every shift at once
     # (Cauchy-Schwarz, as in _similarities); a running sum that reaches the best so far stops.
+    # A view's rings are decoded (bioslam.view_store) the first time a shift reads them.
     rings = B.size // cols
     out = np.full(idx.size, np.inf)
     shift = np.zeros(idx.size, dtype=np.int64)
+    row = np.empty(B.size)
+    decoded = np.zeros(rings, dtype=np.bool_)
     b_full = True
     for c in range(cols):
         b_full = b_full and b_cover[c]
     for n in range(idx.size):
         v = idx[n]
+        bits, segments, ring_sums, cover, _, values = chunks[v >> CHUNK_SHIFT]
+        at = v & CHUNK_MASK
         full = b_full
         for c in range(cols):
-            full = full and cover[v, c]
+            full = full and cover[at, c]
         if full:
             bound = 0.0
             for r in range(rings):
-                diff = ring_sums[v, r] - b_ring_sums[r]
+                diff = ring_sums[at, r] - b_ring_sums[r]
                 bound += diff * diff / cols
             if bound >= limit * rings * cols:
                 continue
-        row = store[v]
+        decoded[:] = False
         best = limit
         for m in range(lo[n], hi[n] + 1):
             mm = m % cols
             count = 0
             for c in range(cols):
-                if b_cover[c] and cover[v, (c + mm) % cols]:
+                if b_cover[c] and cover[at, (c + mm) % cols]:
                     count += 1
             if count < min_cols:
                 continue
@@ -190,9 +192,12 @@ def _shift_similarities(
             acc = 0.0
             for r in range(rings):
                 base = r * cols
+                if not decoded[r]:
+                    decode_cells(bits[at], values, segments[at, r], base, cols, row)
+                    decoded[r] = True
                 for c in range(cols):
                     k = (c + mm) % cols
-                    if b_cover[c] and cover[v, k]:
+                    if b_cover[c] and cover[at, k]:
                         diff = B[base + c] - row[base + k]
                         acc += diff * diff
                 if acc >= budget:
@@ -248,24 +253,53 @@ def _fractional_shift(
 
 
 @njit(cache=True)
-def _key_distances(keys: FloatArray, n: int, key: FloatArray) -> FloatArray:
-    # Squared distances of the first ``n`` ring keys to ``key``, without the (n, rings)
-    # temporaries of the NumPy expression: this runs at every look of a partial scanner
-    # over every view learned (0.14 ms at 3000 views in NumPy, a fifth of it here).
+def _refine_shifts(
+    chunks: Any,
+    idx: IntArray,
+    coarse: FloatArray,
+    shift: IntArray,
+    B: FloatArray,
+    b_cover: NDArray[np.bool_],
+    cols: int,
+    s_t: float,
+) -> tuple[FloatArray, FloatArray]:
+    # The candidates the whole-bin search kept (finite ``coarse``) refined to their best
+    # fractional shift (_fractional_shift): ``S`` (inf at or above ``s_t``) and the shift in
+    # bins. Each view is decoded in float32, as it is stored (the shifted differences of its
+    # cells are float32 arithmetic).
+    S = np.full(idx.size, np.inf)
+    offsets = shift.astype(np.float64)
+    row = np.empty(B.size, dtype=np.float32)
+    for n in range(idx.size):
+        if not np.isfinite(coarse[n]):
+            continue
+        v = idx[n]
+        bits, segments, _, cover, _, values = chunks[v >> CHUNK_SHIFT]
+        at = v & CHUNK_MASK
+        decode_cells(bits[at], values, segments[at, 0], 0, B.size, row)
+        value, frac = _fractional_shift(row, cover[at], B, b_cover, shift[n], cols)
+        value = min(value, coarse[n])
+        if value < s_t:
+            S[n] = value
+            offsets[n] = shift[n] + (frac if value < coarse[n] else 0.0)
+    return S, offsets
+
+
+@njit(cache=True)
+def _key_distances(chunks: Any, n: int, key: FloatArray) -> FloatArray:
+    # Squared distances of the first ``n`` views' ring keys to ``key``, without the
+    # (n, rings) temporaries of the NumPy expression: this runs at every look of a partial
+    # scanner over every view learned (0.14 ms at 3000 views in NumPy, a fifth of it here).
     out = np.empty(n)
-    for i in range(n):
-        acc = 0.0
-        for r in range(key.size):
-            diff = keys[i, r] - key[r]
-            acc += diff * diff
-        out[i] = acc
+    for first in range(0, n, CHUNK_MASK + 1):
+        keys = chunks[first >> CHUNK_SHIFT][4]  # a chunk at a time: fetching one costs
+        for at in range(min(n - first, CHUNK_MASK + 1)):
+            acc = 0.0
+            for r in range(key.size):
+                diff = keys[at, r] - key[r]
+                acc += diff * diff
+            out[first + at] = acc
     return out
-
-
-def _grow(a: NDArray) -> NDArray:
-    grown = np.empty((2 * a.shape[0], *a.shape[1:]), dtype=a.dtype)
-    grown[: a.shape[0]] = a
-    return grown
 
 
 class View(NamedTuple):
@@ -371,13 +405,11 @@ class ViewCells:
         if cells_per_ring is not None and cells_per_ring < 1:
             raise ValueError(f"cells_per_ring must be >= 1, got {cells_per_ring}")
         self.cells_per_ring = cells_per_ring
-        self._store = np.empty((0, 0), dtype=VIEW_DTYPE)
-        self._sums = np.empty((0, 0))
-        self._cover = np.empty((0, 0), dtype=bool)
-        self._keys = np.empty((0, 0))
+        # the views (bioslam.view_store), made at the first (it takes its size)
+        self._store: ViewStore | None = None
         self._h: list[int] = []
         self._payloads: list[Any] = []
-        self._headings = np.empty(0)
+        self._headings = GrowingArray(np.float64, capacity=64)
         self._buckets: dict[int, list[int]] = {}
         self._bucket_arrays: dict[int, IntArray] = {}
         self._last_ids: IntArray = np.empty(0, dtype=np.int64)
@@ -390,7 +422,8 @@ class ViewCells:
     def view(self, view_id: int) -> View:
         """The stored view ``<h, B>`` (Eq. 7)."""
         self._check_id(view_id)
-        return View(self._h[view_id], self._store[view_id].astype(np.float64))
+        assert self._store is not None
+        return View(self._h[view_id], self._store.row(view_id).astype(np.float64))
 
     def payload(self, view_id: int) -> Any:
         """Whatever the caller attached when ``view_id`` was learned (None if nothing)."""
@@ -475,7 +508,8 @@ class ViewCells:
         k = self.config.partial_candidates
         if n <= k:
             return np.arange(n, dtype=np.int64)
-        d = _key_distances(self._keys, n, self._ring_key(b, cover))
+        assert self._store is not None
+        d = _key_distances(self._store.chunks, n, self._ring_key(b, cover))
         return np.sort(np.argpartition(d, k)[:k]).astype(np.int64)
 
     def coarse_feature(self, b: FloatArray, cover: NDArray[np.bool_]) -> int:
@@ -495,7 +529,7 @@ class ViewCells:
         hi = np.full(ids.size, cols - 1, dtype=np.int64)
         if heading is not None:
             step = self._bin_angle()
-            centre = wrap_angle(float(heading) - self._headings[ids]) / step
+            centre = wrap_angle(float(heading) - self._headings.view()[ids]) / step
             reach = math.floor(self.config.heading_gate / step + 1e-9)
             known = np.isfinite(centre)
             mid = np.round(np.where(known, centre, 0.0)).astype(np.int64)
@@ -503,30 +537,22 @@ class ViewCells:
             hi = np.where(known, np.minimum(mid + reach, mid - reach + cols - 1), hi)
         # Whole-bin shifts first, with a loose limit that prunes most views early; the few
         # left are refined to the best fractional shift.
+        store = self._store
+        assert store is not None
         coarse, shift = _shift_similarities(
-            self._store, self._cover, self._sums, ids, lo, hi, b, cover,
+            store.chunks, ids, lo, hi, b, cover,
             block_sums(b, cols), cols, _COARSE_SLACK * self.config.s_t,
             max(1, math.ceil(self.config.min_shared * cols - 1e-9)),
         )  # fmt: skip
-        S = np.full(ids.size, np.inf)
-        offsets = shift.astype(np.float64)
-        for n in np.flatnonzero(np.isfinite(coarse)):
-            v = int(ids[n])
-            value, frac = _fractional_shift(
-                self._store[v], self._cover[v], b, cover, int(shift[n]), cols
-            )
-            value = min(value, coarse[n])
-            if value < self.config.s_t:
-                S[n] = value
-                offsets[n] = shift[n] + (frac if value < coarse[n] else 0.0)
-        return S, offsets
+        return _refine_shifts(store.chunks, ids, coarse, shift, b, cover, cols, self.config.s_t)
 
     def _similarities(self, ids: IntArray, b: FloatArray) -> FloatArray:
         if ids.size == 0:
             return np.empty(0)
         block = self.config.bound_block
+        assert self._store is not None
         return _similarities(
-            self._store, self._sums, ids, b, block_sums(b, block), block, self.config.s_t
+            self._store.chunks, ids, b, block_sums(b, block), block, self.config.s_t
         )
 
     def _choose(self, sims: FloatArray) -> int:
@@ -558,9 +584,9 @@ class ViewCells:
             raise ValueError(
                 f"boundary activity has {b.size} cells, not whole rings of {self.cells_per_ring}"
             )
-        if self.num_views and b.size != self._store.shape[1]:
+        if self._store is not None and b.size != self._store.cells:
             raise ValueError(
-                f"boundary activity has {b.size} cells, views have {self._store.shape[1]}"
+                f"boundary activity has {b.size} cells, views have {self._store.cells}"
             )
         return b
 
@@ -583,36 +609,23 @@ class ViewCells:
 
     def _gate(self, ids: IntArray, heading: float) -> IntArray:
         """Drop views learned facing more than ``heading_gate`` away (NaN: no heading, kept)."""
-        diff = np.abs(wrap_angle(self._headings[ids] - heading))
+        diff = np.abs(wrap_angle(self._headings.view()[ids] - heading))
         return ids[~(diff > self.config.heading_gate)]
 
     def _learn(
         self, h: int, b: FloatArray, payload: Any, heading: float | None, cover: NDArray[np.bool_]
     ) -> int:
-        new_id = self.num_views
-        # Stored as float32 (``_checked`` rounded ``b`` to it: half the memory of a run's
-        # largest per-place record; a cell moves by a relative 6e-8, far below any S that
-        # matters). Per ring with the rotation search: ring sums do not change with a shift.
-        stored = b.astype(VIEW_DTYPE)
+        # Stored as float32 (``_checked`` rounded ``b`` to it; a cell moves by a relative
+        # 6e-8, far below any S that matters), without its zeros (bioslam.view_store). Per
+        # ring with the rotation search: ring sums do not change with a shift.
         sums = block_sums(b, self.cells_per_ring or self.config.bound_block)
-        if new_id == 0:
-            self._store = np.empty((16, b.size), dtype=VIEW_DTYPE)
-            self._sums = np.empty((16, sums.size))
-            self._headings = np.empty(16)
-            self._cover = np.empty((16, cover.size), dtype=bool)
-            self._keys = np.empty((16, b.size // cover.size if self.cells_per_ring else 1))
-        elif new_id == self._store.shape[0]:
-            # Doubling keeps appends amortised O(1) as thousands of views accumulate.
-            self._store = _grow(self._store)
-            self._sums = _grow(self._sums)
-            self._headings = _grow(self._headings)
-            self._cover = _grow(self._cover)
-            self._keys = _grow(self._keys)
-        self._store[new_id] = stored
-        self._sums[new_id] = sums
-        self._cover[new_id] = cover
-        self._keys[new_id] = self._ring_key(b, cover)
-        self._headings[new_id] = math.nan if heading is None else float(heading)
+        key = self._ring_key(b, cover)
+        if self._store is None:
+            self._store = ViewStore(
+                b.size, self.cells_per_ring or b.size, sums.size, cover.size, key.size
+            )
+        new_id = self._store.append(b.astype(VIEW_DTYPE), sums, cover, key)
+        self._headings.append(math.nan if heading is None else float(heading))
         self._h.append(h)
         self._payloads.append(payload)
         self._buckets.setdefault(h, []).append(new_id)
