@@ -35,6 +35,9 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
 - ``warehouse``: the warehouse of identical aisles, 600 s, SICK (181 beams, 10 Hz) and
   UTM-30LX, with and without the wide-basin search: ATE, and jumps (the position error
   changing by more than 0.3 m between consecutive scans).
+- ``warehouseadv``: the same warehouse on the ``adversarial`` route (weaving up to 0.5 m off
+  the aisles' centre-lines, turning back, spinning on the spot, then driving fast), 3600 s
+  (720 s with ``--quick``), seed 3, UTM-30LX and SICK: a route the defaults were not tuned on.
 - ``maps``: occupancy maps built from the odometry poses of exp1.dat, the ROS 1 bag and
   freiburg-079, written to ``benchmarks/results/odometry_map_<name>.png``.
 
@@ -63,6 +66,7 @@ from bioslam.occupancy_grid import OccupancyGrid
 from bioslam.odometry import LidarOdometry, OdometryConfig
 from bioslam.sim import (
     LIDAR_PRESETS,
+    ROUTES,
     MovingObstacle,
     Route,
     World,
@@ -134,12 +138,17 @@ def summary(name: str, est: Trajectory, gt: Trajectory, ms: np.ndarray, extra: d
 
 
 def sim_case(name, lidar, duration, config=None, fast_turns=False, obstacles=(), seed=0,
-             every=1, world="maze", thin=None):  # fmt: skip
+             every=1, world="maze", thin=None, route="tour"):  # fmt: skip
     """One simulated run (the maze by default); ``every`` > 1 keeps one scan in ``every``
     (a thinned log); ``thin=(metres, radians)`` keeps a scan per distance or angle travelled
-    along the true path, as the public "corrected" logs were thinned."""
+    along the true path, as the public "corrected" logs were thinned; ``route`` names one of
+    :data:`bioslam.sim.ROUTES` (``adversarial``: weaving off the centre-lines, turning back,
+    spinning on the spot, then driving fast)."""
     world = load_world(world)
-    route = make_route(world, duration=duration, seed=seed, fast_turns=fast_turns)
+    if route == "tour":
+        route = make_route(world, duration=duration, seed=seed, fast_turns=fast_turns)
+    else:
+        route = ROUTES[route](world, duration=duration, seed=seed)
     obstacles = obstacles(route) if callable(obstacles) else obstacles
     scans = simulate_scans(world, lidar, route, seed=seed, obstacles=obstacles)
     if thin is not None:
@@ -511,6 +520,12 @@ def main() -> None:
                      world="warehouse")
             for lidar in ("sick", "utm30lx")
             for label, config in (("", None), (", no search", NO_SEARCH))
+        ],
+        "warehouseadv": lambda: [
+            sim_case(f"warehouse adversarial route {lidar}, {duration * 6:.0f} s, seed 3",
+                     LIDAR_PRESETS[lidar], duration * 6, world="warehouse", seed=3,
+                     route="adversarial")
+            for lidar in ("utm30lx", "sick")
         ],
         "maps": lambda: [
             log_case("exp1", "exp1.dat", True),

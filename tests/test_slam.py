@@ -358,3 +358,45 @@ def test_a_jump_departs_from_the_last_step_whatever_the_stamps_say():
     assert jumped(np.array([-0.1, 0.0, 0.0]), last, last, 0.2, cfg)
     # a turn no robot makes in 0.1 s (40 deg)
     assert jumped(np.array([0.1, 0.0, np.radians(40.0)]), last, last, 0.1, cfg)
+
+
+def test_checks_across_doubted_odometry_steps_are_challenged_from_outside_their_window(
+    ring_drive, monkeypatch
+):
+    # The URG-04LX's odometry doubts some of its steps on the ring: a check of a place made
+    # before such a step is challenged over the whole search window, one the odometry never
+    # doubted since is not, and the loop still closes (precision first, not recall nil).
+    import bioslam.slam as slam_module
+
+    scans, gt = ring_drive
+    calls = []
+    original = slam_module.verify
+
+    def spy(*args, **kwargs):
+        slam = current[0]
+        trusted = slam._trusted(min(slam._submap_members(probe[0])[0], probe[0]))
+        calls.append((trusted, args[7] if len(args) > 7 else kwargs.get("rival_window")))
+        return original(*args, **kwargs)
+
+    current, probe = [], [0]
+    original_refine = BioSLAM._refine
+
+    def refine(self, experience, points):
+        probe[0] = experience.id
+        return original_refine(self, experience, points)
+
+    monkeypatch.setattr(slam_module, "verify", spy)
+    monkeypatch.setattr(BioSLAM, "_refine", refine)
+    config = SLAMConfig()
+    slam = BioSLAM(config)
+    current.append(slam)
+    for scan in scans:
+        slam.process(scan)
+    slam.finish()
+    cfg = config.loop_closure
+    wide = (cfg.search_distance, cfg.search_angle)
+    assert {trusted for trusted, _ in calls} == {True, False}
+    for trusted, window in calls:
+        assert window == (None if trusted else wide)
+    assert slam.summary()["loop_closures"] >= 1
+    assert ate(slam.trajectory(), gt)["rmse"] < ate(slam.odometry_trajectory(), gt)["rmse"]

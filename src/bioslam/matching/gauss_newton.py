@@ -268,7 +268,9 @@ def _add_prior(H, b, pose, prior, length):
     u0 = d[0]
     u1 = d[1]
     u2 = d[2] * length  # d . D (pose) = u . pose
-    offset = u0 * (p0[0] - pose[0]) + u1 * (p0[1] - pose[1]) + u2 * (p0[2] - pose[2])
+    turn = p0[2] - pose[2]  # wrapped: a prior at -179° is 2° from a pose at 179°
+    turn = math.atan2(math.sin(turn), math.cos(turn))
+    offset = u0 * (p0[0] - pose[0]) + u1 * (p0[1] - pose[1]) + u2 * turn
     H[0, 0] += k * u0 * u0
     H[0, 1] += k * u0 * u1
     H[0, 2] += k * u0 * u2
