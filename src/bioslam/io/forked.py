@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import ctypes.util
+import gc
 import os
 import pickle
 import signal
@@ -156,6 +157,10 @@ def _child(work: Callable[[Channel], None], incoming: int, outgoing: int, parent
         os.closerange(low + 1, high)
         os.closerange(high + 1, _MAX_FD)
         _die_with_parent()
+        # the collector would visit every object the child inherited, writing to each and so
+        # copying every page of the parent's heap into the child (tens of MB): those stay
+        # out of its reach; what the child makes is still collected
+        gc.freeze()
         if os.getppid() == parent:  # else it ended before the request
             channel = Channel(os.fdopen(incoming, "rb"), os.fdopen(outgoing, "wb"))
             work(channel)
