@@ -8,9 +8,10 @@ RSS. Reported per input:
 
 - peak RSS, and RSS when the first scan is processed (imports and warm-up);
 - the peak footprint of the whole process tree, sampled: ``bioslam run`` may fork a child that
-  reads the log ahead, whose memory the parent's RSS does not include. The tree's footprint is
-  the parent's RSS plus each descendant's private memory (its unique set size: the pages it
-  shares copy-on-write with the parent are already in the parent's RSS);
+  reads the log ahead and one that draws the figures, whose memory the parent's RSS does not
+  include. The tree's footprint is the parent's RSS plus each descendant's private memory (its
+  unique set size: the pages it shares copy-on-write with the parent are already in the
+  parent's RSS);
 - growth per hour of data after the first minute: the slope of RSS against the log's own time
   (from the progress), least squares, times 3600;
 - the wall-clock real-time factor from outside (log duration / process wall time, start-up,
