@@ -1,7 +1,8 @@
 """Memory and whole-process time of ``bioslam run``, measured from outside the process.
 
-For each input (a 600 s and a 60 min simulated 40 Hz UTM-30LX route through the maze, and every
-shared log) ``bioslam run`` is started as a fresh process; its resident memory is sampled from
+For each input (a 600 s and a 60 min simulated 40 Hz UTM-30LX route through the maze, a 60 min
+adversarial route through the warehouse of identical aisles that no setting was chosen on, and
+every shared log) ``bioslam run`` is started as a fresh process; its resident memory is sampled from
 ``/proc`` while it runs, its progress bar tells which scan it is at, and ``wait4`` gives its peak
 RSS. Reported per input:
 
@@ -22,7 +23,7 @@ RSS. Reported per input:
 - the first-run start-up: ``bioslam demo --duration 10`` with an empty Numba cache, then again
   with the cache it filled.
 
-    python benchmarks/bench_memory.py [--cases sim-600,sim-3600,freiburg-079,...]
+    python benchmarks/bench_memory.py [--cases sim-600,sim-3600,warehouse-adversarial-3600,...]
         [--odometry-only] [--peer [CASES]] [--interval 0.25] [--no-cold-start]
 
 ``--peer`` alone times MRPT icp-slam on every case; with a list, on those cases only (on the
@@ -52,7 +53,14 @@ sys.path.insert(0, str(HERE))
 from cases import DATA_DIR, bioslam_cli  # noqa: E402
 
 WORK = HERE / ".work" / "memory"
-SIM = {"sim-600": 600.0, "sim-3600": 3600.0}
+# simulated routes: world, route, duration (s), seed (all 40 Hz UTM-30LX). The warehouse's
+# adversarial route (off the aisles' centre, turn-backs, spins) learns half as many views
+# again per hour as the maze's tour: the run-long stores' growth on a route not tuned on.
+SIM = {
+    "sim-600": ("maze", "tour", 600.0, 1),
+    "sim-3600": ("maze", "tour", 3600.0, 1),
+    "warehouse-adversarial-3600": ("warehouse", "adversarial", 3600.0, 3),
+}
 LOGS = {
     "freiburg-079": "freiburg-079-corrected.log.gz",
     "intel": "intel-corrected.log.gz",
@@ -191,12 +199,14 @@ def growth_per_hour(samples, progress, scans: int, duration_s: float) -> tuple[f
     return float(slope * 3600.0), first
 
 
-def simulate(name: str, duration: float) -> Path:
+def simulate(name: str, spec: tuple[str, str, float, int]) -> Path:
+    world, route, duration, seed = spec
     folder = WORK / name
     bag = folder / "scans"
     if not (folder / "gt.tum").exists():
-        cmd = [*bioslam_cli(), "sim", "--world", "maze", "--lidar", "utm30lx", "--duration",
-               f"{duration:g}", "--seed", "1", "--out", str(folder), "--force"]  # fmt: skip
+        cmd = [*bioslam_cli(), "sim", "--world", world, "--route", route, "--lidar", "utm30lx",
+               "--duration", f"{duration:g}", "--seed", f"{seed}", "--out", str(folder),
+               "--force"]  # fmt: skip
         subprocess.run(cmd, check=True, capture_output=True)
     return bag
 
