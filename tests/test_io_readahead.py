@@ -125,16 +125,20 @@ def test_a_strict_read_fails_at_the_same_scan_with_the_same_message(tmp_path, mo
 def test_the_run_command_writes_the_same_either_way(tmp_path):
     log = write_carmen(tmp_path / "room.log", scans=80, bad={7, 30})
     outputs = {}
-    for mode in ("ahead", "in-process"):
+    modes = {"ahead": [], "in-process": ["--one-process"], "drawn-in-child": ["--draw-in-child"]}
+    for mode, options in modes.items():
         out = tmp_path / mode
         cmd = [sys.executable, "-m", "bioslam.cli", "run", str(log), "--out", str(out),
-               "--no-progress"] + (["--one-process"] if mode == "in-process" else [])
+               "--no-progress", *options]
         done = subprocess.run(cmd, capture_output=True, text=True, timeout=300,
                               env={**os.environ, "PYTHONPATH": str(SRC)})  # fmt: skip
         assert done.returncode == 0, done.stderr
         summary = json.loads(done.stdout.strip().splitlines()[-1])
         assert summary["skipped"] == {"wrong beam count": 2} and summary["scans"] == 78
+        figures = sorted((out / "figures").glob("*.png"))
+        assert len(figures) >= 3
         outputs[mode] = [(out / name).read_bytes() for name in
                          ("trajectory.tum", "odometry.tum", "cognitive_map.json", "map.pgm")]
+        outputs[mode] += [(f.name, f.read_bytes()) for f in figures]
         assert "skipped 2 x wrong beam count (first: line 8" in done.stderr
-    assert outputs["ahead"] == outputs["in-process"]
+    assert outputs["ahead"] == outputs["in-process"] == outputs["drawn-in-child"]
