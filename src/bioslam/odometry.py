@@ -581,7 +581,9 @@ class LidarOdometry:
             self.pose, self.last_report = self._match(
                 level_pts, start, previous, normals, dt, predicted
             )
-            if dt <= c.gap_time:  # after a gap the velocity is measured afresh
+            if dt <= c.gap_time and not self.last_report.overruled:
+                # after a gap the velocity is measured afresh, and where the map overruled
+                # the motion prior, the scan measured it
                 constraint = self._mapped_constraint(level_pts[0], normals)
             self.num_recovered += self.last_report.recovered
             self.num_degenerate += self.last_report.degenerate
@@ -650,6 +652,8 @@ class LidarOdometry:
         target = self._prior_target(start, previous, predicted, gapless)
         weight = self._prior_weight(dt)
         options = [self._option(level_pts, start, normals, weight, target, gapless)]
+        if weight > c.search_prior_weight:
+            options[0] = self._unless_contradicted(options[0], level_pts, start, normals, gapless)
         motion: tuple[FloatArray, ...] = (start,)  # only compared when the search ran
         searched = c.search_distance > 0 and self._untrusted(options[0][2], dt, previous, start)
         if len(self._searched) == self._searched.maxlen:
@@ -703,6 +707,26 @@ class LidarOdometry:
         weight = self.config.search_prior_weight if prior_weight is None else prior_weight
         pose, report = self._match_from(level_pts, start, normals, weight, prior_pose, restart)
         return pose, report, self._failed(report)
+
+    def _unless_contradicted(
+        self, option: tuple[FloatArray, MatchReport, bool], level_pts: list[FloatArray],
+        start: FloatArray, normals: FloatArray, restart: bool,
+    ) -> tuple[FloatArray, MatchReport, bool]:
+        """The match held by the motion prior along a direction the scan hardly constrains,
+        unless the map contradicts it: where it leaves endpoints in known free space, the
+        match is repeated with the weak prior of a search's seed, and if the prior's match is
+        not plausible beside it (``plausible_ratio`` of its quality), the scan's evidence
+        along that direction wins (``MatchReport.overruled``)."""
+        report = option[1]
+        if not report.degenerate or report.free_fraction <= 0.0:
+            return option
+        free = self._option(level_pts, start, normals, restart=restart)
+        best = _match_quality(free[1])
+        if _match_quality(report) >= best - (1.0 - self.config.plausible_ratio) * abs(best):
+            return option
+        free[1].overruled = True
+        free[1].iterations += report.iterations
+        return free
 
     @staticmethod
     def _prior_target(
