@@ -234,18 +234,19 @@ class OdometryConfig:
             they stop nothing. When every match is an implausible step (the step prior's
             density below ``implausible_density``), the turn searches run as they do when
             every match fails (intel: a 61° turn plus a metre, beyond the first window, was
-            otherwise placed 2.8 m sideways). And a fused scan is densified along its
-            surfaces first (:func:`bioslam.matching.registration.densify_scan`): the map of a
-            1° scanner at a metre a scan holds a wall only where the last scans' beams hit
-            it, and a pose that reproduces the last scan's own beam pattern (standing still)
-            then scores best in a corridor (intel: RPE 1 m 22 -> 8 cm with the other two).
-            Before the run has shown that it is sparse, a scan is densified when the search
-            has run for every scan so far, and the first scan, fused before anything was
-            known, gets the densified points if the second came after ``gap_time``
+            otherwise placed 2.8 m sideways). (Every fused scan, sparse or not, is densified
+            along its surfaces first, :func:`bioslam.matching.registration.densify_scan`:
+            the map of a 1° scanner holds a wall only where the fused scans' beams hit it, a
+            metre apart along a wall seen 10 m ahead, and a pose that reproduces a fused
+            scan's own beam pattern, standing still, then scores best in a corridor. Intel:
+            RPE 1 m 22 -> 8 cm with the other two; SICK in a warehouse aisle, dense: the
+            pose stood still while the robot drove off, :meth:`LidarOdometry._unless_contradicted`.)
+            The first scan, fused before anything was known, gets the points of
+            ``first_straight_angle`` if the second came after ``gap_time``
             (:meth:`LidarOdometry._densify_first`): a thinned log's map is at first one or
             two scans, densest where they were taken, and a pose moved back there (standing
             still) outscored the true step a metre on (SICK in the warehouse thinned to a
-            scan per metre, seed 1: lost from its first steps). Dense runs are unchanged.
+            scan per metre, seed 1: lost from its first steps).
         straight_angle: when positive, densifying also fills a gap longer than
             ``NORMAL_MAX_GAP`` between neighbouring endpoints that continues a straight run
             of them (the gaps either side turn by at most this many radians,
@@ -510,10 +511,11 @@ class LidarOdometry:
             self.pyramid.recenter(self.pose[0], self.pose[1])
         if self._last_inserted is None:
             self._first_fused = (self.pose.copy(), pts)
-        if self._sparse() or self._sparse_so_far():
-            dense = densify_scan(pts, c.resolution, NORMAL_MAX_GAP, c.straight_angle)
-            if dense.shape[0] != pts.shape[0]:
-                pts, normals = dense, thinned_normals(dense)
+        # densified along its surfaces (:attr:`OdometryConfig.straight_angle`): a scanner's
+        # beam pattern fused as measured makes standing still score best
+        dense = densify_scan(pts, c.resolution, NORMAL_MAX_GAP, c.straight_angle)
+        if dense.shape[0] != pts.shape[0]:
+            pts, normals = dense, thinned_normals(dense)
         self._fuse(self.pose, pts, normals)
         self._last_inserted = self.pose.copy()
 
@@ -532,14 +534,15 @@ class LidarOdometry:
     def _densify_first(self, dt: float) -> None:
         """The second scan came after a gap (``gap_time``, a thinned log's seconds): the
         first scan, fused before anything told that the scans are sparse, gets the points
-        densifying would have added (:func:`densify_scan`, with ``first_straight_angle``)."""
+        densifying with ``first_straight_angle`` adds to those of ``straight_angle``, which
+        it was fused with (:func:`densify_scan`)."""
         pose, pts = self._first_fused
         self._first_fused = None
         if dt <= self.config.gap_time:
             return
         c = self.config
         dense, added = densify_with_mask(
-            pts, c.resolution, NORMAL_MAX_GAP, c.first_straight_angle
+            pts, c.resolution, NORMAL_MAX_GAP, c.first_straight_angle, c.straight_angle
         )
         if added.any():
             self._fuse(pose, dense[added], thinned_normals(dense)[added])
