@@ -17,7 +17,7 @@ from bioslam.cognitive_map import (
     registration_shape,
     relaxation_correction,
 )
-from bioslam.geometry import between, compose, wrap_angle
+from bioslam.geometry import between, compose, inverse, wrap_angle
 from bioslam.pose_cells import PoseCellConfig, PoseCellNetwork
 
 PC = (10.0, 10.0, 0.0)  # a packet centre used where the test is not about matching
@@ -634,7 +634,7 @@ def test_adjacency_lists_each_nodes_links_in_order_and_link_distance_is_shortest
         reference[a].append((b, length))
         reference[b].append((a, length))
     for node in range(-1, nodes + 5):
-        assert list(adjacency.of(node)) == reference.get(node, [])
+        assert [(o, n) for _, o, n in adjacency.of(node)] == reference.get(node, [])
 
     def shortest(a: int, b: int) -> float:
         best, queue = {a: 0.0}, [(0.0, a)]
@@ -670,3 +670,40 @@ def test_link_table_is_the_links_ends_and_kinds():
         (link.source, link.target, link.kind) for link in links
     ]
     assert "loop" in kinds and "odometry" in kinds
+
+
+def test_undoubted_chains_skip_doubted_links_and_compose_the_links_measurements():
+    """A chain of links vouches for the map's relation between two places only where the
+    odometry never doubted a step (a 180° scanner blind along a corridor) and through
+    closures that were not themselves trusted only through other closures; its relative
+    pose is the links' own measurements composed, not the relaxed poses, which a loop across
+    doubted steps may have pulled."""
+    cm = CognitiveMap(CognitiveMapConfig(odometry_var_per_m=1e-4))
+    cm.update(1, True, PC, stamp=0.0)  # e0
+    cm.integrate_odometry((1.0, 0.0, 0.0), doubted=True)
+    assert cm.doubted_since_entry
+    cm.update(2, True, PC, stamp=1.0)  # e1, joined to e0 across a doubted step
+    assert not cm.doubted_since_entry
+    cm.integrate_odometry((1.0, 0.0, 0.0))
+    cm.update(3, True, PC, stamp=2.0)  # e2
+    cm.integrate_odometry((0.5, 0.0, 0.0))
+    measured = np.array([2.45, 0.02, 0.0])  # the robot in e0's frame, 5 cm off the odometry
+    assert cm.update(1, False, PC, stamp=3.0, refine=lambda e: measured).kind == "loop"
+    cm.relax()
+    loop = cm.links[-1]
+    assert cm.link_distance(1, 0, within=10.0) == pytest.approx(1.0)
+    around = 1.0 + 0.5 + math.hypot(loop.dp[0], loop.dp[1])
+    assert cm.link_distance(1, 0, within=10.0, undoubted=True) == pytest.approx(around)
+    assert cm.link_distance(1, 0, within=around - 0.01, undoubted=True) is None
+    length, pose = cm.chain_pose(1, 0, within=10.0, undoubted=True)
+    assert length == pytest.approx(around)
+    np.testing.assert_allclose(pose, compose((1.5, 0.0, 0.0), inverse(measured)), atol=1e-12)
+    relaxed = between(cm.experience(1).pose, cm.experience(0).pose)
+    assert np.hypot(*(relaxed - pose)[:2]) > 0.005  # the relaxation spread the 5 cm
+    # a closure trusted only through other closures cannot vouch for later ones
+    cm.integrate_odometry((0.5, 0.0, 0.0))
+    ev = cm.update(3, False, PC, stamp=4.0, refine=lambda e: Measurement(
+        np.array([0.5, 0.0, 0.0]), doubted=True))  # fmt: skip
+    assert ev.kind == "loop"
+    assert cm.link_distance(4, 2, within=10.0) == pytest.approx(0.5)
+    assert cm.link_distance(4, 2, within=10.0, undoubted=True) == pytest.approx(1.0)

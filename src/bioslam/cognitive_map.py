@@ -191,7 +191,8 @@ class NewLink:
     """A link as it enters the map: from ``source`` to ``target``, ``dp`` in the source's
     frame, made at ``stamp`` ``dt`` seconds after the source was entered, with its
     (position, heading) information ``info`` (:func:`link_information`) and position
-    information ``shape`` (xx, xy, yy) in the source's frame."""
+    information ``shape`` (xx, xy, yy) in the source's frame; ``doubted``: its odometry
+    crossed a step the odometry doubted or broke (:meth:`CognitiveMap.integrate_odometry`)."""
 
     source: int
     target: int
@@ -200,16 +201,20 @@ class NewLink:
     dt: float
     info: tuple[float, float]
     shape: FloatArray
+    doubted: bool = False
 
 
 @dataclass(frozen=True)
 class Measurement:
     """What a registration returns to :meth:`CognitiveMap.update`: the robot's ``pose`` in
     the recognised experience's frame, and the ``shape`` (xx, xy, yy) of its position
-    information in the robot's frame (:func:`registration_shape`)."""
+    information in the robot's frame (:func:`registration_shape`). ``doubted``: the
+    registration was trusted only through earlier closures (its link then cannot vouch
+    for later ones, :meth:`CognitiveMap.link_distance` with ``undoubted``)."""
 
     pose: FloatArray
     shape: FloatArray = field(default_factory=ISOTROPIC.copy)
+    doubted: bool = False
 
 
 @dataclass
@@ -534,20 +539,23 @@ class Adjacency:
         self._next = array("q")
         self._other = array("q")
         self._length = array("d")
+        self._doubted = array("b")
 
-    def add(self, a: int, b: int, length: float) -> None:
-        """A link of ``length`` between nodes ``a`` and ``b`` (either direction)."""
+    def add(self, a: int, b: int, length: float, doubted: bool = False) -> None:
+        """A link of ``length`` between nodes ``a`` and ``b`` (either direction); ``doubted``:
+        its odometry crossed a step the odometry doubted or broke."""
         grow = max(a, b) + 1 - len(self._first)
         if grow > 0:
             self._first.extend([-1] * grow)
             self._last.extend([-1] * grow)
-        self._end(a, b, length)
-        self._end(b, a, length)
+        self._end(a, b, length, doubted)
+        self._end(b, a, length, doubted)
 
-    def _end(self, node: int, other: int, length: float) -> None:
+    def _end(self, node: int, other: int, length: float, doubted: bool) -> None:
         end = len(self._other)
         self._other.append(other)
         self._length.append(length)
+        self._doubted.append(int(doubted))
         self._next.append(-1)
         if self._first[node] < 0:
             self._first[node] = end
@@ -555,12 +563,15 @@ class Adjacency:
             self._next[self._last[node]] = end
         self._last[node] = end
 
-    def of(self, node: int) -> Iterator[tuple[int, float]]:
-        """``(other node, length)`` of each link at ``node``, oldest first."""
+    def of(self, node: int, undoubted: bool = False) -> Iterator[tuple[int, int, float]]:
+        """``(end, other node, length)`` of each link at ``node``, oldest first (``undoubted``:
+        only the links whose odometry the odometry never doubted). Link ``k``'s ends are
+        ``2k`` (at its source) and ``2k + 1`` (at its target)."""
         end = self._first[node] if 0 <= node < len(self._first) else -1
-        other, length, following = self._other, self._length, self._next
+        other, length, following, doubted = self._other, self._length, self._next, self._doubted
         while end >= 0:
-            yield other[end], length[end]
+            if not (undoubted and doubted[end]):
+                yield end, other[end], length[end]
             end = following[end]
 
 
@@ -620,6 +631,8 @@ class CognitiveMap:
         self._travel = np.zeros(2)
         # variance (m², rad²) the odometry's breaks since the current experience add
         self._broken_var = np.zeros(2)
+        # whether the odometry doubted or broke a step since then
+        self._doubted = False
         self._entered_measured = False
         self._csr: tuple[NDArray[np.int64], ...] | None = None
         self.loop_closures = 0
@@ -666,23 +679,60 @@ class CognitiveMap:
         """The payload stored with each experience, by id (the map's own store: do not edit)."""
         return self._payloads
 
-    def link_distance(self, a: int, b: int, within: float) -> float | None:
+    def link_distance(
+        self, a: int, b: int, within: float, undoubted: bool = False
+    ) -> float | None:
         """The length (m) of the shortest chain of links joining experiences ``a`` and ``b``,
         if one is at most ``within`` metres long, else None: how much odometry relates the
         two places in the map (Dijkstra over the links, either direction, stopped at
-        ``within``)."""
+        ``within``). ``undoubted``: only through links whose odometry crossed no step the
+        odometry doubted or broke (:meth:`integrate_odometry`), along which the drift bound
+        holds."""
+        found = self._shortest_chain(a, b, within, undoubted)
+        return None if found is None else found[0]
+
+    def chain_pose(
+        self, a: int, b: int, within: float, undoubted: bool = False
+    ) -> tuple[float, FloatArray] | None:
+        """The shortest chain of links joining ``a`` to ``b`` (as :meth:`link_distance`):
+        its length and ``b``'s pose in ``a``'s frame composed from the links' own
+        measurements (odometry and registrations), or None. The drift bound of a chain is a
+        bound on this composition; the relaxed poses may differ from it by what other
+        links, across doubted steps, pulled them."""
+        found = self._shortest_chain(a, b, within, undoubted)
+        if found is None:
+            return None
+        length, ends = found
+        pose = np.zeros(3)
+        dps = self._link_dp.view()
+        for end in ends:
+            dp = dps[end // 2]
+            pose = compose(pose, dp if end % 2 == 0 else inverse(dp))
+        return length, pose
+
+    def _shortest_chain(
+        self, a: int, b: int, within: float, undoubted: bool
+    ) -> tuple[float, list[int]] | None:
+        """Dijkstra from ``a`` to ``b`` over the links, either direction, stopped at
+        ``within`` metres: the length and the link ends (:meth:`Adjacency.of`) walked."""
         best = {a: 0.0}
+        came: dict[int, tuple[int, int]] = {}
         queue = [(0.0, a)]
         while queue:
             dist, node = heapq.heappop(queue)
             if node == b:
-                return dist
+                ends = []
+                while node != a:
+                    node, end = came[node]
+                    ends.append(end)
+                return dist, ends[::-1]
             if dist > best.get(node, math.inf):
                 continue
-            for other, length in self._neighbours.of(node):
+            for end, other, length in self._neighbours.of(node, undoubted):
                 reached = dist + length
                 if reached <= within and reached < best.get(other, math.inf):
                     best[other] = reached
+                    came[other] = (node, end)
                     heapq.heappush(queue, (reached, other))
         return None
 
@@ -729,7 +779,11 @@ class CognitiveMap:
     # --- odometry and poses ----------------------------------------------------------------
 
     def integrate_odometry(
-        self, dp: ArrayLike, stamp: float | None = None, broken: ArrayLike = (0.0, 0.0)
+        self,
+        dp: ArrayLike,
+        stamp: float | None = None,
+        broken: ArrayLike = (0.0, 0.0),
+        doubted: bool = False,
     ) -> None:
         """Accumulate the motion ``dp`` (robot frame) since the current experience.
 
@@ -737,15 +791,26 @@ class CognitiveMap:
         put it off (:func:`bioslam.closure.break_extent`), beyond its model's drift. The
         link that carries the step is weighted by that much less (:func:`link_information`),
         so that a loop closure bends the map at the break rather than spreading its
-        correction along a loop whose odometry is good but for one jump."""
+        correction along a loop whose odometry is good but for one jump. ``doubted``: the
+        odometry doubted a step within ``dp`` (:func:`bioslam.closure.odometry_doubted`); the
+        link that carries it, like one that carries a break, is left out of the chains
+        :meth:`link_distance` finds with ``undoubted``."""
         d = np.asarray(dp, dtype=np.float64).reshape(3)
         if not np.all(np.isfinite(d)):
             raise ValueError(f"odometry step must be finite, got {dp}")
         self._offset = compose(self._offset, d)
         self._travel += (math.hypot(d[0], d[1]), abs(d[2]))
-        self._broken_var += np.square(np.asarray(broken, dtype=np.float64).reshape(2))
+        broken_var = np.square(np.asarray(broken, dtype=np.float64).reshape(2))
+        self._broken_var += broken_var
+        self._doubted = self._doubted or doubted or bool(broken_var.any())
         if stamp is not None:
             self._last_stamp = float(stamp)
+
+    @property
+    def doubted_since_entry(self) -> bool:
+        """Whether the odometry doubted or broke a step since the robot's pose last hung off
+        an experience of its own (:meth:`integrate_odometry`)."""
+        return self._doubted
 
     def anchor(self) -> tuple[int, FloatArray]:
         """(experience id, robot pose in its frame): the experience the robot's pose hangs off
@@ -852,7 +917,8 @@ class CognitiveMap:
         info = self._information(registrations=int(kind == "loop"))
         self._append_link(
             NewLink(source, target, np.asarray(dp, dtype=np.float64), stamp,
-                     stamp - self._entered, info, np.asarray(shape, dtype=np.float64)),
+                     stamp - self._entered, info, np.asarray(shape, dtype=np.float64),
+                     self._doubted),
             kind,
         )  # fmt: skip
 
@@ -874,12 +940,13 @@ class CognitiveMap:
         self._link_shape.append(link.shape)
         self._linked.add(_pair_key(link.source, link.target))
         length = math.hypot(float(link.dp[0]), float(link.dp[1]))
-        self._neighbours.add(int(link.source), int(link.target), length)
+        self._neighbours.add(int(link.source), int(link.target), length, link.doubted)
         self._csr = None
 
     def _enter(self, eid: int, offset: FloatArray, stamp: float, measured: bool = False) -> None:
         self._travel = np.zeros(2)
         self._broken_var = np.zeros(2)
+        self._doubted = False
         self._entered_measured = measured
         self._current = self._base = eid
         self._offset = np.asarray(offset, dtype=np.float64).copy()
@@ -919,7 +986,7 @@ class CognitiveMap:
         if refine is None:
             kind: EventKind = "link"
             if _pair_key(current, target) not in self._linked:
-                self._close(target, np.zeros(3), stamp)
+                self._close(target, Measurement(np.zeros(3)), stamp)
                 kind = "loop"
             self._enter(target, np.zeros(3), stamp, measured=True)
             return MapEvent(kind, target, matched=target)
@@ -931,16 +998,13 @@ class CognitiveMap:
             refined = Measurement(np.asarray(refined, dtype=np.float64).reshape(3))
         if self._offset.any():
             self._new_experience(*here[:2], stamp, here[2])
-        self._close(target, np.asarray(refined.pose, dtype=np.float64), stamp, refined.shape)
+        self._close(target, refined, stamp)
         self._current = target
         return MapEvent("loop", target, matched=target)
 
-    def _close(
-        self, target: int, arrival: FloatArray, stamp: float, shape: FloatArray = ISOTROPIC
-    ) -> None:
-        """A loop link to ``target``, the robot being at ``arrival`` in its frame; ``shape``:
-        the measurement's position information in the robot's frame."""
-        self.add_loop_link(self.loop_link(target, Measurement(arrival, shape), stamp))
+    def _close(self, target: int, arrival: Measurement, stamp: float) -> None:
+        """A loop link to ``target``, the robot being at ``arrival`` in its frame."""
+        self.add_loop_link(self.loop_link(target, arrival, stamp))
 
     def loop_link(self, target: int, measurement: Measurement, stamp: float) -> NewLink:
         """The loop link that ``measurement`` (the robot's pose in ``target``'s frame, now)
@@ -955,7 +1019,10 @@ class CognitiveMap:
         shape = np.asarray(measurement.shape, dtype=np.float64)
         shape = rotate_shape(shape, float(self._offset[2]))
         info = self._information(registrations=1)
-        return NewLink(self._base, int(target), dp, stamp, stamp - self._entered, info, shape)
+        doubted = self._doubted or measurement.doubted
+        return NewLink(
+            self._base, int(target), dp, stamp, stamp - self._entered, info, shape, doubted
+        )
 
     def add_loop_link(self, link: NewLink) -> None:
         """Enter a loop link made by :meth:`loop_link`; the next :meth:`relax` solves."""
