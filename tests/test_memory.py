@@ -295,3 +295,87 @@ exit_without_teardown(3)
     assert out.returncode == 3
     assert out.stdout == "buffered, no newline" and out.stderr == "to stderr"
     assert marker.read_text() == "yes"
+
+
+def test_llvm_pages_dropped_after_compiling_come_back_when_compiling_again():
+    """After Numba has compiled, LLVM's code pages leave the process's resident set; a later
+    compilation (a kernel with a new signature) still works, faulting back what it needs,
+    and a kernel compiled before still gives its result."""
+    script = """
+import json
+import numba
+from bioslam.memory import COMPILER_LIBRARIES, _file_mappings, drop_file_pages
+
+@numba.njit(cache=False)
+def total(values):
+    out = 0.0
+    for v in values:
+        out += v * 2.0
+    return out
+
+first = total(numba.typed.List([1.0, 2.5]))
+def resident():
+    return sum(rss for _, _, rss, anonymous in _file_mappings(COMPILER_LIBRARIES) if not anonymous)
+before = resident()
+dropped = drop_file_pages(COMPILER_LIBRARIES)
+after = resident()
+again = total(numba.typed.List([1.0, 2.5]))
+new = total(numba.typed.List([3, 4]))  # int64: compiled now, with LLVM's pages dropped
+print(json.dumps([before, dropped, after, first, again, new]))
+"""
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         env=env, check=True)  # fmt: skip
+    before, dropped, after, first, again, new = json.loads(out.stdout.strip().splitlines()[-1])
+    assert before > 20 * 2**20  # compiling touched tens of MB of LLVM's code
+    assert dropped >= 0.9 * before
+    assert after < 0.1 * before
+    assert first == again == 7.0
+    assert new == 14
+
+
+def test_a_mapping_with_written_pages_is_not_dropped(tmp_path):
+    """A private mapping of a file whose pages were written (as a library's relocated data)
+    keeps them: dropping would bring back the file's contents."""
+    import mmap
+
+    from bioslam.memory import _file_mappings, drop_file_pages
+
+    path = tmp_path / "written-library.bin"
+    path.write_bytes(b"\0" * mmap.PAGESIZE * 4)
+    with open(path, "r+b") as fh:
+        mapped = mmap.mmap(fh.fileno(), 0, flags=mmap.MAP_PRIVATE)
+    mapped[:4] = b"kept"
+    _ = mapped[mmap.PAGESIZE * 3]  # a clean page resident too
+    [(_, _, rss, anonymous)] = _file_mappings(("written-library",))
+    assert rss >= 2 * mmap.PAGESIZE and anonymous == mmap.PAGESIZE
+    assert drop_file_pages(("written-library",)) == 0
+    assert mapped[:4] == b"kept"
+    mapped.close()
+
+
+def test_the_log_is_read_in_a_child_forked_before_numba_is_imported(tmp_path):
+    """The reader's private memory is mostly the run's pages as they were at the fork and
+    rewritten since: it is forked before the settings bring in Numba and SciPy."""
+    script = """
+import json, sys
+import bioslam.io.readahead as readahead
+seen = []
+original = readahead.ReadAhead.__init__
+def spy(self, *args, **kwargs):
+    seen.append(sorted(m for m in ("numba", "scipy", "llvmlite") if m in sys.modules))
+    original(self, *args, **kwargs)
+readahead.ReadAhead.__init__ = spy
+readahead.can_fork = lambda: True
+from bioslam.cli import main
+code = main(sys.argv[1:])
+print(json.dumps([code, seen]))
+"""
+    log = _carmen_log(tmp_path / "log.clf")
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    out = subprocess.run([sys.executable, "-c", script, "run", str(log), "--out",
+                          str(tmp_path / "out"), "--no-progress", "--odometry-only"],
+                         capture_output=True, text=True, env=env, check=True)  # fmt: skip
+    code, seen = json.loads(out.stdout.strip().splitlines()[-1])
+    assert code == 0
+    assert seen == [[]]

@@ -23,6 +23,7 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import functools
+import re
 from collections.abc import Callable
 
 
@@ -68,3 +69,57 @@ def release_free_memory() -> bool:
         return False
     trim(0)
     return True
+
+
+#: The libraries only compiling needs: Numba's LLVM (:func:`drop_file_pages`).
+COMPILER_LIBRARIES = ("libllvmlite",)
+#: ``madvise`` advice that drops a range's pages from the process (``sys/mman.h``, Linux).
+_MADV_DONTNEED = 4
+_MAPPING = re.compile(r"^([0-9a-f]+)-([0-9a-f]+) \S+ \S+ \S+ \S+\s*(.*)$")
+
+
+def drop_file_pages(names: tuple[str, ...]) -> int:
+    """Drop from this process the resident pages of the libraries whose path contains one
+    of ``names``, where they are only the file's own (clean) pages; returns the bytes
+    dropped (0 where that is not possible).
+
+    Numba needs LLVM (``libllvmlite.so``, 69 MB of its code resident) only to compile or to
+    load its cached kernels, which the warm-up does before the first scan; after it those
+    pages sit in the process's resident set, unused, for the whole run. Dropped, they stay
+    in the system's page cache (a later compilation faults back what it uses, from memory,
+    not from disk). A mapping that holds any page of its own (``Anonymous`` in
+    ``/proc/self/smaps``: relocated data) is left alone: dropping it would lose what was
+    written there."""
+    madvise = getattr(_libc(), "madvise", None)
+    if madvise is None:
+        return 0
+    madvise.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
+    madvise.restype = ctypes.c_int
+    dropped = 0
+    for start, end, rss, anonymous in _file_mappings(names):
+        if anonymous == 0 and rss > 0 and madvise(start, end - start, _MADV_DONTNEED) == 0:
+            dropped += rss
+    return dropped
+
+
+def _file_mappings(names: tuple[str, ...]) -> list[tuple[int, int, int, int]]:
+    """``(start, end, resident bytes, anonymous bytes)`` of this process's mappings of the
+    files whose path contains one of ``names`` (none where ``/proc`` is not there)."""
+    found: list[tuple[int, int, int, int]] = []
+    try:
+        with open("/proc/self/smaps") as fh:
+            lines = fh.read().splitlines()
+    except OSError:
+        return found
+    current: list[int] | None = None
+    for line in lines:
+        head = _MAPPING.match(line)
+        if head is not None:
+            path = head.group(3)
+            current = None
+            if path.startswith("/") and any(name in path for name in names):
+                current = [int(head.group(1), 16), int(head.group(2), 16), 0, 0]
+                found.append(current)  # type: ignore[arg-type]
+        elif current is not None and line.startswith(("Rss:", "Anonymous:")):
+            current[2 if line[0] == "R" else 3] = int(line.split()[1]) * 1024
+    return [tuple(entry) for entry in found]  # type: ignore[misc]
