@@ -5,6 +5,7 @@ from _scan_world import CORRIDOR, ROOM, box, make_scan, pose_error
 from bioslam.geometry import between, compose
 from bioslam.matching.correlative import lattice_search
 from bioslam.matching.gauss_newton import _guarded_step, _newton_step, grid_args, summed_map
+from bioslam.matching.registration import densify_with_mask
 from bioslam.occupancy_grid import LogOddsConfig, MapPyramid
 from bioslam.odometry import (
     LidarOdometry,
@@ -140,9 +141,10 @@ def test_odometry_tracks_fast_turns_at_1_rad_per_s():
 
 @pytest.mark.parametrize("recovery", [True, False])
 def test_a_failed_match_is_recovered_by_an_exhaustive_search(recovery):
-    """A sudden 35 cm / 19 degree jump (a bump, a dropped scan in a turn) that Gauss-Newton
+    """A sudden 46 cm / 29 degree jump (a bump, a dropped scan in a turn) that Gauss-Newton
     from the prediction cannot reach: the match leaves endpoints in known free space, and the
-    search around the start finds the pose."""
+    search around the start finds the pose. (35 cm / 19 degrees was beyond its reach until
+    fused scans were densified along their surfaces.)"""
     rng = np.random.default_rng(11)
     # the free-space test alone (the score test is checked below)
     cfg = OdometryConfig(recovery_free_fraction=0.2 if recovery else 1.1, recovery_score_ratio=0)
@@ -151,7 +153,7 @@ def test_a_failed_match_is_recovered_by_an_exhaustive_search(recovery):
         odo.update(make_scan(ROOM, (-2.0 + 0.25 * k, 0.0, 0.0), stamp=0.25 * k, sigma=0.01,
                              rng=rng))  # fmt: skip
     before = pose_error((-2.0 + 0.25 * 11, 0.0, 0.0), odo.pose)
-    true = compose((1.0, 0.0, 0.0), (0.25, -0.25, -0.34))
+    true = compose((1.0, 0.0, 0.0), (0.3, -0.35, -0.5))
     odo.update(make_scan(ROOM, true, stamp=3.0, sigma=0.01, rng=rng))
     dt_err, dr_err = pose_error(true, odo.pose)
     if recovery:
@@ -400,6 +402,11 @@ def test_densify_scan_fills_a_wall_seen_along_but_no_opening_or_depth_jump():
     assert not between_walls.any()  # nothing across the depth jump
     short_only = densify_scan(pts, 0.05, 0.3)  # straight_angle 0: gaps up to 0.3 m only
     assert wall_gaps(short_only, 3.4, 7.0).max() > 0.3
+    # what straight runs add beyond the short gaps, for a scan fused with those already
+    rest, added = densify_with_mask(pts, 0.05, 0.3, straight_angle=0.05, filled_angle=0.0)
+    both = np.vstack([short_only, rest[added]])
+    assert len(both) == len(dense) and wall_gaps(both, 3.4, 7.0).max() < 0.06
+    assert not np.isin(rest[added][:, 0], short_only[:, 0]).any()
 
 
 def test_steps_to_insert_counts_steps_until_the_next_scan_is_fused():

@@ -234,18 +234,19 @@ class OdometryConfig:
             they stop nothing. When every match is an implausible step (the step prior's
             density below ``implausible_density``), the turn searches run as they do when
             every match fails (intel: a 61° turn plus a metre, beyond the first window, was
-            otherwise placed 2.8 m sideways). And a fused scan is densified along its
-            surfaces first (:func:`bioslam.matching.registration.densify_scan`): the map of a
-            1° scanner at a metre a scan holds a wall only where the last scans' beams hit
-            it, and a pose that reproduces the last scan's own beam pattern (standing still)
-            then scores best in a corridor (intel: RPE 1 m 22 -> 8 cm with the other two).
-            Before the run has shown that it is sparse, a scan is densified when the search
-            has run for every scan so far, and the first scan, fused before anything was
-            known, gets the densified points if the second came after ``gap_time``
+            otherwise placed 2.8 m sideways). (Every fused scan, sparse or not, is densified
+            along its surfaces first, :func:`bioslam.matching.registration.densify_scan`:
+            the map of a 1° scanner holds a wall only where the fused scans' beams hit it, a
+            metre apart along a wall seen 10 m ahead, and a pose that reproduces a fused
+            scan's own beam pattern, standing still, then scores best in a corridor. Intel:
+            RPE 1 m 22 -> 8 cm with the other two; SICK in a warehouse aisle, dense: the
+            pose stood still while the robot drove off, :meth:`LidarOdometry._unless_contradicted`.)
+            The first scan, fused before anything was known, gets the points of
+            ``first_straight_angle`` if the second came after ``gap_time``
             (:meth:`LidarOdometry._densify_first`): a thinned log's map is at first one or
             two scans, densest where they were taken, and a pose moved back there (standing
             still) outscored the true step a metre on (SICK in the warehouse thinned to a
-            scan per metre, seed 1: lost from its first steps). Dense runs are unchanged.
+            scan per metre, seed 1: lost from its first steps).
         straight_angle: when positive, densifying also fills a gap longer than
             ``NORMAL_MAX_GAP`` between neighbouring endpoints that continues a straight run
             of them (the gaps either side turn by at most this many radians,
@@ -510,10 +511,11 @@ class LidarOdometry:
             self.pyramid.recenter(self.pose[0], self.pose[1])
         if self._last_inserted is None:
             self._first_fused = (self.pose.copy(), pts)
-        if self._sparse() or self._sparse_so_far():
-            dense = densify_scan(pts, c.resolution, NORMAL_MAX_GAP, c.straight_angle)
-            if dense.shape[0] != pts.shape[0]:
-                pts, normals = dense, thinned_normals(dense)
+        # densified along its surfaces (:attr:`OdometryConfig.straight_angle`): a scanner's
+        # beam pattern fused as measured makes standing still score best
+        dense = densify_scan(pts, c.resolution, NORMAL_MAX_GAP, c.straight_angle)
+        if dense.shape[0] != pts.shape[0]:
+            pts, normals = dense, thinned_normals(dense)
         self._fuse(self.pose, pts, normals)
         self._last_inserted = self.pose.copy()
 
@@ -532,14 +534,15 @@ class LidarOdometry:
     def _densify_first(self, dt: float) -> None:
         """The second scan came after a gap (``gap_time``, a thinned log's seconds): the
         first scan, fused before anything told that the scans are sparse, gets the points
-        densifying would have added (:func:`densify_scan`, with ``first_straight_angle``)."""
+        densifying with ``first_straight_angle`` adds to those of ``straight_angle``, which
+        it was fused with (:func:`densify_scan`)."""
         pose, pts = self._first_fused
         self._first_fused = None
         if dt <= self.config.gap_time:
             return
         c = self.config
         dense, added = densify_with_mask(
-            pts, c.resolution, NORMAL_MAX_GAP, c.first_straight_angle
+            pts, c.resolution, NORMAL_MAX_GAP, c.first_straight_angle, c.straight_angle
         )
         if added.any():
             self._fuse(pose, dense[added], thinned_normals(dense)[added])
@@ -581,7 +584,9 @@ class LidarOdometry:
             self.pose, self.last_report = self._match(
                 level_pts, start, previous, normals, dt, predicted
             )
-            if dt <= c.gap_time:  # after a gap the velocity is measured afresh
+            if dt <= c.gap_time and not self.last_report.overruled:
+                # after a gap the velocity is measured afresh, and where the map overruled
+                # the motion prior, the scan measured it
                 constraint = self._mapped_constraint(level_pts[0], normals)
             self.num_recovered += self.last_report.recovered
             self.num_degenerate += self.last_report.degenerate
@@ -650,6 +655,8 @@ class LidarOdometry:
         target = self._prior_target(start, previous, predicted, gapless)
         weight = self._prior_weight(dt)
         options = [self._option(level_pts, start, normals, weight, target, gapless)]
+        if weight > c.search_prior_weight:
+            options[0] = self._unless_contradicted(options[0], level_pts, start, normals, gapless)
         motion: tuple[FloatArray, ...] = (start,)  # only compared when the search ran
         searched = c.search_distance > 0 and self._untrusted(options[0][2], dt, previous, start)
         if len(self._searched) == self._searched.maxlen:
@@ -703,6 +710,26 @@ class LidarOdometry:
         weight = self.config.search_prior_weight if prior_weight is None else prior_weight
         pose, report = self._match_from(level_pts, start, normals, weight, prior_pose, restart)
         return pose, report, self._failed(report)
+
+    def _unless_contradicted(
+        self, option: tuple[FloatArray, MatchReport, bool], level_pts: list[FloatArray],
+        start: FloatArray, normals: FloatArray, restart: bool,
+    ) -> tuple[FloatArray, MatchReport, bool]:
+        """The match held by the motion prior along a direction the scan hardly constrains,
+        unless the map contradicts it: where it leaves endpoints in known free space, the
+        match is repeated with the weak prior of a search's seed, and if the prior's match is
+        not plausible beside it (``plausible_ratio`` of its quality), the scan's evidence
+        along that direction wins (``MatchReport.overruled``)."""
+        report = option[1]
+        if not report.degenerate or report.free_fraction <= 0.0:
+            return option
+        free = self._option(level_pts, start, normals, restart=restart)
+        best = _match_quality(free[1])
+        if _match_quality(report) >= best - (1.0 - self.config.plausible_ratio) * abs(best):
+            return option
+        free[1].overruled = True
+        free[1].iterations += report.iterations
+        return free
 
     @staticmethod
     def _prior_target(

@@ -83,6 +83,7 @@ class MatchReport:
     ambiguous: bool = False
     restarted: bool = False
     broken: bool = False
+    overruled: bool = False
 
 
 # --------------------------------------------------------------------------------------------

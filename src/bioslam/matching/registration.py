@@ -140,14 +140,19 @@ def densify_scan(
 
 
 def densify_with_mask(
-    points: FloatArray, spacing: float, max_gap: float, straight_angle: float = 0.0
+    points: FloatArray, spacing: float, max_gap: float, straight_angle: float = 0.0,
+    filled_angle: float | None = None,
 ) -> tuple[FloatArray, NDArray[np.bool_]]:
-    """:func:`densify_scan` and which of its points were added (not endpoints)."""
+    """:func:`densify_scan` and which of its points were added (not endpoints); with
+    ``filled_angle``, the gaps that densifying with that ``straight_angle`` fills are left
+    as they are (the points were added before)."""
     if points.shape[0] < 2:
         return points, np.zeros(points.shape[0], dtype=bool)
     step = np.diff(points, axis=0)
     gap = np.hypot(step[:, 0], step[:, 1])
     fill = straight_gaps(points, max_gap, straight_angle)
+    if filled_angle is not None:
+        fill &= ~straight_gaps(points, max_gap, filled_angle)
     extra = np.where(fill, np.floor(gap / spacing).astype(np.int64), 0)
     counts = np.append(extra + 1, 1)
     start = np.repeat(np.arange(points.shape[0]), counts)
