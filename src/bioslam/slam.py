@@ -370,7 +370,7 @@ class BioSLAM:
         self._odometry_at[experience_id] = self.self_motion.pose
         self._doubts_at[experience_id] = self.self_motion.doubts
         self._breaks_at[experience_id] = self.self_motion.breaks
-        self._extent_at[experience_id] = self.self_motion.jump_extent
+        self._extent_at[experience_id] = self.self_motion.break_extent
 
     def _nearby(self, pose: FloatArray, travelled: float) -> int | None:
         """The path-integration cue: the experience nearest the robot's map ``pose`` (after
@@ -587,23 +587,14 @@ class BioSLAM:
         return True, span, predicted
 
     def _break_since(self, experience_id: int) -> FloatArray | None:
-        """The summed extent (m, rad) of the odometry breaks and of the other steps no robot
-        can make (:func:`bioslam.closure.jumped`: a slide while tracking) since
-        ``experience_id`` was made (:func:`bioslam.closure.break_extent`), or None when
-        there was none or the loop-closure settings trust the odometry across breaks. Asked
-        only where the odometry doubted a step or broke since (:meth:`_trust`): among blind
-        steps a slide is no less a break for being tracked (a warehouse of identical aisles,
-        SICK scanner: the odometry ran back along a blind aisle, sliding every few steps,
-        until the map put the robot 5.5 m off in the next aisle, where two closures
-        confirmed each other); where every step was matched in full, the local map pulls a
-        slide back (the rooms, SICK scanner: 20 cm back in one scan and forward again), and
-        summed over a route such slides refused half the true closures."""
+        """The summed extent (m, rad) of the odometry breaks since ``experience_id`` was
+        made (:func:`bioslam.closure.break_extent`), or None when there was none or the
+        loop-closure settings trust the odometry across breaks."""
         if not self.config.loop_closure.refuse_broken_odometry:
             return None
-        extent = self.self_motion.jump_extent - self._extent_at[experience_id]
-        if self.self_motion.breaks == self._breaks_at[experience_id] and not extent.any():
+        if self.self_motion.breaks == self._breaks_at[experience_id]:
             return None
-        return extent
+        return self.self_motion.break_extent - self._extent_at[experience_id]
 
     def _submap_members(self, candidate: int) -> tuple[int, list[int]]:
         """The experiences whose scans verify ``candidate``: those around it on its own pass,
