@@ -390,3 +390,31 @@ def test_a_unique_place_still_closes_with_rivals_sought_over_the_whole_search_wi
     assert verdict.accepted, verdict.reason
     err = between(truth, verdict.pose)
     assert math.hypot(err[0], err[1]) < 0.03 and abs(err[2]) < math.radians(0.5)
+
+
+def test_score_plateau_is_wide_along_a_corridor_and_narrow_across_it():
+    # A registration pins a corridor's sideways position but not its position along it: the
+    # closure's information there must come from how far its score stays flat, whatever
+    # the scan's own geometry says (a corridor's end wall seen from the other side).
+    from bioslam.closure import _submap_pyramid, score_plateau
+
+    cfg = LoopClosureConfig()
+    xs = np.arange(-6.0, 6.0, 0.02)
+    walls = np.vstack([np.column_stack([xs, np.full_like(xs, y)]) for y in (-1.03, 0.97)])
+    # (a far wall the scan does not see, so that the corridor's lie inside the grid's cells)
+    far = np.column_stack([xs, np.full_like(xs, -3.01)])
+    query = walls[np.abs(walls[:, 0]) < 2.0]
+    pyramid = _submap_pyramid(np.vstack([walls, far]), cfg.registration)
+    grid = pyramid.grids[cfg.registration.score_level]
+    pose = np.zeros(3)
+    along = score_plateau(grid, pose, query, np.array([1.0, 0.0]), cfg)
+    across = score_plateau(grid, pose, query, np.array([0.0, 1.0]), cfg)
+    assert along == pytest.approx(cfg.plateau_reach)
+    assert across <= 0.06
+    # the robot turned by 90 degrees: the corridor's axis is its sideways direction
+    turned = np.array([0.0, 0.0, np.pi / 2])
+    seen_turned = np.column_stack([query[:, 1], -query[:, 0]])  # the walls in its frame
+    assert score_plateau(grid, turned, seen_turned, np.array([0.0, 1.0]), cfg) == pytest.approx(
+        cfg.plateau_reach
+    )
+    assert score_plateau(grid, turned, seen_turned, np.array([1.0, 0.0]), cfg) <= 0.06

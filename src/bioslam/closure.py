@@ -648,6 +648,38 @@ def seen_hit_fraction(
     return hits / max(judged, min_seen * inside)
 
 
+def score_plateau(
+    grid: OccupancyGrid,
+    pose: FloatArray,
+    query: FloatArray,
+    direction: FloatArray,
+    config: LoopClosureConfig,
+    seen: SeenArea | None = None,
+) -> float:
+    """How far (m) from ``pose`` along ``direction`` (a unit vector in the robot's frame),
+    either way, the registration's score where the submap looked (:func:`seen_hit_fraction`)
+    stays within ``prior_tie`` (its own noise) of its value at ``pose``, searched in steps
+    of ``plateau_step`` up to ``plateau_reach``: how well the registration itself, not only
+    the scan's geometry, pins the pose along that direction. Along a corridor whose end the
+    submap saw from the other side, a pose 16 cm along it scored as the truth (simulated
+    maze, UTM-30LX), though the end wall's points made the scan's geometry look
+    constrained there."""
+    reg = config.registration
+    best = seen_hit_fraction(grid, pose, query, reg.hit_level, seen, config.min_seen)
+    step = config.plateau_step
+    widest = 0.0
+    for sign in (1.0, -1.0):
+        reached, t = 0.0, step
+        while t <= config.plateau_reach + 1e-9:
+            moved = compose(pose, np.array([sign * t * direction[0], sign * t * direction[1], 0.0]))
+            score = seen_hit_fraction(grid, moved, query, reg.hit_level, seen, config.min_seen)
+            if score < best - config.prior_tie:
+                break
+            reached, t = t, t + step
+        widest = max(widest, reached)
+    return widest
+
+
 def within(correction: FloatArray, distance: float, angle: float) -> bool:
     """Whether a pose correction moves by at most ``distance`` metres and ``angle`` radians."""
     return bool(np.hypot(correction[0], correction[1]) <= distance and abs(correction[2]) <= angle)

@@ -156,6 +156,12 @@ class LoopClosureConfig:
             break, also when the odometry tracked it without a search (it is no break for
             the closures' checks): on the simulated rooms its one-scan slides of 20 cm
             otherwise held the map where a closure would have corrected it.
+        plateau_step, plateau_reach: an accepted closure's position information along the
+            direction its scan constrains least is weakened to what its score pins there:
+            how far (m, searched in steps of ``plateau_step`` up to ``plateau_reach``) the
+            pose moves along it before the score where the submap looked drops by
+            ``prior_tie`` (:func:`bioslam.closure.score_plateau`); 0 reach keeps the scan's
+            geometry alone (:func:`bioslam.cognitive_map.registration_shape`).
         registration: the registration's map and Gauss-Newton parameters.
     """
 
@@ -198,6 +204,8 @@ class LoopClosureConfig:
     break_angular_acceleration: float = 10.0
     consistency: bool = True
     weigh_jumps: bool = True
+    plateau_step: float = 0.02
+    plateau_reach: float = 0.3
     consistency_window: float = 10.0
     consistency_separation: float = 0.5
     consistency_distance: float = 0.1

@@ -32,7 +32,7 @@ from bioslam.io.mapfile import OccupancyImage, write_map
 from bioslam.io.outdir import OutputDir
 from bioslam.io.spill import SpilledScans
 from bioslam.io.tum import write_tum
-from bioslam.memory import COMPILER_LIBRARIES, drop_file_pages, release_free_memory
+from bioslam.memory import drop_file_pages, release_free_memory
 from bioslam.occupancy_grid import OccupancyGrid
 from bioslam.odometry import LidarOdometry, register_scans
 from bioslam.scan import LaserScan
@@ -85,9 +85,10 @@ class RunOptions:
             file in this directory instead of in memory (:mod:`bioslam.io.spill`: 4 kB an
             experience, the largest part of what a long run accumulates; the run is the same
             either way). None: in memory.
-        drop_compiler_pages: once the warm-up has loaded every compiled kernel, drop LLVM's
-            code pages from the process (:func:`bioslam.memory.drop_file_pages`: 67 MB of
-            its resident set, needed again only to compile); for a process of its own.
+        drop_library_pages: once the warm-up has loaded every compiled kernel, drop the
+            libraries' clean pages from the process (:func:`bioslam.memory.drop_file_pages`:
+            84 MB, of which LLVM's 67 MB are needed again only to compile; what the run uses
+            comes back at its first use); for a process of its own.
         figure_worker: draws the figures in a child process (:mod:`bioslam.plots.worker`,
             started by ``bioslam run`` with the command), beside the writing of the other
             outputs. None: drawn in this process.
@@ -106,7 +107,7 @@ class RunOptions:
     release: bool = False
     trim_every: int = 2000
     scan_store_dir: Path | None = None
-    drop_compiler_pages: bool = False
+    drop_library_pages: bool = False
     figure_worker: FigureWorker | None = None
 
 
@@ -396,8 +397,8 @@ def run_slam(
         except KeyboardInterrupt:
             result.interrupted = True
             return result
-    if options.drop_compiler_pages:
-        drop_file_pages(COMPILER_LIBRARIES)
+    if options.drop_library_pages:
+        drop_file_pages()
     pending_snapshots = sorted(options.snapshot_times)
     bar = tqdm(total=total, unit="scan", disable=not options.progress, file=sys.stderr,
                dynamic_ncols=True, smoothing=0.05)

@@ -113,7 +113,7 @@ def demo_command(args: argparse.Namespace) -> dict[str, Any]:
         options = RunOptions(
             progress=not args.no_progress and not stopped, warm_up=not stopped,
             snapshot_times=snapshot_times(route.duration), release=True,
-            scan_store_dir=out.path, drop_compiler_pages=True,
+            scan_store_dir=out.path, drop_library_pages=True,
         )
         scans = (scan for scan, _ in simulate_scans(world, lidar, route, seed=args.seed))
         with session:

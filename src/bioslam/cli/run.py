@@ -143,7 +143,7 @@ def _run(args: argparse.Namespace, source: Any, config: Any, gt: Trajectory | No
         options = RunOptions(
             odometry_only=args.odometry_only, progress=not args.no_progress, release=True,
             scan_store_dir=out.path,  # the experiences' scans on disk, beside the outputs
-            drop_compiler_pages=True, figure_worker=figures,
+            drop_library_pages=True, figure_worker=figures,
         )
         with session:
             result = run_slam(source, config, options, observer=session.observer)

@@ -30,7 +30,6 @@ from typing import Any
 from bioslam.io.forked import Channel, ChildEndedError, Forked, Helper, can_fork
 from bioslam.io.logs import LogSource, Pose, ReadState, _trajectory
 from bioslam.io.timestamps import TimePlan
-from bioslam.memory import release_free_memory
 from bioslam.scan import LaserScan
 from bioslam.trajectory import Trajectory
 
@@ -134,7 +133,6 @@ def _send_scans(source: LogSource, batch: int, channel: Channel) -> None:
     scans = 0
     try:
         source.time_plan  # noqa: B018 - the pass over the stamps, before the first scan
-        release_free_memory()  # what that pass kept and freed (a long log's records)
         for scan in source:
             now = source.read_state_key()
             if now != key:
