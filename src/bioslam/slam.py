@@ -47,7 +47,7 @@ from bioslam.config import SLAMConfig
 from bioslam.geometry import Pose2D, between, compose
 from bioslam.growing import GrowingArray
 from bioslam.occupancy_grid import NORMAL_MAX_GAP, NORMAL_RADIUS, scan_normals, subsample_by_spacing
-from bioslam.odometry import LidarOdometry
+from bioslam.odometry import LidarOdometry, MatchReport
 from bioslam.pose_cells import PoseCellNetwork
 from bioslam.scan import LaserScan
 from bioslam.trajectory import Trajectory
@@ -116,6 +116,24 @@ class StepRecords:
 
     def __iter__(self) -> Iterator[StepRecord]:
         return (self[k] for k in range(len(self)))
+
+
+class MatchUncertainty:
+    """Each scan's odometry covariance and doubts (:attr:`MatchReport.covariance`, flags), in
+    25 bytes a scan: the covariance's upper triangle as float32, the flags in one byte."""
+
+    def __init__(self, capacity: int = 1024) -> None:
+        self._covariances = GrowingArray(np.float32, 6, capacity=capacity)
+        self._flags = GrowingArray(np.int8, capacity=capacity)
+
+    def append(self, report: MatchReport) -> None:
+        self._covariances.append(report.covariance[np.triu_indices(3)])
+        self._flags.append(report.degenerate | report.ambiguous << 1 | report.predicted_only << 2)
+
+    def arrays(self) -> tuple[FloatArray, NDArray[np.int8]]:
+        """The covariances (N, 6: xx, xy, xθ, yy, yθ, θθ) and flags (bit 0 degenerate, bit 1
+        ambiguous, bit 2 predicted only)."""
+        return self._covariances.array().astype(np.float64), self._flags.array()
 
 
 class SelfMotion:
@@ -668,6 +686,7 @@ class BioSLAM:
         self._anchor_ids.append(exp_id)
         self._anchor_offsets.append(compose(offset, self._pending))
         self._odometry_poses.append(self.self_motion.pose)
+        self._uncertainty.append(self.odometry.last_report)
 
     def finish(self) -> None:
         """Settle the cognitive map after the last scan (the final trajectory is re-derived
@@ -704,9 +723,15 @@ class BioSLAM:
             return Trajectory.empty()
         return Trajectory(self._stamps.array(), self._odometry_poses.array())
 
+    def odometry_uncertainty(self) -> tuple[FloatArray, FloatArray, NDArray[np.int8]]:
+        """Each scan's stamp, its odometry match's covariance (the upper triangle xx, xy,
+        xθ, yy, yθ, θθ) and flags (:meth:`MatchUncertainty.arrays`), for
+        :func:`bioslam.io.uncertainty.write_uncertainty`."""
+        return (self._stamps.array(), *self._uncertainty.arrays())
+
     def release_scans(self) -> None:
         """Once the trajectories are made (:func:`bioslam.pipeline.write_results` with
-        ``release``): drop the per-scan columns they are made from (72 bytes a scan, 10 MB
+        ``release``): drop the per-scan columns they are made from (97 bytes a scan, 14 MB
         after an hour at 40 Hz), so that the figures are drawn without them.
         :meth:`trajectory` and :meth:`odometry_trajectory` are empty after."""
         self._new_scan_columns(capacity=1)
@@ -718,6 +743,7 @@ class BioSLAM:
         self._anchor_ids = GrowingArray(np.int64, capacity=capacity)
         self._anchor_offsets = GrowingArray(np.float64, 3, capacity=capacity)
         self._odometry_poses = GrowingArray(np.float64, 3, capacity=capacity)
+        self._uncertainty = MatchUncertainty(capacity)
 
     def _check_counts(self) -> dict[str, int]:
         """Loop-closure verifications by cue, and refusals by reason (``closure.verify``)."""
