@@ -398,7 +398,7 @@ def test_score_plateau_is_wide_along_a_corridor_and_narrow_across_it():
     # the scan's own geometry says (a corridor's end wall seen from the other side).
     from bioslam.closure import _submap_pyramid, score_plateau
 
-    cfg = LoopClosureConfig()
+    cfg = LoopClosureConfig(plateau_reach=0.3)  # (off by default: see its doc)
     xs = np.arange(-6.0, 6.0, 0.02)
     walls = np.vstack([np.column_stack([xs, np.full_like(xs, y)]) for y in (-1.03, 0.97)])
     # (a far wall the scan does not see, so that the corridor's lie inside the grid's cells)

@@ -12,6 +12,7 @@ from loop_world import ring_route, ring_world
 from bioslam.cli import main
 from bioslam.io.mapfile import read_map
 from bioslam.io.tum import read_tum
+from bioslam.io.uncertainty import read_uncertainty
 from bioslam.pipeline import RunOptions, run_slam, write_results
 from bioslam.sim import LIDAR_PRESETS, simulate_scans
 from bioslam.trajectory import Trajectory
@@ -50,6 +51,9 @@ def test_results_are_written_and_consistent(short_drive, tmp_path):
     assert summary["scans"] == len(scans)
     trajectory = read_tum(tmp_path / "trajectory.tum")
     assert len(trajectory) == len(scans) == len(read_tum(tmp_path / "odometry.tum"))
+    uncertainty = read_uncertainty(tmp_path / "odometry_uncertainty.csv")
+    np.testing.assert_allclose(uncertainty[:, 0], trajectory.stamps, atol=1e-6)
+    assert np.all(uncertainty[1:, 8] < 0.05)  # a ring of walls pins every match down
     assert summary["ate_max_m"] < 0.1
     graph = json.loads((tmp_path / "cognitive_map.json").read_text())
     assert len(graph["nodes"]) == summary["experiences"] > 0
@@ -87,6 +91,7 @@ def test_a_failure_half_way_keeps_what_was_computed(short_drive, tmp_path):
     summary = write_results(result, tmp_path)
     assert summary["error"] == "OSError: disk went away"
     assert len(read_tum(tmp_path / "trajectory.tum")) == 40
+    assert len(read_uncertainty(tmp_path / "odometry_uncertainty.csv")) == 40
 
 
 def test_odometry_only_mode(short_drive, tmp_path):
@@ -96,6 +101,7 @@ def test_odometry_only_mode(short_drive, tmp_path):
     assert summary["experiences"] == 0
     a, b = read_tum(tmp_path / "trajectory.tum"), read_tum(tmp_path / "odometry.tum")
     assert np.allclose(a.poses, b.poses)
+    assert len(read_uncertainty(tmp_path / "odometry_uncertainty.csv")) == len(scans)
 
 
 def test_run_command_on_a_simulated_bag(tmp_path, capsys):

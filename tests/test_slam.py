@@ -148,32 +148,6 @@ def test_a_closure_across_a_jump_of_the_odometry_measures_the_jump_or_is_refused
         assert slam.summary()["closure_refused_odometry_broke"] == len(refused)
 
 
-@pytest.mark.parametrize("jump", [0.6, 2.0])
-def test_a_slide_the_odometry_tracked_widens_or_refuses_closures_across_it(ring_drive, jump):
-    # A slide while tracking (nothing flagged: no break) is a step no robot makes
-    # (``jumped``); closures across it are searched as across a break, in a window widened
-    # by it, or refused beyond the search window (a warehouse of identical aisles, SICK
-    # scanner: the odometry ran back along a blind aisle, the map put the robot 5.5 m off,
-    # in the next aisle, and two closures there confirmed each other).
-    scans, gt = ring_drive
-    slam = BioSLAM(SLAMConfig())
-    at = len(scans) // 4
-    _jumping(slam, at, jump, recovered=False)
-    for scan in scans:
-        slam.process(scan)
-    jumped = scans[at].stamp
-    assert slam.self_motion.breaks == 0 and slam.self_motion.jump_extent[0] >= jump
-    across = [c for c in slam.checks if c.experience_stamp < jumped and c.verdict.accepted]
-    if across:
-        assert max(_closure_errors(slam, gt, across)) < 0.15
-    if jump > slam.config.loop_closure.search_distance:
-        assert not across
-        refused = [c for c in slam.checks if c.verdict.reason == "odometry broke"]
-        assert refused and all(c.experience_stamp < jumped for c in refused)
-    else:
-        assert across  # the window covers the slide: the loop still closes
-
-
 def test_odometry_break_is_a_jump_between_scans_not_a_search_after_a_gap():
     from bioslam.closure import odometry_broke
     from bioslam.odometry import MatchReport

@@ -32,11 +32,12 @@ from bioslam.io.mapfile import OccupancyImage, write_map
 from bioslam.io.outdir import OutputDir
 from bioslam.io.spill import SpilledScans
 from bioslam.io.tum import write_tum
+from bioslam.io.uncertainty import write_uncertainty
 from bioslam.memory import drop_file_pages, release_free_memory
 from bioslam.occupancy_grid import OccupancyGrid
 from bioslam.odometry import LidarOdometry, register_scans
 from bioslam.scan import LaserScan
-from bioslam.slam import BioSLAM, SelfMotion, StepRecords, thin_points
+from bioslam.slam import BioSLAM, MatchUncertainty, SelfMotion, StepRecords, thin_points
 from bioslam.trajectory import Trajectory
 
 if TYPE_CHECKING:
@@ -128,6 +129,7 @@ class OdometryOnly:
         self.self_motion.step(scan)
         self._stamps.append(scan.stamp)
         self._poses.append(self.self_motion.pose)
+        self._uncertainty.append(self.odometry.last_report)
         return Pose2D(*self.self_motion.pose)
 
     @property
@@ -141,6 +143,10 @@ class OdometryOnly:
 
     odometry_trajectory = trajectory
 
+    def odometry_uncertainty(self) -> tuple[FloatArray, FloatArray, NDArray[np.int8]]:
+        """See :meth:`BioSLAM.odometry_uncertainty`."""
+        return (self._stamps.array(), *self._uncertainty.arrays())
+
     def release_scans(self) -> None:
         """See :meth:`BioSLAM.release_scans`."""
         self._new_scan_columns(capacity=1)
@@ -149,6 +155,7 @@ class OdometryOnly:
         """Empty per-scan columns: each scan's stamp and odometry pose."""
         self._stamps = GrowingArray(np.float64, capacity=capacity)
         self._poses = GrowingArray(np.float64, 3, capacity=capacity)
+        self._uncertainty = MatchUncertainty(capacity)
 
     def finish(self) -> None:
         """Nothing to settle: the odometry is final as it goes."""
@@ -530,6 +537,7 @@ def write_results(
     with signals.protected():
         trajectory = system.trajectory()
         odometry = system.odometry_trajectory()
+        uncertainty = system.odometry_uncertainty()
         summary: dict[str, Any] = {"scans": len(trajectory), **timing_summary(result, trajectory)}
         if options.release:
             system.release_scans()  # the trajectories are made: the figures go without them
@@ -540,6 +548,7 @@ def write_results(
         sent = _send_figures(options.figure_worker, result, trajectory, odometry, gt)
         out.save("trajectory.tum", write_tum, trajectory)
         out.save("odometry.tum", write_tum, odometry)
+        out.save("odometry_uncertainty.csv", write_uncertainty, *uncertainty)
         if isinstance(system, BioSLAM):
             out.save("cognitive_map.json", write_json_streamed,
                      system.cognitive_map.json_fields())  # fmt: skip

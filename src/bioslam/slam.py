@@ -47,7 +47,7 @@ from bioslam.config import SLAMConfig
 from bioslam.geometry import Pose2D, between, compose
 from bioslam.growing import GrowingArray
 from bioslam.occupancy_grid import NORMAL_MAX_GAP, NORMAL_RADIUS, scan_normals, subsample_by_spacing
-from bioslam.odometry import LidarOdometry
+from bioslam.odometry import LidarOdometry, MatchReport
 from bioslam.pose_cells import PoseCellNetwork
 from bioslam.scan import LaserScan
 from bioslam.trajectory import Trajectory
@@ -116,6 +116,24 @@ class StepRecords:
 
     def __iter__(self) -> Iterator[StepRecord]:
         return (self[k] for k in range(len(self)))
+
+
+class MatchUncertainty:
+    """Each scan's odometry covariance and doubts (:attr:`MatchReport.covariance`, flags), in
+    25 bytes a scan: the covariance's upper triangle as float32, the flags in one byte."""
+
+    def __init__(self, capacity: int = 1024) -> None:
+        self._covariances = GrowingArray(np.float32, 6, capacity=capacity)
+        self._flags = GrowingArray(np.int8, capacity=capacity)
+
+    def append(self, report: MatchReport) -> None:
+        self._covariances.append(report.covariance[np.triu_indices(3)])
+        self._flags.append(report.degenerate | report.ambiguous << 1 | report.predicted_only << 2)
+
+    def arrays(self) -> tuple[FloatArray, NDArray[np.int8]]:
+        """The covariances (N, 6: xx, xy, xθ, yy, yθ, θθ) and flags (bit 0 degenerate, bit 1
+        ambiguous, bit 2 predicted only)."""
+        return self._covariances.array().astype(np.float64), self._flags.array()
 
 
 class SelfMotion:
@@ -370,7 +388,7 @@ class BioSLAM:
         self._odometry_at[experience_id] = self.self_motion.pose
         self._doubts_at[experience_id] = self.self_motion.doubts
         self._breaks_at[experience_id] = self.self_motion.breaks
-        self._extent_at[experience_id] = self.self_motion.jump_extent
+        self._extent_at[experience_id] = self.self_motion.break_extent
 
     def _nearby(self, pose: FloatArray, travelled: float) -> int | None:
         """The path-integration cue: the experience nearest the robot's map ``pose`` (after
@@ -587,23 +605,14 @@ class BioSLAM:
         return True, span, predicted
 
     def _break_since(self, experience_id: int) -> FloatArray | None:
-        """The summed extent (m, rad) of the odometry breaks and of the other steps no robot
-        can make (:func:`bioslam.closure.jumped`: a slide while tracking) since
-        ``experience_id`` was made (:func:`bioslam.closure.break_extent`), or None when
-        there was none or the loop-closure settings trust the odometry across breaks. Asked
-        only where the odometry doubted a step or broke since (:meth:`_trust`): among blind
-        steps a slide is no less a break for being tracked (a warehouse of identical aisles,
-        SICK scanner: the odometry ran back along a blind aisle, sliding every few steps,
-        until the map put the robot 5.5 m off in the next aisle, where two closures
-        confirmed each other); where every step was matched in full, the local map pulls a
-        slide back (the rooms, SICK scanner: 20 cm back in one scan and forward again), and
-        summed over a route such slides refused half the true closures."""
+        """The summed extent (m, rad) of the odometry breaks since ``experience_id`` was
+        made (:func:`bioslam.closure.break_extent`), or None when there was none or the
+        loop-closure settings trust the odometry across breaks."""
         if not self.config.loop_closure.refuse_broken_odometry:
             return None
-        extent = self.self_motion.jump_extent - self._extent_at[experience_id]
-        if self.self_motion.breaks == self._breaks_at[experience_id] and not extent.any():
+        if self.self_motion.breaks == self._breaks_at[experience_id]:
             return None
-        return extent
+        return self.self_motion.break_extent - self._extent_at[experience_id]
 
     def _submap_members(self, candidate: int) -> tuple[int, list[int]]:
         """The experiences whose scans verify ``candidate``: those around it on its own pass,
@@ -677,6 +686,7 @@ class BioSLAM:
         self._anchor_ids.append(exp_id)
         self._anchor_offsets.append(compose(offset, self._pending))
         self._odometry_poses.append(self.self_motion.pose)
+        self._uncertainty.append(self.odometry.last_report)
 
     def finish(self) -> None:
         """Settle the cognitive map after the last scan (the final trajectory is re-derived
@@ -713,9 +723,15 @@ class BioSLAM:
             return Trajectory.empty()
         return Trajectory(self._stamps.array(), self._odometry_poses.array())
 
+    def odometry_uncertainty(self) -> tuple[FloatArray, FloatArray, NDArray[np.int8]]:
+        """Each scan's stamp, its odometry match's covariance (the upper triangle xx, xy,
+        xθ, yy, yθ, θθ) and flags (:meth:`MatchUncertainty.arrays`), for
+        :func:`bioslam.io.uncertainty.write_uncertainty`."""
+        return (self._stamps.array(), *self._uncertainty.arrays())
+
     def release_scans(self) -> None:
         """Once the trajectories are made (:func:`bioslam.pipeline.write_results` with
-        ``release``): drop the per-scan columns they are made from (72 bytes a scan, 10 MB
+        ``release``): drop the per-scan columns they are made from (97 bytes a scan, 14 MB
         after an hour at 40 Hz), so that the figures are drawn without them.
         :meth:`trajectory` and :meth:`odometry_trajectory` are empty after."""
         self._new_scan_columns(capacity=1)
@@ -727,6 +743,7 @@ class BioSLAM:
         self._anchor_ids = GrowingArray(np.int64, capacity=capacity)
         self._anchor_offsets = GrowingArray(np.float64, 3, capacity=capacity)
         self._odometry_poses = GrowingArray(np.float64, 3, capacity=capacity)
+        self._uncertainty = MatchUncertainty(capacity)
 
     def _check_counts(self) -> dict[str, int]:
         """Loop-closure verifications by cue, and refusals by reason (``closure.verify``)."""
