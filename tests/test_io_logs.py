@@ -13,6 +13,7 @@ from bioslam.io.logs import (
     SUPPORTED_FORMATS,
     LogSource,
     Pose,
+    StampedPoses,
     detect_format,
     open_log,
 )
@@ -157,3 +158,22 @@ def test_side_data_after_a_partial_iteration_cover_the_scans_read(tmp_path):
     assert not source.complete
     np.testing.assert_array_equal(source.reference.stamps, [1.0, 2.0])
     assert list(source) and source.complete and len(source.reference) == 5
+
+
+def test_stamped_poses_keep_each_pose_exactly_in_32_bytes():
+    """A log's reference poses, one per scan over an hour at 40 Hz: kept as rows of four
+    float64 (stamp, x, y, theta), read back exactly and in order."""
+    rng = np.random.default_rng(0)
+    rows = rng.normal(size=(10_000, 4))
+    rows[:, 0] = np.cumsum(rng.uniform(0.01, 0.05, size=rows.shape[0]))
+    poses = StampedPoses()
+    assert poses.trajectory() is None
+    for stamp, x, y, theta in rows:
+        poses.append(float(stamp), (float(x), float(y), float(theta)))
+    assert len(poses) == rows.shape[0]
+    assert poses.last_pose() == tuple(rows[-1, 1:])
+    assert poses.last_stamp() == rows[-1, 0]
+    trajectory = poses.trajectory()
+    np.testing.assert_array_equal(trajectory.stamps, rows[:, 0])
+    np.testing.assert_array_equal(trajectory.poses, rows[:, 1:])
+    assert poses._rows.nbytes <= 2 * 32 * rows.shape[0]  # the rows and at most doubling slack

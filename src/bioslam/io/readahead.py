@@ -28,7 +28,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from bioslam.io.forked import Channel, ChildEndedError, Forked, Helper, can_fork
-from bioslam.io.logs import LogSource, Pose, ReadState, _trajectory
+from bioslam.io.logs import LogSource, ReadState, StampedPoses
 from bioslam.io.timestamps import TimePlan
 from bioslam.scan import LaserScan
 from bioslam.trajectory import Trajectory
@@ -54,7 +54,7 @@ class ReadAhead(Helper):
         self.path, self.format, self.topic = source.path, source.format, source.topic
         self._state = ReadState(0, 0, False, {}, {}, source.notes(), None)
         self._consumed = 0
-        self._references: list[tuple[float, Pose]] = []
+        self._references = StampedPoses()
         self._iterated = False
         self._child = Forked(functools.partial(_send_scans, source, batch))
 
@@ -75,7 +75,7 @@ class ReadAhead(Helper):
                     scan, ref = item
                     self._consumed += 1
                     if ref is not None:
-                        self._references.append((scan.stamp, ref))
+                        self._references.append(scan.stamp, ref)
                     yield scan
                 elif isinstance(item, BaseException):
                     raise item
@@ -110,7 +110,7 @@ class ReadAhead(Helper):
 
     @property
     def reference(self) -> Trajectory | None:
-        return _trajectory(self._references)
+        return self._references.trajectory()
 
     @property
     def time_plan(self) -> TimePlan:
@@ -138,8 +138,8 @@ def _send_scans(source: LogSource, batch: int, channel: Channel) -> None:
             if now != key:
                 key = now
                 items.append(source.read_state())
-            references = source.references_so_far  # a new list for each iteration
-            ref = references[-1][1] if len(references) > taken else None
+            references = source.references_so_far  # new rows for each iteration
+            ref = references.last_pose() if len(references) > taken else None
             taken = len(references)
             items.append((scan, ref))
             scans += 1
