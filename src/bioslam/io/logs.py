@@ -521,17 +521,17 @@ class StampedPoses:
         return len(self._rows)
 
     def last_stamp(self) -> float:
-        return float(self._rows[len(self._rows) - 1][0])
+        return float(self._rows[-1][0])
 
     def last_pose(self) -> Pose:
-        row = self._rows[len(self._rows) - 1]
-        return float(row[1]), float(row[2]), float(row[3])
+        _, x, y, theta = self._rows[-1].tolist()
+        return x, y, theta
 
     def trajectory(self) -> Trajectory | None:
         """The rows as a trajectory; None when there are none."""
         if not len(self._rows):
             return None
-        rows = self._rows.array()
+        rows = self._rows.view()
         return Trajectory(rows[:, 0].copy(), rows[:, 1:].copy())
 
 

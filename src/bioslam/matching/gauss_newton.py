@@ -87,7 +87,20 @@ class MatchReport:
     restarted: bool = False
     broken: bool = False
     overruled: bool = False
-    covariance: FloatArray = field(default_factory=lambda: np.full((3, 3), np.nan))
+    #: :func:`match_covariance`'s arguments, kept so that the covariance is computed only for
+    #: the report someone reads (the searches' and closures' candidates are never read)
+    covariance_terms: tuple | None = field(default=None, repr=False)
+    _covariance: FloatArray | None = field(default=None, init=False, repr=False)
+
+    @property
+    def covariance(self) -> FloatArray:
+        """See the class's attributes (computed on first use)."""
+        if self._covariance is None:
+            terms = self.covariance_terms
+            self._covariance = (
+                np.full((3, 3), np.nan) if terms is None else match_covariance(*terms)
+            )
+        return self._covariance
 
 
 # --------------------------------------------------------------------------------------------
@@ -310,14 +323,16 @@ def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, hold, prior)
     H2 = np.zeros((3, 3))
     b2 = np.zeros(3)
     mean, cost, inside = _normal_equations(g, pts, pose, H, b)
-    scan = (H.copy(), cost, inside)  # the scan's own terms at ``pose``, for its covariance
+    # the scan's own terms at ``pose`` (before the prior's are added), for its covariance
+    scan_H, trial_H = H.copy(), np.empty((3, 3))
+    scan_cost, scan_inside = cost, inside
     cost += _add_prior(H, b, pose, prior, length)
     damping = 0.0
     growth = 2.0
     iterations = 0
     converged = False
     if inside < 3:
-        return pose, H, mean, iterations, converged, cost, scan
+        return pose, H, mean, iterations, converged, cost, (scan_H, scan_cost, scan_inside)
     for _ in range(max_iter):
         iterations += 1
         step = _newton_step(H, b, length, ratio, damping, hold)
@@ -329,7 +344,8 @@ def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, hold, prior)
         for i in range(3):
             trial[i] = pose[i] + step[i]
         mean2, cost2, inside2 = _normal_equations(g, pts, trial, H2, b2)
-        trial_scan = (H2.copy(), cost2, inside2)
+        trial_H[:, :] = H2
+        trial_cost = cost2
         cost2 += _add_prior(H2, b2, trial, prior, length)
         # the gain Gauss-Newton's quadratic model predicts for residuals r = 1 - M*
         predicted = 0.0
@@ -343,7 +359,8 @@ def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, hold, prior)
             H, H2 = H2, H
             b, b2 = b2, b
             mean, cost = mean2, cost2
-            scan = trial_scan
+            scan_H, trial_H = trial_H, scan_H
+            scan_cost, scan_inside = trial_cost, inside2
             damping *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
             if damping < 1e-6:
                 damping = 0.0
@@ -354,7 +371,7 @@ def _gauss_newton_level(g, pts, pose, max_iter, tol, length, ratio, hold, prior)
         if small:
             converged = True
             break
-    return pose, H, mean, iterations, converged, cost, scan
+    return pose, H, mean, iterations, converged, cost, (scan_H, scan_cost, scan_inside)
 
 @numba.njit(cache=True)
 def summed_map(g, pts, c, s, tx, ty, residual):
@@ -511,9 +528,9 @@ def match_scan_to_map(
             report.degenerate_direction = np.asarray(weakest, dtype=np.float64)
     report.converged = bool(converged)
     report.score = float(mean)
-    report.covariance = match_covariance(
+    report.covariance_terms = (
         *scan, level_points[0].shape[0], 0.25 if subcell_sigma is None else 1.0, length_scale,
-        report.degenerate_direction, report.condition,
+        report.degenerate_direction.copy(), report.condition,
     )  # fmt: skip
     return pose, report
 
