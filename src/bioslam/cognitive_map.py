@@ -20,8 +20,11 @@ OpenRatSLAM's ``PosecellNetwork::get_action`` and ``ExperienceMap`` (Ball et al.
 Relaxation (Eq. 14) — the choices the paper leaves open, written down:
 
 * Eq. 14 sums every link's residual with the same weight. Here each residual is weighted by its
-  link's information (:func:`link_information`): an odometry link's variance grows with the
-  distance and angle it spans, a loop link's is one registration's. With equal weights a
+  link's information, the inverse of its covariance (:func:`link_information`): an odometry
+  link's position variance grows with the distance it spans and its heading's is what its
+  scans' matches measured; a loop link's is its registration's own covariance
+  (:func:`measured_information`: along a corridor, where the match slides, it carries next to
+  no weight) with a floor for what that covariance does not see. With equal weights a
   closure a few centimetres off is spread like an exact one and bends a loop whose odometry
   was better than the registration; weighted, a loop is corrected in proportion to how much
   its odometry can have drifted. A robust kernel (dynamic covariance scaling,
