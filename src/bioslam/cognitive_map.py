@@ -65,7 +65,7 @@ from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 from bioslam.geometry import between, compose, inverse, wrap_angle
-from bioslam.growing import GrowingArray
+from bioslam.growing import GrowingArray, IdRows
 from bioslam.pose_cells import PoseCellConfig, wrapped_cell_distance
 
 FloatArray = NDArray[np.float64]
@@ -580,12 +580,6 @@ def relaxation_correction(
     return a * out
 
 
-def _pair_key(source: int, target: int) -> int:
-    """One integer for an ordered pair of experience ids (a set of them takes a third of
-    the memory of a set of tuples)."""
-    return (int(source) << 32) | int(target)
-
-
 class Adjacency:
     """The links at each experience, both directions, with their lengths: for the
     shortest chains of :meth:`CognitiveMap.link_distance`. Kept as linked lists in flat
@@ -623,6 +617,18 @@ class Adjacency:
             self._next[self._last[node]] = end
         self._last[node] = end
 
+    def has_link(self, source: int, target: int) -> bool:
+        """Whether a link from ``source`` to ``target`` was added (that direction: its end
+        at ``source`` is the even one, :meth:`of`). A walk over ``source``'s links, instead
+        of a set of every pair (80 bytes a link for the whole run)."""
+        end = self._first[source] if 0 <= source < len(self._first) else -1
+        other, following = self._other, self._next
+        while end >= 0:
+            if other[end] == target and not end & 1:
+                return True
+            end = following[end]
+        return False
+
     def of(self, node: int, undoubted: bool = False) -> Iterator[tuple[int, int, float]]:
         """``(end, other node, length)`` of each link at ``node``, oldest first (``undoubted``:
         only the links whose odometry the odometry never doubted). Link ``k``'s ends are
@@ -659,7 +665,12 @@ class CognitiveMap:
         self._stamps = GrowingArray(np.float64, capacity=64)
         self._view_ids = GrowingArray(np.int64, capacity=64)
         self._payloads: MutableSequence[Any] = payloads if payloads is not None else []
-        self._by_view: dict[int, array[int]] = {}
+        # the experiences of each view, oldest first, as linked lists in flat arrays (each
+        # view's first and last experience, each experience's next): 16 bytes a view and 8
+        # an experience instead of a dict entry and an array each (about 180 bytes a view)
+        self._view_first = IdRows(np.int64)
+        self._view_last = IdRows(np.int64)
+        self._next_of_view = GrowingArray(np.int64, capacity=64)
         self._link_ends = GrowingArray(np.float64, 2, capacity=64)
         self._link_dp = GrowingArray(np.float64, 3, capacity=64)
         self._link_dt = GrowingArray(np.float64, capacity=64)
@@ -672,8 +683,6 @@ class CognitiveMap:
         # each link's position information shape in its source's frame (ISOTROPIC, or a
         # registration's: registration_shape)
         self._link_shape = GrowingArray(np.float64, 3, capacity=64)
-        # (source, target) of every link, as one integer each (:func:`_pair_key`)
-        self._linked: set[int] = set()
         # undirected, with each link's length: for the odometry distance between two places
         self._neighbours = Adjacency()
         # the recognised place (topology) and the experience the robot's pose is composed from
@@ -836,7 +845,14 @@ class CognitiveMap:
         return [self.link(i) for i in range(self.num_links)]
 
     def experiences_of_view(self, view_id: int) -> list[int]:
-        return list(self._by_view.get(int(view_id), ()))
+        """The experiences made with view ``view_id``, oldest first."""
+        vid = int(view_id)
+        eid = int(self._view_first[vid]) if vid in self._view_first else -1
+        found, following = [], self._next_of_view.view()
+        while eid >= 0:
+            found.append(eid)
+            eid = int(following[eid])
+        return found
 
     # --- odometry and poses ----------------------------------------------------------------
 
@@ -933,7 +949,7 @@ class CognitiveMap:
         stamp = float(stamp)
         if self._current < 0:
             return self._new_experience(vid, centre, stamp, payload)
-        candidates = self._by_view.get(vid)
+        candidates = self.experiences_of_view(vid)
         refused: MapEvent | None = None
         if not is_new and candidates:
             dist = wrapped_cell_distance(self._centres.view()[candidates], centre, self.dims)
@@ -977,7 +993,12 @@ class CognitiveMap:
         self._stamps.append(stamp)
         self._view_ids.append(vid)
         self._payloads.append(payload)
-        self._by_view.setdefault(vid, array("q")).append(eid)
+        self._next_of_view.append(-1)
+        if vid in self._view_last:
+            self._next_of_view.view()[self._view_last[vid]] = eid
+        else:
+            self._view_first[vid] = eid
+        self._view_last[vid] = eid
         return eid
 
     def _add_link(
@@ -1012,7 +1033,6 @@ class CognitiveMap:
         self._link_info.append(link.info)
         self._link_scale.append(1.0)
         self._link_shape.append(link.shape)
-        self._linked.add(_pair_key(link.source, link.target))
         length = math.hypot(float(link.dp[0]), float(link.dp[1]))
         self._neighbours.add(int(link.source), int(link.target), length, link.doubted)
         self._csr = None
@@ -1060,7 +1080,7 @@ class CognitiveMap:
             return MapEvent("none", current, matched=target)
         if refine is None:
             kind: EventKind = "link"
-            if _pair_key(current, target) not in self._linked:
+            if not self._neighbours.has_link(current, target):
                 self._close(target, Measurement(np.zeros(3)), stamp)
                 kind = "loop"
             self._enter(target, np.zeros(3), stamp, measured=True)

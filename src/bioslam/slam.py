@@ -55,7 +55,7 @@ from bioslam.cognitive_map import (
 )
 from bioslam.config import SLAMConfig
 from bioslam.geometry import Pose2D, between, compose, inverse
-from bioslam.growing import GrowingArray
+from bioslam.growing import GrowingArray, RowsFactory
 from bioslam.occupancy_grid import NORMAL_MAX_GAP, NORMAL_RADIUS, scan_normals, subsample_by_spacing
 from bioslam.odometry import LidarOdometry, MatchReport
 from bioslam.pose_cells import PoseCellNetwork
@@ -128,15 +128,25 @@ class StepRecords:
         return (self[k] for k in range(len(self)))
 
 
+def scan_columns(rows: RowsFactory | None, capacity: int = 1024) -> tuple[Any, Any, Any, Any]:
+    """Empty stores (from ``rows``, growing arrays of ``capacity`` when None) of each scan's
+    stamp, anchor experience, offset from it and odometry pose."""
+    if rows is None:
+        def rows(dtype: Any, width: int) -> GrowingArray:
+            return GrowingArray(dtype, width, capacity=capacity)
+    return rows(np.float64, 0), rows(np.int64, 0), rows(np.float64, 3), rows(np.float64, 3)
+
+
 class MatchUncertainty:
     """Each scan's odometry covariance and doubts (:attr:`MatchReport.covariance`, flags), in
     25 bytes a scan: the covariance's upper triangle as float32, the flags in one byte."""
 
     _UPPER = np.triu_indices(3)  # (np.triu_indices costs 15 µs a call)
 
-    def __init__(self, capacity: int = 1024) -> None:
-        self._covariances = GrowingArray(np.float32, 6, capacity=capacity)
-        self._flags = GrowingArray(np.int8, capacity=capacity)
+    def __init__(self, capacity: int = 1024, rows: RowsFactory | None = None) -> None:
+        """``rows``: where the columns are kept (growing arrays of ``capacity`` when None)."""
+        self._covariances = rows(np.float32, 6) if rows else GrowingArray(np.float32, 6, capacity)
+        self._flags = rows(np.int8, 0) if rows else GrowingArray(np.int8, capacity=capacity)
 
     def append(self, report: MatchReport) -> None:
         self._covariances.append(report.covariance[self._UPPER])
@@ -255,11 +265,15 @@ class BioSLAM:
     """The LiDAR-based biologically-inspired SLAM system (Sec. III)."""
 
     def __init__(
-        self, config: SLAMConfig | None = None, scan_store: MutableSequence[Any] | None = None
-    ) -> None:
+        self, config: SLAMConfig | None = None, scan_store: MutableSequence[Any] | None = None,
+        rows: RowsFactory | None = None,
+    ) -> None:  # fmt: skip
         """``scan_store``: an empty store for the scans kept with the experiences (a list
-        when None; :class:`bioslam.io.spill.SpilledScans` keeps them on disk)."""
+        when None; :class:`bioslam.io.spill.SpilledScans` keeps them on disk). ``rows``:
+        makes the stores of the per-scan columns, read only for the outputs (growing arrays
+        in memory when None; :class:`bioslam.io.spill.SpilledRows` keeps them on disk)."""
         self.config = config or SLAMConfig()
+        self._rows = rows
         cfg = self.config
         self.self_motion = SelfMotion(cfg)
         self.boundary_cells = BoundaryCells(cfg.boundary)
@@ -858,12 +872,12 @@ class BioSLAM:
 
     def _new_scan_columns(self, capacity: int = 1024) -> None:
         """Empty per-scan columns: each scan's stamp, the experience its pose hangs off
-        with the offset from it, and its odometry pose."""
-        self._stamps = GrowingArray(np.float64, capacity=capacity)
-        self._anchor_ids = GrowingArray(np.int64, capacity=capacity)
-        self._anchor_offsets = GrowingArray(np.float64, 3, capacity=capacity)
-        self._odometry_poses = GrowingArray(np.float64, 3, capacity=capacity)
-        self._uncertainty = MatchUncertainty(capacity)
+        with the offset from it, and its odometry pose (in the stores ``rows`` makes, but
+        in memory once released: ``capacity`` 1)."""
+        self._stamps, self._anchor_ids, self._anchor_offsets, self._odometry_poses = (
+            scan_columns(self._rows if capacity > 1 else None, capacity)
+        )
+        self._uncertainty = MatchUncertainty(capacity, self._rows if capacity > 1 else None)
 
     def _check_counts(self) -> dict[str, int]:
         """Loop-closure verifications by cue, and refusals by reason (``closure.verify``)."""
