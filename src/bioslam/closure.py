@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from bioslam.config import LoopClosureConfig
 from bioslam.geometry import between, compose, inverse, transform_points, wrap_angle
@@ -123,6 +123,43 @@ def jumped(
     next 0.24 s after it) the scaled expectation overshoots a steady motion; a slide or a
     jump departs from both."""
     return implausible(step, expected, dt, config) and implausible(step, last, dt, config)
+
+
+class SlideReturns:
+    """The odometry's slides that it undid. A scan-to-map odometry that slides away from
+    the robot's motion (a one-scan jump of 20 cm along a corridor) often jumps back a few
+    scans later, when its map pulls it there: the steps between are displaced, but the
+    motion across the pair is as good as any. Fed each jump's departure from the robot's
+    motion (map frame), it says when a run of jumps has summed back to within
+    ``thresholds`` (m, rad) of none, within ``reach`` metres of travel of the first."""
+
+    def __init__(self, thresholds: tuple[float, float], reach: float) -> None:
+        self.thresholds = thresholds
+        self.reach = reach
+        self._net: FloatArray | None = None
+        self._since = 0.0
+
+    @property
+    def open(self) -> bool:
+        """Whether a slide is under way (the odometry's pose now displaced by it)."""
+        return self._net is not None
+
+    def jump(self, departure: ArrayLike, travelled: float) -> str:
+        """Take one jump's ``departure`` (x, y, θ in the odometry's frame) after
+        ``travelled`` metres: ``'opened'`` when it starts a slide, ``'returned'`` when it
+        undid the open one, else ``''`` (the slide goes on)."""
+        d = np.asarray(departure, dtype=np.float64).reshape(3)
+        if self._net is not None and travelled - self._since > self.reach:
+            self._net = None  # never undone: the jumps stay as they are
+        if self._net is None:
+            self._net, self._since = d.copy(), travelled
+            return "opened"
+        self._net += d
+        self._net[2] = wrap_angle(float(self._net[2]))
+        if within(self._net, *self.thresholds):
+            self._net = None
+            return "returned"
+        return ""
 
 
 def break_extent(
@@ -423,13 +460,40 @@ class Check:
     verdict: Verdict
 
 
+def place_covariance(
+    covariance: ArrayLike, registered: ArrayLike, anchor_in_place: ArrayLike
+) -> FloatArray:
+    """The covariance (3x3) of a recognised place's pose in the robot's frame, from a
+    registration's ``covariance`` of the robot's pose ``registered`` in the submap anchor's
+    frame, the anchor being at ``anchor_in_place`` in the place's frame: the loop link runs
+    from the robot to the place, so its error is the registration's seen from the robot
+    (first order; the heading's error also swings the place around the robot by its
+    distance)."""
+    cov = np.asarray(covariance, dtype=np.float64).reshape(3, 3)
+    base = np.asarray(registered, dtype=np.float64).reshape(3)
+    anchor = np.asarray(anchor_in_place, dtype=np.float64).reshape(3)
+    step = 1e-6
+    deltas = np.vstack([np.eye(3), -np.eye(3)]) * step
+    seen = inverse(compose(np.broadcast_to(anchor, (6, 3)), base + deltas))
+    diff = seen[:3] - seen[3:]
+    diff[:, 2] = wrap_angle(diff[:, 2])
+    jacobian = diff.T / (2.0 * step)
+    return jacobian @ cov @ jacobian.T
+
+
 @dataclass(frozen=True)
 class Verdict:
     """The outcome of verifying one candidate: ``pose`` is the robot in the candidate
     experience's frame; ``score`` the share of its points on the submap; ``ambiguity`` the
     best distinct rival's search score over the best's; ``reason`` says why a candidate was
     refused ('' when accepted); ``prior_score`` the score of the map's prediction refined
-    where it stands."""
+    where it stands; ``covariance`` the registration's own 3x3 covariance of ``pose`` in the
+    frame it was registered in (the submap's, :attr:`MatchReport.covariance`; NaN when the
+    match had too few points), from which the loop link's information is made.
+
+    The covariance follows the scan's fit to the submap: along a corridor, where the match
+    slides, it is large, across it small (maze, SICK scanner: closures 7-10 cm off along a
+    corridor came with a standard deviation of 15-30 cm there)."""
 
     accepted: bool
     pose: FloatArray
@@ -437,6 +501,7 @@ class Verdict:
     ambiguity: float
     reason: str = ""
     prior_score: float = float("nan")
+    covariance: FloatArray = field(default_factory=lambda: np.full((3, 3), np.nan))
 
 
 def verify(
@@ -527,7 +592,9 @@ def verify(
         pyramid, query, predicted, (distance, angle), rival_window, fit, config
     ):
         reason = "ambiguous"
-    return Verdict(not reason, pose, score, found.ambiguity, reason, kept_score)
+    return Verdict(
+        not reason, pose, score, found.ambiguity, reason, kept_score, report.covariance.copy()
+    )
 
 
 @dataclass(frozen=True)
