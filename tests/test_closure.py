@@ -418,3 +418,40 @@ def test_score_plateau_is_wide_along_a_corridor_and_narrow_across_it():
         cfg.plateau_reach
     )
     assert score_plateau(grid, turned, seen_turned, np.array([1.0, 0.0]), cfg) <= 0.06
+
+
+def test_a_registrations_covariance_is_large_along_a_corridor_and_small_at_its_end():
+    # The loop link's information is the inverse of this covariance: a match that slides
+    # along a corridor must report it, and one pinned by an end wall must not.
+    cfg = LoopClosureConfig()
+    xs = np.arange(-6.0, 6.0, 0.02)
+    walls = np.vstack([np.column_stack([xs, np.full_like(xs, y)]) for y in (-1.03, 0.97)])
+    far = np.column_stack([xs, np.full_like(xs, -3.01)])
+    query = walls[np.abs(walls[:, 0]) < 2.0]
+    predicted = np.array([0.05, 0.02, 0.01])
+    corridor = verify(np.vstack([walls, far]), query, predicted, (0.3, 0.1), cfg)
+    along, across = np.sqrt(np.diag(corridor.covariance)[:2])
+    assert along > 1.0 and across < 0.2 * along
+    ys = np.arange(-1.03, 0.97, 0.02)
+    end = np.column_stack([np.full_like(ys, 1.5), ys])
+    closed = verify(
+        np.vstack([walls, far, end]), np.vstack([query[query[:, 0] < 1.5], end]), predicted,
+        (0.3, 0.1), cfg,
+    )  # fmt: skip
+    assert closed.accepted
+    assert np.all(np.sqrt(np.diag(closed.covariance)[:2]) < 0.01)
+
+
+def test_place_covariance_is_the_registrations_seen_from_the_robot():
+    from bioslam.closure import place_covariance
+
+    sx, sy, st = 0.02, 0.005, 0.01
+    cov = np.diag([sx**2, sy**2, st**2])
+    # the robot 1 m ahead of the anchor, which is the place itself: the place lies 1 m
+    # behind the robot, and the heading's error swings it sideways by 1 m times the error
+    got = place_covariance(cov, (1.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    expected = np.array([[sx**2, 0, 0], [0, sy**2 + st**2, -(st**2)], [0, -(st**2), st**2]])
+    np.testing.assert_allclose(got, expected, atol=1e-10)
+    # the anchor turned a quarter from the place: the same registration, turned
+    turned = place_covariance(cov, (0.0, 0.0, 0.0), (0.0, 0.0, math.pi / 2))
+    np.testing.assert_allclose(np.diag(turned), [sx**2, sy**2, st**2], atol=1e-10)

@@ -14,6 +14,7 @@ from bioslam.cognitive_map import (
     CognitiveMapConfig,
     Measurement,
     _solve_fixed_point,
+    measured_information,
     registration_shape,
     relaxation_correction,
 )
@@ -483,7 +484,8 @@ def test_registration_shape_follows_the_scans_geometry():
 
 
 def corridor_return(
-    measurement_shape: np.ndarray | None, slide: float, config: CognitiveMapConfig | None = None
+    measurement_shape: np.ndarray | None, slide: float, config: CognitiveMapConfig | None = None,
+    covariance: np.ndarray | None = None,
 ):
     """Down an 8 m corridor and back with a heading-drifting odometry (0.35 m off at the end),
     then a closure onto the first experience measured exactly except ``slide`` metres along
@@ -505,6 +507,8 @@ def corridor_return(
     cm.integrate_odometry(steps[-1] + bias)
     measured = compose(between(truth[0], truth[-1]), (slide, 0.0, 0.0))
     refined = measured if measurement_shape is None else Measurement(measured, measurement_shape)
+    if covariance is not None:
+        refined = Measurement(measured, ISOTROPIC, covariance=covariance)
     assert cm.update(0, False, PC, stamp=99.0, refine=lambda e: refined).kind == "loop"
     cm.relax()
     rms = lambda p: float(np.sqrt(np.mean(np.sum((p[:, :2] - truth[: len(p), :2]) ** 2, 1))))  # noqa: E731
@@ -524,6 +528,45 @@ def test_a_closure_that_slid_along_a_corridor_corrects_only_across_it():
     # an exact registration corrects the map as well whichever way it is weighted
     assert corridor_return(shape, slide=0.0)[1] < 0.1 * odometry
     assert corridor_return(shape, slide=0.0)[1] == pytest.approx(corridor_return(None, 0.0)[1])
+
+
+def test_a_closure_weighted_by_its_registrations_covariance_beats_the_odometry():
+    # The odometry drifts along the corridor and sideways (0.35 m off at the end); the
+    # closure is exact across the corridor but slid 30 cm along it, where its registration
+    # reports it cannot tell (1 m standard deviation: a featureless corridor's match gives
+    # metres, see test_closure), while its scan's points looked well spread (an isotropic
+    # shape, as a scan seeing a door or a corner gives).
+    covariance = np.diag([1.0, 0.005**2, 0.001**2])
+    odometry, weighted, scale = corridor_return(None, slide=0.3, covariance=covariance)
+    off = CognitiveMapConfig(
+        odometry_var_per_m=0.01, odometry_heading_var_per_m=1e-3, closure_sigma_m=0.01,
+        closure_sigma_rad=1e-3, closure_shape_ratio=1e4, robust_sigmas=0.0,
+        registration_covariance=False,
+    )  # fmt: skip
+    _, shaped_by_points, _ = corridor_return(
+        None, slide=0.3, config=off, covariance=covariance
+    )
+    assert odometry > 0.3
+    # the closure's slide carries no weight along the corridor: the map takes its sideways
+    # correction only and ends far better than the odometry, and than the same closure
+    # weighted as one isotropic registration (which drags the map 30 cm along)
+    assert weighted < 0.1 * odometry
+    assert shaped_by_points > 0.15 and weighted < 0.2 * shaped_by_points
+    assert scale == 1.0  # nothing for the robust kernel to demote
+    # an exact registration corrects the map as well as before
+    assert corridor_return(None, slide=0.0, covariance=covariance)[1] < 0.1 * odometry
+
+
+def test_measured_information_is_the_inverse_covariance_in_the_sources_frame():
+    info = (1.0 / 0.01**2, 1.0 / 0.002**2)  # odometry and registration floor: 1 cm, 0.11 deg
+    covariance = np.diag([0.2**2, 0.003**2, 0.004**2])  # along x: 20 cm; across: 3 mm
+    heading = math.pi / 2  # the robot's frame turned a quarter from the link's source
+    (position, turn), shape = measured_information(info, covariance, heading)
+    # the source sees the robot's x as its y: weak along y, strong along x
+    omega = position * np.array([[shape[0], shape[1]], [shape[1], shape[2]]])
+    expected = np.linalg.inv(np.diag([0.003**2 + 1e-4, 0.2**2 + 1e-4]))
+    np.testing.assert_allclose(omega, expected, rtol=1e-9, atol=1e-6)
+    assert turn == pytest.approx(1.0 / (0.002**2 + 0.004**2))
 
 
 def test_block_solve_with_isotropic_shapes_is_the_scalar_solve():

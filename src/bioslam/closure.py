@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from bioslam.config import LoopClosureConfig
 from bioslam.geometry import between, compose, inverse, transform_points, wrap_angle
@@ -423,13 +423,40 @@ class Check:
     verdict: Verdict
 
 
+def place_covariance(
+    covariance: ArrayLike, registered: ArrayLike, anchor_in_place: ArrayLike
+) -> FloatArray:
+    """The covariance (3x3) of a recognised place's pose in the robot's frame, from a
+    registration's ``covariance`` of the robot's pose ``registered`` in the submap anchor's
+    frame, the anchor being at ``anchor_in_place`` in the place's frame: the loop link runs
+    from the robot to the place, so its error is the registration's seen from the robot
+    (first order; the heading's error also swings the place around the robot by its
+    distance)."""
+    cov = np.asarray(covariance, dtype=np.float64).reshape(3, 3)
+    base = np.asarray(registered, dtype=np.float64).reshape(3)
+    anchor = np.asarray(anchor_in_place, dtype=np.float64).reshape(3)
+    step = 1e-6
+    deltas = np.vstack([np.eye(3), -np.eye(3)]) * step
+    seen = inverse(compose(np.broadcast_to(anchor, (6, 3)), base + deltas))
+    diff = seen[:3] - seen[3:]
+    diff[:, 2] = wrap_angle(diff[:, 2])
+    jacobian = diff.T / (2.0 * step)
+    return jacobian @ cov @ jacobian.T
+
+
 @dataclass(frozen=True)
 class Verdict:
     """The outcome of verifying one candidate: ``pose`` is the robot in the candidate
     experience's frame; ``score`` the share of its points on the submap; ``ambiguity`` the
     best distinct rival's search score over the best's; ``reason`` says why a candidate was
     refused ('' when accepted); ``prior_score`` the score of the map's prediction refined
-    where it stands."""
+    where it stands; ``covariance`` the registration's own 3x3 covariance of ``pose`` in the
+    frame it was registered in (the submap's, :attr:`MatchReport.covariance`; NaN when the
+    match had too few points), from which the loop link's information is made.
+
+    The covariance follows the scan's fit to the submap: along a corridor, where the match
+    slides, it is large, across it small (maze, SICK scanner: closures 7-10 cm off along a
+    corridor came with a standard deviation of 15-30 cm there)."""
 
     accepted: bool
     pose: FloatArray
@@ -437,6 +464,7 @@ class Verdict:
     ambiguity: float
     reason: str = ""
     prior_score: float = float("nan")
+    covariance: FloatArray = field(default_factory=lambda: np.full((3, 3), np.nan))
 
 
 def verify(
@@ -527,7 +555,9 @@ def verify(
         pyramid, query, predicted, (distance, angle), rival_window, fit, config
     ):
         reason = "ambiguous"
-    return Verdict(not reason, pose, score, found.ambiguity, reason, kept_score)
+    return Verdict(
+        not reason, pose, score, found.ambiguity, reason, kept_score, report.covariance.copy()
+    )
 
 
 @dataclass(frozen=True)

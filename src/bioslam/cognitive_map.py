@@ -116,6 +116,12 @@ class CognitiveMapConfig:
     closure_sigma_m: float = 0.02
     #: ... and heading (rad; measured 0.07-0.16 deg).
     closure_sigma_rad: float = 0.005
+    #: Weigh a loop link by its registration's own covariance (:func:`measured_information`:
+    #: the matcher's ``σ² H⁻¹`` against the submap, large along a corridor where the match
+    #: slides), with ``closure_sigma_m`` / ``closure_sigma_rad`` added as the error that
+    #: covariance does not see (the submap's own). False: ``closure_sigma_m`` shaped by the
+    #: scan's geometry (:func:`registration_shape`), as before.
+    registration_covariance: bool = True
     #: A registration's position information follows the scan's geometry
     #: (:func:`registration_shape`): ``closure_sigma_m`` along its best-constrained direction,
     #: up to this many times that variance along its weakest (along a corridor, where a
@@ -210,11 +216,16 @@ class Measurement:
     the recognised experience's frame, and the ``shape`` (xx, xy, yy) of its position
     information in the robot's frame (:func:`registration_shape`). ``doubted``: the
     registration was trusted only through earlier closures (its link then cannot vouch
-    for later ones, :meth:`CognitiveMap.link_distance` with ``undoubted``)."""
+    for later ones, :meth:`CognitiveMap.link_distance` with ``undoubted``). ``covariance``:
+    the registration's own 3x3 covariance of the recognised experience's pose in the
+    robot's frame (:func:`bioslam.closure.place_covariance`); when given (and finite) the
+    loop link's information is its inverse (:func:`measured_information`) instead of
+    ``closure_sigma_m`` shaped by ``shape``."""
 
     pose: FloatArray
     shape: FloatArray = field(default_factory=ISOTROPIC.copy)
     doubted: bool = False
+    covariance: FloatArray | None = None
 
 
 @dataclass
@@ -439,6 +450,33 @@ def link_information(
         + extra_th
     )
     return 1.0 / (floor_xy + var_xy), 1.0 / (floor_th + var_th)
+
+
+def measured_information(
+    info: tuple[float, float], covariance: ArrayLike, heading: float
+) -> tuple[tuple[float, float], FloatArray]:
+    """Eq. 14's weight of a loop link whose registration reports its own ``covariance``
+    (3x3, x, y, θ of the recognised place in the robot's frame; the robot's frame is turned
+    by ``heading`` from the link's source): ``info`` (:func:`link_information`: the odometry
+    since the source and the floor of each registration) as variances, plus the
+    registration's, inverted. Returns the (position, heading) information, the position's
+    being its best direction's, and the position information's shape (xx, xy, yy; largest
+    eigenvalue 1) in the source's frame.
+
+    Information is the inverse of the covariance, in the same units as the odometry's: a
+    closure whose match slides along a corridor (its covariance there tens of centimetres)
+    carries next to no weight along it, so that its slide does not drag the map, while
+    across the corridor it corrects as much as its fit allows."""
+    cov = np.asarray(covariance, dtype=np.float64).reshape(3, 3)
+    c, s = math.cos(heading), math.sin(heading)
+    rot = np.array([[c, -s], [s, c]])
+    position = rot @ cov[:2, :2] @ rot.T + np.eye(2) / info[0]
+    w, v = np.linalg.eigh(0.5 * (position + position.T))
+    strength = 1.0 / w  # the information's eigenvalues, along v's columns
+    top = float(strength.max())
+    shape = (v * (strength / top)) @ v.T
+    heading_info = 1.0 / (1.0 / info[1] + max(float(cov[2, 2]), 0.0))
+    return (top, heading_info), np.array([shape[0, 0], shape[0, 1], shape[1, 1]])
 
 
 def registration_shape(points: ArrayLike, normals: ArrayLike, max_ratio: float) -> FloatArray:
@@ -1016,9 +1054,18 @@ class CognitiveMap:
         # error moves the robot's end of the link, in the robot's frame (offset from the base)
         arrival = np.asarray(measurement.pose, dtype=np.float64).reshape(3)
         dp = compose(self._offset, inverse(arrival))
-        shape = np.asarray(measurement.shape, dtype=np.float64)
-        shape = rotate_shape(shape, float(self._offset[2]))
         info = self._information(registrations=1)
+        if (
+            self.config.registration_covariance
+            and measurement.covariance is not None
+            and np.all(np.isfinite(measurement.covariance))
+        ):
+            info, shape = measured_information(
+                info, measurement.covariance, float(self._offset[2])
+            )
+        else:
+            shape = np.asarray(measurement.shape, dtype=np.float64)
+            shape = rotate_shape(shape, float(self._offset[2]))
         doubted = self._doubted or measurement.doubted
         return NewLink(
             self._base, int(target), dp, stamp, stamp - self._entered, info, shape, doubted

@@ -34,6 +34,7 @@ from bioslam.closure import (
     odometry_broke,
     odometry_doubted,
     pass_neighbours,
+    place_covariance,
     score_plateau,
     submap_anchor,
     submap_span,
@@ -498,7 +499,8 @@ class BioSLAM:
             shape = self._pinned_shape(
                 registration_shape(pts, normals, ratio), registered, pts, submap
             )
-            measured = Measurement(verdict.pose, shape, doubted=chained)
+            covariance = place_covariance(verdict.covariance, registered, anchor_in_experience)
+            measured = Measurement(verdict.pose, shape, doubted=chained, covariance=covariance)
         return measured if self._confirmed(experience, measured, submap.anchor) else None
 
     def _pinned_shape(
