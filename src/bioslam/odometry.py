@@ -309,15 +309,17 @@ class OdometryConfig:
             7.9 / 14.9 / 13.2 -> 8.0 / 10.3 / 13.3 cm, at the same time per scan; the SICK
             maze thinned to 1 m stays lost either way (38 / 131 -> 42 / 125 cm).
         implausible_density: see ``sparse_share``.
-        submap_travel: on sparse scans, once a step was ambiguous or broken, the map matched
-            against is replaced by one of the scans of the last ``submap_travel`` to half
-            that many metres (:meth:`LidarOdometry._turn_submaps`): a wrong step, fused,
-            leaves the walls in two frames, and later scans jumped between them. 0
-            disables it. 30 m: the SICK maze thinned to a scan per metre, RPE over 1 m
-            59.6 / 125 -> 30 / 100 cm (seeds 0 / 1); intel thinned to 1.5 m / 45°, steps
-            off by more than 0.2 m from scans 0 / 5 / 10: 31 / 37 / 30 -> 15 / 24 / 12;
-            freiburg-079 thinned to 1 m 4.9 -> 4.3 cm (replaced whether in doubt or not,
-            5.6 cm).
+        submap_travel, submap_doubts, submap_conflict: on sparse scans the map matched
+            against is replaced by one of only the scans of the last ``submap_travel`` to
+            half that many metres when it holds walls twice
+            (:meth:`LidarOdometry._turn_submaps`): a wrong step, fused, leaves the walls in
+            two frames, and later scans jumped between them. It is replaced when, since the
+            last turn, at least ``submap_doubts`` steps were ambiguous or broken and a scan
+            matched on the recent scans' map alone landed more than ``submap_conflict``
+            metres (or that at ``length_scale`` in heading) from the pose the map gave it.
+            Replaced on doubts alone, the thinned Intel log lost the revisits that keep it
+            precise (the first 200 scans from ten starts: RPE over 1 m median 5.3 -> 10.6
+            cm); so gated, 5.3 cm. 0 travel disables it; a conflict of 0 replaces on doubts.
         log_odds: hit/miss increments of the map cells.
     """
 
@@ -385,6 +387,8 @@ class OdometryConfig:
     break_turn: float = math.radians(25.0)
     break_margin: float = 0.1
     submap_travel: float = 30.0
+    submap_doubts: int = 1
+    submap_conflict: float = 0.1
     log_odds: LogOddsConfig = field(default_factory=LogOddsConfig)
 
     def __post_init__(self) -> None:
@@ -469,7 +473,9 @@ class LidarOdometry:
         # whether a step was ambiguous or broken since the last turn
         self._young: MapPyramid | None = None
         self._travel = [0.0, 0.0]
-        self._doubted = False
+        self._doubts = 0
+        self._conflict = False  # and the maps disagreed since (:meth:`_maps_disagree`)
+        self._matched_levels: tuple[list[FloatArray], FloatArray] | None = None
         self.num_submaps = 0
 
     # -- steps of one update ------------------------------------------------------------------
@@ -565,18 +571,19 @@ class LidarOdometry:
         return [self.pyramid] if self._young is None else [self.pyramid, self._young]
 
     def _turn_submaps(self) -> None:
-        """On sparse scans with doubts, match against the scans of the last
-        ``submap_travel`` metres only. Two maps are fused into (Cartographer's submaps):
-        the older, matched against, and a younger one begun when the older has seen half
-        of ``submap_travel``; once the older has seen all of it, the younger replaces it
-        if a step was ambiguous or broken since the last such turn, and is begun anew
-        otherwise. A wrong step puts the walls the map already holds a second time, a
-        look-alike's length off, and later scans then jump between the two copies (the SICK
-        maze thinned to a scan per metre: one wrong turn, then wrong steps on every
-        revisit); a map made only of the scans since (or shortly before) it holds one copy.
-        Without doubts the older map keeps everything: a thinned log tracked well gains
-        from its revisits (freiburg-079 thinned to a scan per metre: RPE over 1 m 4.9 ->
-        5.6 cm when every map was replaced)."""
+        """On sparse scans, once the map holds walls twice, match against the scans of the
+        last ``submap_travel`` metres only. Two maps are fused into (Cartographer's
+        submaps): the older, matched against, and a younger one begun when the older has
+        seen half of ``submap_travel``; once the older has seen all of it, the younger
+        replaces it if a step was in doubt and the two maps disagreed on a scan since the
+        last turn (:meth:`_maps_disagree`), and is begun anew otherwise. A wrong step puts
+        the walls the map already holds a second time, a look-alike's length off, and later
+        scans then jump between the two copies (the SICK maze thinned to a scan per metre:
+        one wrong turn, then wrong steps on every revisit); a map made only of the scans
+        since (or shortly before) it holds one copy.
+        Otherwise the older map keeps everything: a thinned log tracked well gains from its
+        revisits (freiburg-079 thinned to a scan per metre: RPE over 1 m 4.9 -> 5.6 cm
+        when every map was replaced)."""
         c = self.config
         if self._last_inserted is None:
             return
@@ -588,11 +595,37 @@ class LidarOdometry:
             return
         if self._young is None and self._travel[0] >= 0.5 * c.submap_travel:
             self._young, self._travel[1] = self._new_pyramid(), 0.0
-        elif self._young is not None and self._travel[0] >= c.submap_travel:
-            if self._doubted:
-                self.pyramid, self._travel[0] = self._young, self._travel[1]
+            return
+        grown = self._young is not None and self._travel[1] >= 0.25 * c.submap_travel
+        if grown and self._doubts >= c.submap_doubts and not self._conflict:
+            self._conflict = self._maps_disagree()
+        if self._young is not None and self._travel[0] >= c.submap_travel:
+            if self._conflict:
+                self.pyramid = self._young
                 self.num_submaps += 1
-            self._young, self._travel[1], self._doubted = self._new_pyramid(), 0.0, False
+            self._travel = [self._travel[1], 0.0]
+            self._young, self._doubts, self._conflict = self._new_pyramid(), 0, False
+
+    def _maps_disagree(self) -> bool:
+        """The last scan matched (Gauss-Newton, Eq. 3) on the younger map alone from the pose
+        it was given lands farther than ``submap_conflict`` metres (or that at
+        ``length_scale`` in heading) from it: the older map holds walls the recent scans put
+        elsewhere."""
+        c = self.config
+        if c.submap_conflict <= 0:
+            return True
+        if self._young is None or self._matched_levels is None:
+            return False
+        level_pts, normals = self._matched_levels
+        pose, _ = match_scan_to_map(
+            self._young, level_pts, self.pose, c.max_iterations, c.step_tolerance,
+            c.length_scale, c.degeneracy_ratio, c.subcell_sigma, normals, c.search_prior_weight,
+        )  # fmt: skip
+        d = between(self.pose, pose)
+        return bool(
+            math.hypot(d[0], d[1]) > c.submap_conflict
+            or abs(d[2]) * c.length_scale > c.submap_conflict
+        )
 
     def _new_pyramid(self) -> MapPyramid:
         """An empty local map centred on the pose."""
@@ -659,6 +692,7 @@ class LidarOdometry:
                 self._densify_first(dt)
             start = self._best_start(level_pts[-1], previous, predicted)
             normals = matched_normals(level_pts)
+            self._matched_levels = (level_pts, normals)
             self.pose, self.last_report = self._match(
                 level_pts, start, previous, normals, dt, predicted
             )
@@ -670,7 +704,7 @@ class LidarOdometry:
             self.num_degenerate += self.last_report.degenerate
             self.num_ambiguous += self.last_report.ambiguous
             self.num_broken += self.last_report.broken
-            self._doubted |= self.last_report.ambiguous or self.last_report.broken
+            self._doubts += self.last_report.ambiguous or self.last_report.broken
         if not self.last_report.predicted_only and self._should_insert():
             # every endpoint is fused, each with the normal of the kept one before it
             self._insert(pts, thinned_normals(pts, keep))
