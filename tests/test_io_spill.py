@@ -64,3 +64,66 @@ def test_a_scan_the_file_refuses_is_kept_in_memory_and_so_are_later_ones(tmp_pat
         assert (got is None) == (points is None)
         if points is not None:
             assert got.tobytes() == points.tobytes()
+
+
+def _rows(n: int, width: int, dtype: type = np.float64, seed: int = 2) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    shape = (n, max(width, 1))
+    if np.issubdtype(dtype, np.integer):
+        rows = rng.integers(-128, 128, size=shape).astype(dtype)
+    else:
+        reach = np.finfo(dtype).maxexp * 0.3
+        scale = 2.0 ** rng.uniform(-reach, reach, size=shape)
+        rows = (rng.normal(size=shape) * scale).astype(dtype)
+        rows[0, 0], rows[1, 0], rows[2, 0] = np.nan, -0.0, np.inf
+    return rows if width else rows[:, 0]
+
+
+@pytest.mark.parametrize(("dtype", "width"), [(np.float64, 3), (np.float64, 0), (np.int8, 0),
+                                              (np.float32, 6)])  # fmt: skip
+def test_rows_come_back_bit_for_bit_across_blocks_in_a_block_of_memory(tmp_path, dtype, width):
+    """Per-scan columns in a file: every row back as appended, whatever the block edges,
+    while memory holds one block however many rows were appended."""
+    from bioslam.growing import GrowingArray
+    from bioslam.io.spill import SpilledRows
+
+    kept = _rows(1003, width, dtype)
+    store = SpilledRows(dtype, width, tmp_path, block=16)
+    reference = GrowingArray(dtype, width)
+    held = store.nbytes
+    for k, row in enumerate(kept):
+        store.append(row)
+        reference.append(row)
+        if k in (0, 15, 16, 500):
+            assert store.array().tobytes() == reference.view().tobytes()
+    assert len(store) == len(kept)
+    assert store.array().tobytes() == kept.tobytes() == np.asarray(store).tobytes()
+    assert store.array().shape == kept.shape and store.array().dtype == kept.dtype
+    assert store.nbytes == held == 16 * kept[:1].nbytes  # one block, not the 1003 rows
+    assert store.file_bytes == 992 * kept[:1].nbytes
+    assert list(tmp_path.iterdir()) == []  # unlinked
+
+
+def test_a_block_of_rows_the_file_refuses_is_kept_in_memory_and_so_are_later_ones(
+    tmp_path, monkeypatch
+):
+    import bioslam.io.spill as spill
+
+    kept = _rows(50, 3)
+    store = spill.SpilledRows(np.float64, 3, tmp_path, block=8)
+    for row in kept[:20]:
+        store.append(row)
+    written = store.file_bytes
+    refusals = []
+
+    def full(file, offset, data):
+        refusals.append(offset)
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(spill, "_write_at", full)
+    for row in kept[20:]:
+        store.append(row)
+    assert store.file_bytes == written == 16 * 24
+    assert len(refusals) == 1  # once refused, later blocks are not tried
+    assert store.array().tobytes() == kept.tobytes()
+    assert store.nbytes == (8 + 32) * 24  # the buffer and the four blocks held

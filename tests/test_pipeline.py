@@ -94,6 +94,33 @@ def test_a_failure_half_way_keeps_what_was_computed(short_drive, tmp_path):
     assert len(read_uncertainty(tmp_path / "odometry_uncertainty.csv")) == 40
 
 
+
+@pytest.mark.parametrize("odometry_only", [False, True])
+def test_a_run_with_a_store_directory_keeps_its_per_scan_columns_there(
+    short_drive, tmp_path, odometry_only
+):
+    """With ``scan_store_dir`` the per-scan columns and timings go to files there
+    (bioslam.io.spill.SpilledRows) and the written trajectories are byte for byte those of
+    a run that keeps them in memory."""
+    from bioslam.io.spill import SpilledRows
+
+    scans, _ = short_drive
+    scans = scans[:150]
+    written = {}
+    for name, store in (("memory", None), ("disk", tmp_path / "store")):
+        if store is not None:
+            store.mkdir()
+        options = RunOptions(progress=False, warm_up=False, odometry_only=odometry_only,
+                             scan_store_dir=store, release=True)  # fmt: skip
+        result = run_slam(scans, options=options)
+        assert isinstance(result.scan_seconds, SpilledRows) == (store is not None)
+        assert len(result.scan_seconds) == len(scans)
+        write_results(result, tmp_path / name, options=options)
+        files = ("trajectory.tum", "odometry.tum", "odometry_uncertainty.csv")
+        written[name] = [(tmp_path / name / f).read_bytes() for f in files]
+    assert written["disk"] == written["memory"]
+    assert len(written["disk"][0].splitlines()) >= len(scans)
+
 def test_odometry_only_mode(short_drive, tmp_path):
     scans, _ = short_drive
     options = RunOptions(progress=False, odometry_only=True)

@@ -249,6 +249,45 @@ def test_scans_kept_on_disk_give_the_same_run(ring_drive, tmp_path):
     np.testing.assert_array_equal(on_disk.trajectory().poses, in_memory.trajectory().poses)
 
 
+
+def test_per_scan_columns_kept_on_disk_give_the_same_outputs_in_a_block_of_memory(
+    ring_drive, tmp_path
+):
+    """The per-scan columns (bioslam.io.spill.SpilledRows) come back as kept in memory: the
+    trajectories and the uncertainty are the same to the bit; memory holds a block a column
+    whatever the run's length (in memory they cost 97 bytes a scan)."""
+    from bioslam.io.spill import SpilledRows
+
+    scans, _ = ring_drive
+    config = dataclasses.replace(SLAMConfig(), heading_bias=0.002)
+    in_memory = run(scans, config)
+
+    def rows(dtype, width):
+        return SpilledRows(dtype, width, tmp_path, block=32)
+
+    on_disk = BioSLAM(config, rows=rows)
+    columns = lambda: (on_disk._stamps, on_disk._anchor_ids, on_disk._anchor_offsets,  # noqa: E731
+                       on_disk._odometry_poses, on_disk._uncertainty._covariances,
+                       on_disk._uncertainty._flags)  # fmt: skip
+    held = []
+    for k, scan in enumerate(scans):
+        on_disk.process(scan)
+        if k in (40, len(scans) - 1):
+            held.append(sum(column.nbytes for column in columns()))
+    on_disk.finish()
+    assert len(scans) > 200 and held[0] == held[1] == 32 * (8 + 8 + 24 + 24 + 24 + 1)
+    assert all(column.file_bytes > 0 for column in columns())
+    assert on_disk.summary()["loop_closures"] == in_memory.summary()["loop_closures"] >= 1
+    for made in ("trajectory", "odometry_trajectory"):
+        got, want = getattr(on_disk, made)(), getattr(in_memory, made)()
+        assert got.stamps.tobytes() == want.stamps.tobytes()
+        assert got.poses.tobytes() == want.poses.tobytes()
+    made = zip(on_disk.odometry_uncertainty(), in_memory.odometry_uncertainty(), strict=True)
+    for got, want in made:
+        assert got.tobytes() == want.tobytes()
+    on_disk.release_scans()  # the outputs are made: in memory again, empty
+    assert len(on_disk.trajectory().poses) == 0
+
 def _per_scan_work(scans: list, config: SLAMConfig) -> tuple[BioSLAM, list[tuple[int, int]]]:
     """Per scan: loop-closure checks registered, map relaxations run."""
     slam = BioSLAM(config)
@@ -462,3 +501,47 @@ def test_an_undoubted_chain_the_map_disagrees_with_or_a_doubted_robot_is_not_tru
     slam.cognitive_map.integrate_odometry((0.1, 0.0, 0.0), doubted=True)
     slam.self_motion.doubts += 1
     assert not slam._trust(0, 1.0, 0)[0]
+
+
+def test_a_slide_the_odometry_undid_is_bridged_in_the_map(ring_drive):
+    scans, gt = ring_drive
+    at = len(scans) // 4
+    slam = BioSLAM(SLAMConfig())
+    odometry = slam.self_motion.odometry
+    update = odometry.update
+
+    slid_at: list[float] = []
+
+    def sliding_update(scan):
+        # 20 cm back along the way at one scan, and 25 scans later forward to where it
+        # would have been (the same displacement in the odometry's frame, the robot having
+        # turned since): the odometry tracked both (nothing flagged), as the simulated
+        # rooms' slides
+        dp = np.array(update(scan), dtype=np.float64)
+        heading = float(slam.self_motion.pose[2])
+        if odometry.num_scans == at:
+            slid_at.append(heading)
+            dp[0] -= 0.2
+        elif odometry.num_scans == at + 25:
+            turned = slid_at[0] - heading
+            dp[:2] += 0.2 * np.array([np.cos(turned), np.sin(turned)])
+        return dp
+
+    odometry.update = sliding_update
+    for scan in scans:
+        slam.process(scan)
+    slam.finish()
+    assert slam.bridges == 1
+    cmap = slam.cognitive_map
+    ends, kinds = cmap.link_table()
+    bridge = [k for k, (s, t) in enumerate(ends) if kinds[k] == "odometry" and t - s > 1]
+    assert len(bridge) == 1
+    link = cmap.link(bridge[0])
+    stamps = [cmap.experience(i).stamp for i in (link.source, link.target)]
+    truth = between(*(gt.poses[np.searchsorted(gt.stamps, t)] for t in stamps))
+    # across the slide the odometry's motion is as good as anywhere: the slide is not in it
+    assert np.hypot(*(link.dp[:2] - truth[:2])) < 0.03
+    # the heading variance the map's links carry is what the odometry's matches measured
+    _, covariances, _ = slam.odometry_uncertainty()
+    measured = np.nansum(covariances[:, 5])
+    assert slam.self_motion.heading_var == pytest.approx(measured, rel=1e-3)

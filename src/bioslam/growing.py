@@ -7,8 +7,28 @@ as rows of one array it costs the raw 8 bytes a value (plus the doubling's slack
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any, Protocol
+
 import numpy as np
 from numpy.typing import ArrayLike, DTypeLike, NDArray
+
+
+class Rows(Protocol):
+    """What the per-scan columns need of a store of rows: a :class:`GrowingArray`, or
+    :class:`bioslam.io.spill.SpilledRows` that keeps them in a file."""
+
+    def append(self, row: ArrayLike) -> None: ...
+
+    def __len__(self) -> int: ...
+
+    def view(self) -> NDArray[Any]: ...
+
+    def array(self) -> NDArray[Any]: ...
+
+
+#: Makes an empty store of rows of ``(dtype, width)`` (``width=0``: scalars).
+RowsFactory = Callable[[DTypeLike, int], Rows]
 
 
 class GrowingArray:
@@ -69,3 +89,53 @@ class GrowingArray:
     def nbytes(self) -> int:
         """Bytes reserved (the filled rows and the slack)."""
         return int(self._data.nbytes)
+
+
+class IdRows:
+    """Rows of ``width`` values of ``dtype`` (``width=0``: scalars) by dense id (0, 1, 2, ...:
+    view or experience ids), set in any order, for the run-long tables a dict of small arrays
+    or tuples would hold at 200-300 bytes an entry (8 bytes a value here, plus one a row).
+
+    Dict-like where the tables need it: ``i in rows``, ``rows[i]`` (the stored row itself, as
+    the dict gave the stored array; KeyError for an id never set), ``rows[i] = row``. The
+    table grows by doubling; the rows not yet set are never written, so they are not
+    resident."""
+
+    def __init__(self, dtype: DTypeLike = np.float64, width: int = 0, capacity: int = 64):
+        self._shape = () if width == 0 else (int(width),)
+        self._data = np.empty((max(int(capacity), 1), *self._shape), dtype=dtype)
+        self._present = np.zeros(self._data.shape[0], dtype=np.bool_)
+
+    def __contains__(self, i: object) -> bool:
+        return isinstance(i, (int, np.integer)) and 0 <= i < self._present.size and bool(
+            self._present[i]
+        )
+
+    def __getitem__(self, i: int) -> Any:
+        if i not in self:
+            raise KeyError(i)
+        return self._data[i]
+
+    def __setitem__(self, i: int, row: ArrayLike) -> None:
+        if i < 0:
+            raise KeyError(i)
+        if i >= self._present.size:
+            capacity = self._present.size
+            while capacity <= i:
+                capacity *= 2
+            data = np.empty((capacity, *self._shape), dtype=self._data.dtype)
+            present = np.zeros(capacity, dtype=np.bool_)
+            data[: self._present.size] = self._data
+            present[: self._present.size] = self._present
+            self._data, self._present = data, present
+        self._data[i] = row
+        self._present[i] = True
+
+    def __len__(self) -> int:
+        """Ids set (counted: for tests and read-outs, not the per-scan work)."""
+        return int(np.count_nonzero(self._present))
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes reserved (the rows set and the slack, whose pages stay unwritten)."""
+        return int(self._data.nbytes + self._present.nbytes)

@@ -25,19 +25,26 @@ from bioslam.cognitive_map import CognitiveMap
 from bioslam.config import SLAMConfig
 from bioslam.evaluation import evaluate, position_errors
 from bioslam.geometry import Pose2D, compose, inverse
-from bioslam.growing import GrowingArray
+from bioslam.growing import GrowingArray, Rows, RowsFactory
 from bioslam.io.forked import ChildEndedError
 from bioslam.io.jsonio import atomic_write_bytes, write_json, write_json_streamed
 from bioslam.io.mapfile import OccupancyImage, write_map
 from bioslam.io.outdir import OutputDir
-from bioslam.io.spill import SpilledScans
+from bioslam.io.spill import SpilledRows, SpilledScans
 from bioslam.io.tum import write_tum
 from bioslam.io.uncertainty import write_uncertainty
 from bioslam.memory import drop_file_pages, release_free_memory
 from bioslam.occupancy_grid import OccupancyGrid
 from bioslam.odometry import LidarOdometry, register_scans
 from bioslam.scan import LaserScan
-from bioslam.slam import BioSLAM, MatchUncertainty, SelfMotion, StepRecords, thin_points
+from bioslam.slam import (
+    BioSLAM,
+    MatchUncertainty,
+    SelfMotion,
+    StepRecords,
+    scan_columns,
+    thin_points,
+)
 from bioslam.trajectory import Trajectory
 
 if TYPE_CHECKING:
@@ -85,7 +92,8 @@ class RunOptions:
         scan_store_dir: keep the scans stored with the experiences in an unlinked temporary
             file in this directory instead of in memory (:mod:`bioslam.io.spill`: 4 kB an
             experience, the largest part of what a long run accumulates; the run is the same
-            either way). None: in memory.
+            either way), and the per-scan columns read only for the outputs in files there
+            too (:class:`bioslam.io.spill.SpilledRows`: 97 bytes a scan). None: in memory.
         drop_library_pages: once the warm-up has loaded every compiled kernel, drop the
             libraries' clean pages from the process (:func:`bioslam.memory.drop_file_pages`:
             84 MB, of which LLVM's 67 MB are needed again only to compile; what the run uses
@@ -115,8 +123,10 @@ class RunOptions:
 class OdometryOnly:
     """The self-motion cue alone (Sec. III-A) behind the same interface as :class:`BioSLAM`."""
 
-    def __init__(self, config: SLAMConfig) -> None:
+    def __init__(self, config: SLAMConfig, rows: RowsFactory | None = None) -> None:
+        """``rows``: see :class:`BioSLAM`."""
         self.self_motion = SelfMotion(config)
+        self._rows = rows
         self._new_scan_columns()
         self.records = StepRecords()
         self._released: dict[str, int] | None = None
@@ -153,9 +163,9 @@ class OdometryOnly:
 
     def _new_scan_columns(self, capacity: int = 1024) -> None:
         """Empty per-scan columns: each scan's stamp and odometry pose."""
-        self._stamps = GrowingArray(np.float64, capacity=capacity)
-        self._poses = GrowingArray(np.float64, 3, capacity=capacity)
-        self._uncertainty = MatchUncertainty(capacity)
+        rows = self._rows if capacity > 1 else None
+        self._stamps, _, _, self._poses = scan_columns(rows, capacity)
+        self._uncertainty = MatchUncertainty(capacity, rows)
 
     def finish(self) -> None:
         """Nothing to settle: the odometry is final as it goes."""
@@ -302,7 +312,7 @@ class RunResult:
     # CPU seconds of this thread per ``process`` call: on a shared machine wall time also
     # counts the time other processes hold the core (measured: a wall mean 1.3-2.1 ms per
     # scan against a steady 1.2-1.3 ms CPU on the same demo run)
-    scan_seconds: GrowingArray = field(default_factory=lambda: GrowingArray(np.float64))
+    scan_seconds: Rows = field(default_factory=lambda: GrowingArray(np.float64))
     wall_s: float = 0.0
     startup_s: float = 0.0
     snapshots: list[Snapshot] = field(default_factory=list)
@@ -388,15 +398,19 @@ def run_slam(
     """
     config = config or SLAMConfig()
     options = options or RunOptions()
+    rows = _row_stores(options)
     system: BioSLAM | OdometryOnly = (
-        OdometryOnly(config) if options.odometry_only else BioSLAM(config, _scan_store(options))
-    )
+        OdometryOnly(config, rows) if options.odometry_only
+        else BioSLAM(config, _scan_store(options), rows)
+    )  # fmt: skip
     max_range = config.odometry.max_range
     keyframes = KeyframeScans(
         max_range, distance=options.keyframe_distance, angle=options.keyframe_angle,
         max_bytes=options.keyframe_bytes,
     )  # fmt: skip
     result = RunResult(system, map_max_range=max_range, keyframes=keyframes)
+    if rows is not None:
+        result.scan_seconds = rows(np.float64, 0)
     if options.warm_up:
         try:
             with signals.interruptible():
@@ -441,6 +455,19 @@ def _scan_store(options: RunOptions) -> SpilledScans | None:
         return SpilledScans(options.scan_store_dir)
     except OSError:
         return None
+
+
+def _row_stores(options: RunOptions) -> RowsFactory | None:
+    """Where the per-scan columns are kept: in files beside the experiences' scans
+    (:class:`SpilledRows`) when :attr:`RunOptions.scan_store_dir` is set, else in memory."""
+    directory = options.scan_store_dir
+    if directory is None:
+        return None
+
+    def rows(dtype: Any, width: int) -> SpilledRows:
+        return SpilledRows(dtype, width, directory)
+
+    return rows
 
 
 def _feed(
