@@ -289,7 +289,8 @@ def test_per_scan_columns_kept_on_disk_give_the_same_outputs_in_a_block_of_memor
     assert len(on_disk.trajectory().poses) == 0
 
 def _per_scan_work(scans: list, config: SLAMConfig) -> tuple[BioSLAM, list[tuple[int, int]]]:
-    """Per scan: loop-closure checks registered, map relaxations run."""
+    """Per scan: loop-closure checks registered, map relaxations run; a last row for
+    ``finish`` (a closure on the last scan is relaxed there)."""
     slam = BioSLAM(config)
     relaxed = [0]
     relax = slam.cognitive_map.relax
@@ -304,7 +305,9 @@ def _per_scan_work(scans: list, config: SLAMConfig) -> tuple[BioSLAM, list[tuple
         checks, relaxes = len(slam.checks), relaxed[0]
         slam.process(scan)
         work.append((len(slam.checks) - checks, relaxed[0] - relaxes))
+    checks, relaxes = len(slam.checks), relaxed[0]
     slam.finish()
+    work.append((len(slam.checks) - checks, relaxed[0] - relaxes))
     return slam, work
 
 
