@@ -20,6 +20,8 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
 - ``sickthinned``: the SICK preset (181 beams at 1°) in the rooms off a corridor, the
   warehouse and the maze, a third of the run's duration, thinned along the true path to a
   scan per 1 m / 0.6 rad as the public "corrected" logs are, two seeds each.
+- ``sicksparse``: the same in the warehouse and the maze thinned further, to a scan per
+  1.5 m (the warehouse's uprights repeat every 2.8 m).
 - ``freiburg``: freiburg-079 (LiDAR only), RPE over 1 m against the log's corrected poses,
   and how much of it is the reference's own: its jitter, the local map's sharpness, and a
   three-cornered hat with the log's raw wheel odometry as the third trajectory.
@@ -514,6 +516,13 @@ def main() -> None:
             log_case("intel thinned to 1.5 m / 45 deg" + (f" from scan {start}" if start else ""),
                      "intel-corrected.log.gz", False, None, thinned(1.5, math.pi / 4), start)
             for start in starts
+        ],
+        "sicksparse": lambda: [
+            sim_case(f"{world} sick, a scan per 1.5 m / 0.6 rad, seed {seed}",
+                     LIDAR_PRESETS["sick"], duration / 3, world=world, seed=seed,
+                     thin=(1.5, 0.6))
+            for world in ("warehouse", "maze")
+            for seed in (0, 1)
         ],
         "warehouse": lambda: [
             sim_case(f"warehouse {lidar}{label}", LIDAR_PRESETS[lidar], duration, config,

@@ -455,3 +455,27 @@ def test_place_covariance_is_the_registrations_seen_from_the_robot():
     # the anchor turned a quarter from the place: the same registration, turned
     turned = place_covariance(cov, (0.0, 0.0, 0.0), (0.0, 0.0, math.pi / 2))
     np.testing.assert_allclose(np.diag(turned), [sx**2, sy**2, st**2], atol=1e-10)
+
+
+def test_slide_returns_pairs_a_slide_with_the_jump_that_undoes_it():
+    from bioslam.closure import SlideReturns
+
+    slides = SlideReturns((0.03, math.radians(3.0)), reach=10.0)
+    assert not slides.open
+    # a 20 cm slide along x, then the odometry's map pulls it back (the robot turned a
+    # quarter in between: the departures are in the odometry's frame, not the robot's)
+    assert slides.jump((0.2, 0.0, 0.0), travelled=5.0) == "opened" and slides.open
+    assert slides.jump((-0.19, 0.01, 0.01), travelled=6.0) == "returned"
+    assert not slides.open
+    # a jump that makes it worse is no return: the slide goes on, and a later one that
+    # brings the sum back undoes it
+    assert slides.jump((0.2, 0.0, 0.0), travelled=7.0) == "opened"
+    assert slides.jump((0.0, 0.2, 0.0), travelled=7.5) == ""
+    assert slides.jump((-0.2, -0.2, 0.0), travelled=8.0) == "returned"
+    # turned back by as much as it slid: a heading slide is undone the same way
+    assert slides.jump((0.0, 0.0, 0.3), travelled=9.0) == "opened"
+    assert slides.jump((0.0, 0.0, -0.1), travelled=9.1) == ""
+    assert slides.jump((0.0, 0.0, -0.2), travelled=9.2) == "returned"
+    # one never undone within the reach is forgotten: a jump after it opens a new one
+    assert slides.jump((0.2, 0.0, 0.0), travelled=10.0) == "opened"
+    assert slides.jump((-0.2, 0.0, 0.0), travelled=25.0) == "opened"

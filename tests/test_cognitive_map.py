@@ -14,6 +14,7 @@ from bioslam.cognitive_map import (
     CognitiveMapConfig,
     Measurement,
     _solve_fixed_point,
+    link_information,
     measured_information,
     registration_shape,
     relaxation_correction,
@@ -750,6 +751,89 @@ def test_undoubted_chains_skip_doubted_links_and_compose_the_links_measurements(
     assert ev.kind == "loop"
     assert cm.link_distance(4, 2, within=10.0) == pytest.approx(0.5)
     assert cm.link_distance(4, 2, within=10.0, undoubted=True) == pytest.approx(1.0)
+
+
+def heading_drift_on_one_side(heading_var: bool) -> tuple[float, float]:
+    """A square of 5 m sides driven once; on the second side the odometry's heading drifts
+    (0.01 rad a step, a corridor whose walls barely fix the heading) and its matches say
+    so (``heading_var``: each step's measured variance, else the model's), elsewhere it is
+    exact; a closure onto the first experience measures the truth. Returns the odometry's
+    and the relaxed map's position RMS errors against the truth."""
+    steps = square_route(5.0, 0.25, 1)
+    truth = integrate(steps)
+    cm = CognitiveMap(CognitiveMapConfig())
+    drifting = np.zeros(len(steps), dtype=bool)
+    drifting[20:40] = True
+    for k, d in enumerate(steps[:-1]):
+        odometry = d + np.array([0.0, 0.0, 0.01 if drifting[k] else 0.0])
+        var = (0.01**2 if drifting[k] else 1e-8) if heading_var else None
+        cm.integrate_odometry(odometry, stamp=float(k), heading_var=var)
+        cm.update(k, True, PC, stamp=float(k))
+    before = cm.experience_poses
+    cm.integrate_odometry(steps[-1])
+    measured = between(truth[0], truth[-1])
+    assert cm.update(0, False, PC, stamp=99.0, refine=lambda e: measured).kind == "loop"
+    cm.relax()
+    rms = lambda p: float(np.sqrt(np.mean(np.sum((p[:, :2] - truth[: len(p), :2]) ** 2, 1))))  # noqa: E731
+    return rms(before), rms(cm.experience_poses)
+
+
+def test_a_closure_bends_the_map_where_the_odometrys_matches_doubted_the_heading():
+    odometry, measured = heading_drift_on_one_side(heading_var=True)
+    _, modelled = heading_drift_on_one_side(heading_var=False)
+    assert odometry > 0.5
+    # the model spreads the heading correction over the whole square, as if every metre
+    # drifted alike: the first side turns and the last, exact, sides with it
+    assert modelled > 0.1
+    # weighted by its scans' own heading variances, the map turns on the side that drifted
+    # (what is left is the closure's own heading error, 0.3 deg, over the square)
+    assert measured < 0.3 * modelled and measured < 0.1 * odometry
+
+
+def corridor_with_undone_slide(bridge: bool) -> tuple[float, float]:
+    """Down a 6 m corridor and back; the odometry slides 20 cm back along it at step 8 and
+    its map pulls it forward again at step 13 (both steps weak in the map, as a step no
+    robot can make is), exact otherwise. A closure onto the first experience slid 30 cm
+    along the corridor, as uncertain there as that. ``bridge``: the map gets the odometry
+    across the slide as one link from before it to after it
+    (:meth:`CognitiveMap.add_odometry_link`). Returns the odometry's and the relaxed map's
+    position RMS errors of the experiences outside the slide against the truth."""
+    steps = np.array([(0.2, 0.0, 0.0)] * 30 + [(0.0, 0.0, math.pi)] + [(0.2, 0.0, 0.0)] * 30)
+    truth = integrate(steps)
+    odometry_steps = steps.copy()
+    odometry_steps[8, 0] -= 0.2
+    odometry_steps[13, 0] += 0.2
+    cm = CognitiveMap(CognitiveMapConfig())
+    made: dict[int, int] = {}
+    for k, d in enumerate(odometry_steps[:-1]):
+        broken = (0.2, 0.0) if k in (8, 13) else (0.0, 0.0)
+        cm.integrate_odometry(d, stamp=float(k), broken=broken)
+        made[k] = cm.update(k, True, PC, stamp=float(k)).experience
+    if bridge:
+        across = integrate(odometry_steps[8:14])[-1]  # from before step 8 to after step 13
+        info = link_information(1.2, 0.0, 0, cm.config)
+        assert cm.add_odometry_link(made[7], made[13], across, 14.0, info) is False
+    odometry = cm.experience_poses
+    cm.integrate_odometry(steps[-1])
+    measured = compose(between(truth[0], truth[-1]), (0.3, 0.0, 0.0))
+    slid = Measurement(measured, ISOTROPIC, covariance=np.diag([0.3**2, 0.003**2, 0.001**2]))
+    assert cm.update(0, False, PC, stamp=99.0, refine=lambda e: slid).kind == "loop"
+    cm.relax()
+    outside = np.r_[0:8, 13 : len(steps) - 1]
+    rms = lambda p: float(np.sqrt(np.mean(np.sum((p[outside, :2] - truth[outside, :2]) ** 2, 1))))  # noqa: E731
+    return rms(odometry), rms(cm.experience_poses)
+
+
+def test_a_slide_the_odometry_undid_is_bridged_so_the_map_does_not_float_along_it():
+    odometry, bridged = corridor_with_undone_slide(bridge=True)
+    _, floating = corridor_with_undone_slide(bridge=False)
+    # outside the slide the odometry is exact
+    assert odometry < 1e-9
+    # the two weak links let everything after the slide follow the closure's 30 cm slide
+    # (by as much as the two links' 20 cm each weigh against the closure's 30 cm)
+    assert floating > 0.02
+    # bridged, the map after the slide stays where the odometry put it
+    assert bridged < 0.1 * floating
 
 
 def test_has_link_knows_each_added_direction_and_no_other():

@@ -409,6 +409,45 @@ def test_densify_scan_fills_a_wall_seen_along_but_no_opening_or_depth_jump():
     assert not np.isin(rest[added][:, 0], short_only[:, 0]).any()
 
 
+def _doorway_corridor() -> np.ndarray:
+    """A corridor 2 m wide whose walls, 0.2 m thick, open into a doorway every 3 m, rooms'
+    back walls 4 m off its centre-line."""
+    walls = []
+    for x0 in np.arange(-1.0, 20.0, 3.0):
+        walls += box(x0, 1.0, x0 + 2.0, 1.2) + box(x0, -1.2, x0 + 2.0, -1.0)
+    walls += [((-1.0, 4.0), (21.0, 4.0)), ((-1.0, -4.0), (21.0, -4.0)), ((21, -4), (21, 4))]
+    return np.array(walls, dtype=float)
+
+
+def _distance_to_walls(segs: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    a, ab = segs[:, 0], segs[:, 1] - segs[:, 0]
+    t = np.clip(((pts[:, None, :] - a) * ab).sum(-1) / (ab * ab).sum(-1), 0.0, 1.0)
+    return np.linalg.norm(pts[:, None, :] - (a + t[..., None] * ab), axis=-1).min(axis=1)
+
+
+def test_densify_scan_with_a_tolerance_fills_walls_but_not_around_corners_or_jambs():
+    """A 1° scanner (181 beams over 180°) in a corridor of door jambs: the gaps between its
+    endpoints around a jamb's corners and down to the wall behind are under 0.3 m at 5-9 m,
+    and filled they put points off every wall, on the edges that fix a pose along the
+    corridor. With a tolerance only gaps that continue a neighbour's line are filled: every
+    added point lies on a wall, and the faces seen along are filled as densely."""
+    segs = _doorway_corridor()
+    sensor = np.array([0.0, 0.3])
+    pts = make_scan(segs, (*sensor, 0.0), beams=181, fov=np.pi).endpoints()
+    every, added_every = densify_with_mask(pts, 0.05, 0.3)
+    dense, added = densify_with_mask(pts, 0.05, 0.3, tolerance=0.03)
+    assert np.array_equal(densify_scan(pts, 0.05, 0.3, tolerance=0.03), dense)
+    off_every = _distance_to_walls(segs, every[added_every] + sensor)
+    off = _distance_to_walls(segs, dense[added] + sensor)
+    assert (off_every > 0.03).sum() >= 3  # the corner cuts
+    assert off.max() < 0.01, np.sort(off)[-5:]
+
+    def on_face(p):  # the jamb's face from x = 2 to 4 at y = 1, seen along (gaps 0.1-0.4 m)
+        return (np.abs(p[:, 1] + sensor[1] - 1.0) < 1e-6) & (p[:, 0] > 2.0) & (p[:, 0] < 4.0)
+
+    assert on_face(dense).sum() == on_face(every).sum() > 2 * on_face(pts).sum()
+
+
 def test_steps_to_insert_counts_steps_until_the_next_scan_is_fused():
     odo = LidarOdometry()
     c = odo.config

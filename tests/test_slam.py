@@ -289,7 +289,8 @@ def test_per_scan_columns_kept_on_disk_give_the_same_outputs_in_a_block_of_memor
     assert len(on_disk.trajectory().poses) == 0
 
 def _per_scan_work(scans: list, config: SLAMConfig) -> tuple[BioSLAM, list[tuple[int, int]]]:
-    """Per scan: loop-closure checks registered, map relaxations run."""
+    """Per scan: loop-closure checks registered, map relaxations run; a last row for
+    ``finish`` (a closure on the last scan is relaxed there)."""
     slam = BioSLAM(config)
     relaxed = [0]
     relax = slam.cognitive_map.relax
@@ -304,7 +305,9 @@ def _per_scan_work(scans: list, config: SLAMConfig) -> tuple[BioSLAM, list[tuple
         checks, relaxes = len(slam.checks), relaxed[0]
         slam.process(scan)
         work.append((len(slam.checks) - checks, relaxed[0] - relaxes))
+    checks, relaxes = len(slam.checks), relaxed[0]
     slam.finish()
+    work.append((len(slam.checks) - checks, relaxed[0] - relaxes))
     return slam, work
 
 
@@ -501,3 +504,47 @@ def test_an_undoubted_chain_the_map_disagrees_with_or_a_doubted_robot_is_not_tru
     slam.cognitive_map.integrate_odometry((0.1, 0.0, 0.0), doubted=True)
     slam.self_motion.doubts += 1
     assert not slam._trust(0, 1.0, 0)[0]
+
+
+def test_a_slide_the_odometry_undid_is_bridged_in_the_map(ring_drive):
+    scans, gt = ring_drive
+    at = len(scans) // 4
+    slam = BioSLAM(SLAMConfig())
+    odometry = slam.self_motion.odometry
+    update = odometry.update
+
+    slid_at: list[float] = []
+
+    def sliding_update(scan):
+        # 20 cm back along the way at one scan, and 25 scans later forward to where it
+        # would have been (the same displacement in the odometry's frame, the robot having
+        # turned since): the odometry tracked both (nothing flagged), as the simulated
+        # rooms' slides
+        dp = np.array(update(scan), dtype=np.float64)
+        heading = float(slam.self_motion.pose[2])
+        if odometry.num_scans == at:
+            slid_at.append(heading)
+            dp[0] -= 0.2
+        elif odometry.num_scans == at + 25:
+            turned = slid_at[0] - heading
+            dp[:2] += 0.2 * np.array([np.cos(turned), np.sin(turned)])
+        return dp
+
+    odometry.update = sliding_update
+    for scan in scans:
+        slam.process(scan)
+    slam.finish()
+    assert slam.bridges == 1
+    cmap = slam.cognitive_map
+    ends, kinds = cmap.link_table()
+    bridge = [k for k, (s, t) in enumerate(ends) if kinds[k] == "odometry" and t - s > 1]
+    assert len(bridge) == 1
+    link = cmap.link(bridge[0])
+    stamps = [cmap.experience(i).stamp for i in (link.source, link.target)]
+    truth = between(*(gt.poses[np.searchsorted(gt.stamps, t)] for t in stamps))
+    # across the slide the odometry's motion is as good as anywhere: the slide is not in it
+    assert np.hypot(*(link.dp[:2] - truth[:2])) < 0.03
+    # the heading variance the map's links carry is what the odometry's matches measured
+    _, covariances, _ = slam.odometry_uncertainty()
+    measured = np.nansum(covariances[:, 5])
+    assert slam.self_motion.heading_var == pytest.approx(measured, rel=1e-3)

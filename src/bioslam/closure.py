@@ -125,6 +125,43 @@ def jumped(
     return implausible(step, expected, dt, config) and implausible(step, last, dt, config)
 
 
+class SlideReturns:
+    """The odometry's slides that it undid. A scan-to-map odometry that slides away from
+    the robot's motion (a one-scan jump of 20 cm along a corridor) often jumps back a few
+    scans later, when its map pulls it there: the steps between are displaced, but the
+    motion across the pair is as good as any. Fed each jump's departure from the robot's
+    motion (map frame), it says when a run of jumps has summed back to within
+    ``thresholds`` (m, rad) of none, within ``reach`` metres of travel of the first."""
+
+    def __init__(self, thresholds: tuple[float, float], reach: float) -> None:
+        self.thresholds = thresholds
+        self.reach = reach
+        self._net: FloatArray | None = None
+        self._since = 0.0
+
+    @property
+    def open(self) -> bool:
+        """Whether a slide is under way (the odometry's pose now displaced by it)."""
+        return self._net is not None
+
+    def jump(self, departure: ArrayLike, travelled: float) -> str:
+        """Take one jump's ``departure`` (x, y, θ in the odometry's frame) after
+        ``travelled`` metres: ``'opened'`` when it starts a slide, ``'returned'`` when it
+        undid the open one, else ``''`` (the slide goes on)."""
+        d = np.asarray(departure, dtype=np.float64).reshape(3)
+        if self._net is not None and travelled - self._since > self.reach:
+            self._net = None  # never undone: the jumps stay as they are
+        if self._net is None:
+            self._net, self._since = d.copy(), travelled
+            return "opened"
+        self._net += d
+        self._net[2] = wrap_angle(float(self._net[2]))
+        if within(self._net, *self.thresholds):
+            self._net = None
+            return "returned"
+        return ""
+
+
 def break_extent(
     step: FloatArray, expected: FloatArray, dt: float, config: LoopClosureConfig
 ) -> FloatArray:

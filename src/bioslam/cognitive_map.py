@@ -20,8 +20,11 @@ OpenRatSLAM's ``PosecellNetwork::get_action`` and ``ExperienceMap`` (Ball et al.
 Relaxation (Eq. 14) — the choices the paper leaves open, written down:
 
 * Eq. 14 sums every link's residual with the same weight. Here each residual is weighted by its
-  link's information (:func:`link_information`): an odometry link's variance grows with the
-  distance and angle it spans, a loop link's is one registration's. With equal weights a
+  link's information, the inverse of its covariance (:func:`link_information`): an odometry
+  link's position variance grows with the distance it spans and its heading's is what its
+  scans' matches measured; a loop link's is its registration's own covariance
+  (:func:`measured_information`: along a corridor, where the match slides, it carries next to
+  no weight) with a floor for what that covariance does not see. With equal weights a
   closure a few centimetres off is spread like an exact one and bends a loop whose odometry
   was better than the registration; weighted, a loop is corrected in proportion to how much
   its odometry can have drifted. A robust kernel (dynamic covariance scaling,
@@ -109,10 +112,17 @@ class CognitiveMapConfig:
     odometry_heading_var_per_m: float = 1e-5
     #: ... and by this (rad^2) per radian it turns.
     odometry_heading_var_per_rad: float = 1e-4
+    #: An odometry link's heading variance is the sum of its scans' own (each match's
+    #: covariance, :meth:`CognitiveMap.integrate_odometry`) instead of the two settings
+    #: above, which then serve only scans without a match. False: the model alone.
+    scan_heading_variance: bool = True
     #: Variance (m^2, rad^2) every link has at least, so that a zero-length link is finite.
     link_var_floor: tuple[float, float] = (1e-6, 1e-8)
-    #: Standard deviation of a loop closure's measured relative pose: position (m; measured
-    #: on the simulated worlds 0.6-1 cm, with a tail to several centimetres) ...
+    #: Standard deviation of a loop closure's measured relative pose beyond what its
+    #: registration's covariance says (``registration_covariance``: the submap's own error;
+    #: otherwise the whole of it): position (m; closures' errors measured on the simulated
+    #: worlds 0.6-1 cm, with a tail to several centimetres; 1 cm instead of 2 moved the maze
+    #: SICK routes by -0.3 and +0.3 cm, freiburg-079 by +0.1) ...
     closure_sigma_m: float = 0.02
     #: ... and heading (rad; measured 0.07-0.16 deg).
     closure_sigma_rad: float = 0.005
@@ -421,6 +431,7 @@ def link_information(
     registrations: int,
     config: CognitiveMapConfig,
     broken: ArrayLike = (0.0, 0.0),
+    heading_var: float | None = None,
 ) -> tuple[float, float]:
     """Eq. 14's weight of a link: the information (1 / variance) of its Δp, for the position
     (m⁻²) and the heading (rad⁻²).
@@ -435,6 +446,9 @@ def link_information(
     loop of odometry that is often more precise than a single registration.
     ``broken`` (m², rad²) adds the variance of the odometry's breaks within the link: a
     jump to a look-alike is no random walk (:meth:`CognitiveMap.integrate_odometry`).
+    ``heading_var`` (rad²): the odometry's heading variance over the link as its matches
+    measured it (:meth:`CognitiveMap.integrate_odometry`), instead of the model's
+    ``odometry_heading_var_per_m`` and ``odometry_heading_var_per_rad``.
     """
     floor_xy, floor_th = config.link_var_floor
     extra_xy, extra_th = (float(v) for v in np.asarray(broken, dtype=np.float64).reshape(2))
@@ -443,13 +457,24 @@ def link_information(
         + registrations * config.closure_sigma_m**2
         + extra_xy
     )
+    if heading_var is None:
+        heading_var = modelled_heading_var(distance, turned, config)
     var_th = (
-        config.odometry_heading_var_per_m * distance
-        + config.odometry_heading_var_per_rad * turned
+        heading_var
         + registrations * config.closure_sigma_rad**2
         + extra_th
     )
     return 1.0 / (floor_xy + var_xy), 1.0 / (floor_th + var_th)
+
+
+def modelled_heading_var(distance: float, turned: float, config: CognitiveMapConfig) -> float:
+    """The heading variance (rad²) the odometry model gives ``distance`` metres travelled
+    and ``turned`` radians turned: where no match measured it (a scan without one, or
+    ``scan_heading_variance`` off)."""
+    return (
+        config.odometry_heading_var_per_m * distance
+        + config.odometry_heading_var_per_rad * turned
+    )
 
 
 def measured_information(
@@ -676,6 +701,8 @@ class CognitiveMap:
         # metres travelled and radians turned since the current experience was entered, and
         # whether it was entered by a registration (all part of the next link's uncertainty)
         self._travel = np.zeros(2)
+        # the odometry's heading variance (rad²) since then (:meth:`integrate_odometry`)
+        self._heading_var = 0.0
         # variance (m², rad²) the odometry's breaks since the current experience add
         self._broken_var = np.zeros(2)
         # whether the odometry doubted or broke a step since then
@@ -838,6 +865,7 @@ class CognitiveMap:
         stamp: float | None = None,
         broken: ArrayLike = (0.0, 0.0),
         doubted: bool = False,
+        heading_var: float | None = None,
     ) -> None:
         """Accumulate the motion ``dp`` (robot frame) since the current experience.
 
@@ -848,12 +876,21 @@ class CognitiveMap:
         correction along a loop whose odometry is good but for one jump. ``doubted``: the
         odometry doubted a step within ``dp`` (:func:`bioslam.closure.odometry_doubted`); the
         link that carries it, like one that carries a break, is left out of the chains
-        :meth:`link_distance` finds with ``undoubted``."""
+        :meth:`link_distance` finds with ``undoubted``. ``heading_var`` (rad²): the heading
+        variance the odometry's matches measured over ``dp`` (each scan's
+        :attr:`MatchReport.covariance`, summed); None (or NaN) takes the model's
+        (:func:`link_information`). A scan-to-map odometry's heading is as good as its
+        scans' fit: on the simulated worlds the summed per-scan variances came within a
+        factor of two of the steps' true heading errors, 4e-6 to 3e-4 rad² per metre from
+        one world and scanner to another, where the model assumes 1e-5 everywhere."""
         d = np.asarray(dp, dtype=np.float64).reshape(3)
         if not np.all(np.isfinite(d)):
             raise ValueError(f"odometry step must be finite, got {dp}")
         self._offset = compose(self._offset, d)
         self._travel += (math.hypot(d[0], d[1]), abs(d[2]))
+        if heading_var is None or not math.isfinite(heading_var):
+            heading_var = modelled_heading_var(math.hypot(d[0], d[1]), abs(d[2]), self.config)
+        self._heading_var += max(float(heading_var), 0.0)
         broken_var = np.square(np.asarray(broken, dtype=np.float64).reshape(2))
         self._broken_var += broken_var
         self._doubted = self._doubted or doubted or bool(broken_var.any())
@@ -986,7 +1023,9 @@ class CognitiveMap:
         the odometry and breaks since it was entered, ``registrations`` at the robot's end
         and one more if the experience was entered by one (:func:`link_information`)."""
         registrations += int(self._entered_measured)
-        return link_information(*self._travel, registrations, self.config, self._broken_var)
+        return link_information(
+            *self._travel, registrations, self.config, self._broken_var, self._heading_var
+        )
 
     def _append_link(self, link: NewLink, kind: LinkKind) -> None:
         self._link_ends.append((link.source, link.target))
@@ -1003,6 +1042,7 @@ class CognitiveMap:
 
     def _enter(self, eid: int, offset: FloatArray, stamp: float, measured: bool = False) -> None:
         self._travel = np.zeros(2)
+        self._heading_var = 0.0
         self._broken_var = np.zeros(2)
         self._doubted = False
         self._entered_measured = measured
@@ -1090,6 +1130,26 @@ class CognitiveMap:
         return NewLink(
             self._base, int(target), dp, stamp, stamp - self._entered, info, shape, doubted
         )
+
+    def add_odometry_link(
+        self, source: int, target: int, dp: ArrayLike, stamp: float, info: tuple[float, float]
+    ) -> bool:
+        """An odometry measurement ``dp`` (``target``'s pose in ``source``'s frame) between
+        two experiences of the robot's chain that are not neighbours, with its information
+        ``info`` (:func:`link_information`): the motion across a slide the odometry undid,
+        whose own links are weak (:meth:`integrate_odometry`'s ``broken``). Returns whether
+        the map must be relaxed (it disagrees with the link)."""
+        dp = np.asarray(dp, dtype=np.float64).reshape(3)
+        stamps = self._stamps.view()
+        link = NewLink(
+            int(source), int(target), dp, float(stamp), float(stamp - stamps[source]), info,
+            ISOTROPIC.copy(), doubted=True,
+        )  # fmt: skip
+        self._append_link(link, "odometry")
+        if self._agrees(link.source, link.target, dp):
+            return False
+        self._dirty = self._needs_solve = True
+        return True
 
     def add_loop_link(self, link: NewLink) -> None:
         """Enter a loop link made by :meth:`loop_link`; the next :meth:`relax` solves."""

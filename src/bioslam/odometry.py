@@ -273,6 +273,20 @@ class OdometryConfig:
             on sparse scans, :meth:`LidarOdometry._choose_sparse`). Later scans keep
             ``straight_angle``: the first few filled so too cost intel thinned to 1.5 m
             from its first scan 34 -> 101 cm.
+        densify_tolerance: at the scanner's rate (:meth:`LidarOdometry._at_scanner_rate`)
+            a gap up to ``NORMAL_MAX_GAP`` is densified only where it continues a surface:
+            the endpoint before it or the one after (joined to it by such a gap) lies within
+            this many metres of the line through its two, or, with neither joined, the gap
+            lies more across the beams than along them (a post's face;
+            :func:`bioslam.matching.registration.straight_gaps`). Filled regardless, the gaps
+            around door jambs' corners and down depth steps put points off every wall, on the
+            edges that fix a pose along a corridor (simulated SICK, adversarial routes: 1-3 %
+            of the points those gaps added lay over 2 cm farther off the walls than their
+            endpoints; 52-90 % of those are dropped, 91-95 % of the rest kept; rooms 900 s
+            seed 5: ATE 1.31 -> 0.31 cm, the pose 20 cm off along the corridor in spins on
+            the spot before). A thinned log keeps every gap: a few scans make its map, and a
+            door's edge seen by two beams, or a recess's corner cut, can be all that fixes a
+            step a metre on. None fills every gap.
         break_score_ratio, break_turn, break_margin: on sparse scans the odometry reports a
             step as a break (``MatchReport.broken``, a break of its chain of relative poses
             for loop closure, :func:`bioslam.closure.odometry_broke`) when the match kept
@@ -309,6 +323,21 @@ class OdometryConfig:
             7.9 / 14.9 / 13.2 -> 8.0 / 10.3 / 13.3 cm, at the same time per scan; the SICK
             maze thinned to 1 m stays lost either way (38 / 131 -> 42 / 125 cm).
         implausible_density: see ``sparse_share``.
+        submap_travel, submap_doubts, submap_conflict: on sparse scans the map matched
+            against can be replaced by one of only the scans of the last ``submap_travel``
+            to half that many metres when it holds walls twice
+            (:meth:`LidarOdometry._turn_submaps`): a wrong step, fused, leaves the walls in
+            two frames, and later scans jumped between them. It is replaced when, since the
+            last turn, at least ``submap_doubts`` steps were ambiguous or broken and a scan
+            matched on the recent scans' map alone landed more than ``submap_conflict``
+            metres (or that at ``length_scale`` in heading) from the pose the map gave it
+            (a conflict of 0 replaces on doubts alone). Off by default (0 travel): at 30 m
+            the SICK maze thinned to a scan per metre went from RPE over 1 m 59.6 to 30.2
+            cm (seed 0; seed 1 unchanged, 125 cm) but seed 2, tracked at 4.4 cm, was lost
+            (80 cm) after a replacement the conflict test let through; at a 0.3 m conflict
+            nothing is replaced, and on doubts alone the thinned Intel log lost the revisits
+            that keep it precise (its first 200 scans from ten starts: median 5.3 -> 10.6
+            cm). ``benchmarks/README.md``, "Submaps on sparse scans".
         log_odds: hit/miss increments of the map cells.
     """
 
@@ -372,9 +401,13 @@ class OdometryConfig:
     straight_angle: float = 0.0
     dense_straight_angle: float = 0.05
     first_straight_angle: float = 0.05
+    densify_tolerance: float | None = 0.03
     break_score_ratio: float = 0.4
     break_turn: float = math.radians(25.0)
     break_margin: float = 0.1
+    submap_travel: float = 0.0
+    submap_doubts: int = 1
+    submap_conflict: float = 0.1
     log_odds: LogOddsConfig = field(default_factory=LogOddsConfig)
 
     def __post_init__(self) -> None:
@@ -425,10 +458,7 @@ class LidarOdometry:
         self.config = config or OdometryConfig()
         c = self.config
         self.pose = np.asarray(initial_pose, dtype=np.float64).reshape(3).copy()
-        self.pyramid = MapPyramid(
-            c.resolution, c.map_size, c.levels, c.log_odds, origin=None
-        )
-        self.pyramid.recenter(self.pose[0], self.pose[1])
+        self.pyramid = self._new_pyramid()
         self.last_report = MatchReport()
         self.last_points: FloatArray = np.zeros((0, 2))
         self.num_scans = 0
@@ -457,6 +487,15 @@ class LidarOdometry:
         self._searched: deque[bool] = deque(maxlen=c.score_window)
         self._num_searched = 0  # of those in _searched
         self._directions: tuple[FloatArray, FloatArray, FloatArray] | None = None
+        # on sparse scans, the map being built to replace the one matched against
+        # (:meth:`_turn_submaps`), the distance travelled while each was fused into, and
+        # whether a step was ambiguous or broken since the last turn
+        self._young: MapPyramid | None = None
+        self._travel = [0.0, 0.0]
+        self._doubts = 0
+        self._conflict = False  # and the maps disagreed since (:meth:`_maps_disagree`)
+        self._matched_levels: tuple[list[FloatArray], FloatArray] | None = None
+        self.num_submaps = 0
 
     # -- steps of one update ------------------------------------------------------------------
 
@@ -515,14 +554,19 @@ class LidarOdometry:
 
     def _insert(self, pts: FloatArray, normals: FloatArray) -> None:
         c = self.config
+        self._turn_submaps()
         centre = self.pyramid.finest.origin + 0.5 * c.map_size
         if np.max(np.abs(self.pose[:2] - centre)) > c.recenter_distance:
-            self.pyramid.recenter(self.pose[0], self.pose[1])
+            for pyramid in self._maps():
+                pyramid.recenter(self.pose[0], self.pose[1])
         if self._last_inserted is None:
             self._first_fused = (self.pose.copy(), pts, self._fill_angle())
         # densified along its surfaces: a scanner's beam pattern fused as measured makes
         # standing still score best
-        dense = densify_scan(pts, c.resolution, NORMAL_MAX_GAP, self._fill_angle())
+        at_rate = self._at_scanner_rate()
+        tolerance = c.densify_tolerance if at_rate else None
+        angle = c.dense_straight_angle if at_rate else c.straight_angle
+        dense = densify_scan(pts, c.resolution, NORMAL_MAX_GAP, angle, tolerance)
         if dense.shape[0] != pts.shape[0]:
             pts, normals = dense, thinned_normals(dense)
         self._fuse(self.pose, pts, normals)
@@ -530,18 +574,94 @@ class LidarOdometry:
 
     def _fill_angle(self) -> float:
         """The ``straight_angle`` a scan is densified with when fused: ``dense_straight_angle``
-        unless the scans are sparse (:meth:`_sparse`, :meth:`_sparse_so_far`) or nothing was
-        fused yet (the first scan: :meth:`_densify_first` adds the rest once the second
-        tells how far apart the scans are; fused with straight runs filled at once, a
-        thinned corridor's second scan was placed 0.9 m off)."""
+        at the scanner's rate (:meth:`_at_scanner_rate`), else ``straight_angle`` (the first
+        scan: :meth:`_densify_first` adds the rest once the second tells how far apart the
+        scans are; fused with straight runs filled at once, a thinned corridor's second scan
+        was placed 0.9 m off)."""
         c = self.config
-        if self._last_inserted is None or self._sparse() or self._sparse_so_far():
-            return c.straight_angle
-        return c.dense_straight_angle
+        return c.dense_straight_angle if self._at_scanner_rate() else c.straight_angle
+
+    def _at_scanner_rate(self) -> bool:
+        """Something was fused and the scans are not sparse (:meth:`_sparse`,
+        :meth:`_sparse_so_far`): the map is many scans of each wall, and a gap that cuts a
+        corner is not needed to hold it (``densify_tolerance``). A thinned log's map is a
+        few scans, where a door's edge seen by two beams, or a recess's corner, is all that
+        fixes a step a metre on (a corridor with doors, a scan per metre: filled only where
+        lines continue, the second scan stood still)."""
+        return not (self._last_inserted is None or self._sparse() or self._sparse_so_far())
 
     def _fuse(self, pose: FloatArray, pts: FloatArray, normals: FloatArray) -> None:
         static = self._not_in_known_free_space(pose, pts)
-        self.pyramid.insert_scan(pose, pts[static], self.config.max_range, normals[static])
+        for pyramid in self._maps():
+            pyramid.insert_scan(pose, pts[static], self.config.max_range, normals[static])
+
+    def _maps(self) -> list[MapPyramid]:
+        """The map matched against and, on sparse scans, the one that will replace it."""
+        return [self.pyramid] if self._young is None else [self.pyramid, self._young]
+
+    def _turn_submaps(self) -> None:
+        """On sparse scans, once the map holds walls twice, match against the scans of the
+        last ``submap_travel`` metres only. Two maps are fused into (Cartographer's
+        submaps): the older, matched against, and a younger one begun when the older has
+        seen half of ``submap_travel``; once the older has seen all of it, the younger
+        replaces it if a step was in doubt and the two maps disagreed on a scan since the
+        last turn (:meth:`_maps_disagree`), and is begun anew otherwise. A wrong step puts
+        the walls the map already holds a second time, a look-alike's length off, and later
+        scans then jump between the two copies (the SICK maze thinned to a scan per metre:
+        one wrong turn, then wrong steps on every revisit); a map made only of the scans
+        since (or shortly before) it holds one copy.
+        Otherwise the older map keeps everything: a thinned log tracked well gains from its
+        revisits (freiburg-079 thinned to a scan per metre: RPE over 1 m 4.9 -> 5.6 cm
+        when every map was replaced). Off unless ``submap_travel`` is set."""
+        c = self.config
+        if self._last_inserted is None:
+            return
+        d = between(self._last_inserted, self.pose)
+        moved = math.hypot(d[0], d[1])
+        self._travel = [t + moved for t in self._travel]
+        if c.submap_travel <= 0 or not self._sparse():
+            self._young = None
+            return
+        if self._young is None and self._travel[0] >= 0.5 * c.submap_travel:
+            self._young, self._travel[1] = self._new_pyramid(), 0.0
+            return
+        grown = self._young is not None and self._travel[1] >= 0.25 * c.submap_travel
+        if grown and self._doubts >= c.submap_doubts and not self._conflict:
+            self._conflict = self._maps_disagree()
+        if self._young is not None and self._travel[0] >= c.submap_travel:
+            if self._conflict:
+                self.pyramid = self._young
+                self.num_submaps += 1
+            self._travel = [self._travel[1], 0.0]
+            self._young, self._doubts, self._conflict = self._new_pyramid(), 0, False
+
+    def _maps_disagree(self) -> bool:
+        """The last scan matched (Gauss-Newton, Eq. 3) on the younger map alone from the pose
+        it was given lands farther than ``submap_conflict`` metres (or that at
+        ``length_scale`` in heading) from it: the older map holds walls the recent scans put
+        elsewhere."""
+        c = self.config
+        if c.submap_conflict <= 0:
+            return True
+        if self._young is None or self._matched_levels is None:
+            return False
+        level_pts, normals = self._matched_levels
+        pose, _ = match_scan_to_map(
+            self._young, level_pts, self.pose, c.max_iterations, c.step_tolerance,
+            c.length_scale, c.degeneracy_ratio, c.subcell_sigma, normals, c.search_prior_weight,
+        )  # fmt: skip
+        d = between(self.pose, pose)
+        return bool(
+            math.hypot(d[0], d[1]) > c.submap_conflict
+            or abs(d[2]) * c.length_scale > c.submap_conflict
+        )
+
+    def _new_pyramid(self) -> MapPyramid:
+        """An empty local map centred on the pose."""
+        c = self.config
+        pyramid = MapPyramid(c.resolution, c.map_size, c.levels, c.log_odds, origin=None)
+        pyramid.recenter(self.pose[0], self.pose[1])
+        return pyramid
 
     def _sparse_so_far(self) -> bool:
         """Fewer than ``sparse_scans`` matched, and the search ran for every one: a thinned
@@ -601,6 +721,7 @@ class LidarOdometry:
                 self._densify_first(dt)
             start = self._best_start(level_pts[-1], previous, predicted)
             normals = matched_normals(level_pts)
+            self._matched_levels = (level_pts, normals)
             self.pose, self.last_report = self._match(
                 level_pts, start, previous, normals, dt, predicted
             )
@@ -612,6 +733,7 @@ class LidarOdometry:
             self.num_degenerate += self.last_report.degenerate
             self.num_ambiguous += self.last_report.ambiguous
             self.num_broken += self.last_report.broken
+            self._doubts += self.last_report.ambiguous or self.last_report.broken
         if not self.last_report.predicted_only and self._should_insert():
             # every endpoint is fused, each with the normal of the kept one before it
             self._insert(pts, thinned_normals(pts, keep))

@@ -25,10 +25,12 @@ from bioslam.closure import (
     Candidate,
     Check,
     ClosureConsensus,
+    SlideReturns,
     Submap,
     SubmapCache,
     Verdict,
     break_extent,
+    implausible,
     jumped,
     nearest_experience,
     odometry_broke,
@@ -43,9 +45,16 @@ from bioslam.closure import (
     verify,
     within,
 )
-from bioslam.cognitive_map import CognitiveMap, Experience, Measurement, registration_shape
+from bioslam.cognitive_map import (
+    CognitiveMap,
+    Experience,
+    Measurement,
+    link_information,
+    modelled_heading_var,
+    registration_shape,
+)
 from bioslam.config import SLAMConfig
-from bioslam.geometry import Pose2D, between, compose
+from bioslam.geometry import Pose2D, between, compose, inverse
 from bioslam.growing import GrowingArray, RowsFactory
 from bioslam.occupancy_grid import NORMAL_MAX_GAP, NORMAL_RADIUS, scan_normals, subsample_by_spacing
 from bioslam.odometry import LidarOdometry, MatchReport
@@ -175,10 +184,29 @@ class SelfMotion:
         #: (:func:`bioslam.closure.jumped`: a slide, and the return to the robot's motion
         #: after it): how far the odometry may be off along each of the map's links
         self.jump_extent = np.zeros(2)
+        #: the heading variance (rad²) of every step so far, summed, as the odometry's matches
+        #: measured it (:attr:`MatchReport.covariance`; the model's, from
+        #: ``cognitive_map.odometry_heading_var_per_m`` and ``_per_rad``, for a scan without
+        #: a match): the map's odometry links are weighted by it
+        self.heading_var = 0.0
+        self._map_config = config.cognitive_map
+        #: metres travelled by the odometry so far
+        self.travelled = 0.0
+        tolerance = config.loop_closure.return_tolerance
+        self.slides = SlideReturns(
+            (tolerance * self.closure.break_distance, tolerance * self.closure.break_angle),
+            self.closure.return_reach,
+        )
+        #: what the last step did to a slide of the odometry (:meth:`SlideReturns.jump`):
+        #: '' (none, or it goes on), 'opened' or 'returned'
+        self.slide = ""
+        self._steady = np.zeros(3)
+        self._steady_dt = 0.0
 
     def step(self, scan: LaserScan) -> FloatArray:
         """The motion since the previous scan, in the previous robot frame."""
         dp = np.asarray(self.odometry.update(scan), dtype=np.float64).copy()
+        self.slide = ""
         if self._last_stamp is not None:
             dt = max(scan.stamp - self._last_stamp, 0.0)
             if self._last_dt > 0.0:  # the velocity of the step before is known
@@ -196,12 +224,41 @@ class SelfMotion:
                     dp, self._last_step, expected, dt, self.closure
                 ):
                     self.jump_extent += break_extent(dp, expected, dt, self.closure)
+                self._track_slide(dp, dt)
             self._last_step, self._last_dt = dp.copy(), dt
             if self.heading_bias:
                 dp[2] += self.heading_bias * dt
         self._last_stamp = scan.stamp
+        self.heading_var += self._step_heading_var(dp)
+        self.travelled += math.hypot(dp[0], dp[1])
         self.pose = compose(self.pose, dp)
         return dp
+
+    def _track_slide(self, dp: FloatArray, dt: float) -> None:
+        """Whether ``dp`` opens or undoes a slide (:class:`bioslam.closure.SlideReturns`):
+        its departure from the robot's steady motion, the last step that departed from the
+        one before by no more than a robot can change its motion. (Against the step just
+        before, the first ordinary step after a slide departs from the slide's own motion
+        as much as the slide did, and would pass for its undoing.)"""
+        if self._steady_dt <= 0.0:
+            self._steady, self._steady_dt = dp.copy(), dt
+            return
+        steady = self._steady * min(dt / self._steady_dt, 1e3)
+        if not implausible(dp, steady, dt, self.closure):
+            self._steady, self._steady_dt = dp.copy(), dt
+            return
+        c, s = math.cos(self.pose[2]), math.sin(self.pose[2])
+        dx, dy = dp[0] - steady[0], dp[1] - steady[1]
+        departure = (c * dx - s * dy, s * dx + c * dy, dp[2] - steady[2])
+        self.slide = self.slides.jump(departure, self.travelled)
+
+    def _step_heading_var(self, dp: FloatArray) -> float:
+        """The heading variance (rad²) of the last step: its match's, or the model's where
+        the scan was not matched."""
+        var = float(self.odometry.last_report.covariance[2, 2])
+        if math.isfinite(var):
+            return max(var, 0.0)
+        return modelled_heading_var(math.hypot(dp[0], dp[1]), abs(dp[2]), self._map_config)
 
 
 class BioSLAM:
@@ -248,6 +305,7 @@ class BioSLAM:
         self.confirmed_later = 0
         self._extent_at_look = np.zeros(2)
         self._doubts_at_look = 0
+        self._heading_var_at_look = 0.0
         self._last_registration = -np.inf
         self._travelled_at_entry = 0.0
         self._pending = np.zeros(3)
@@ -266,12 +324,23 @@ class BioSLAM:
         self._chain_key: tuple[int, int, int, int] | None = None
         self._chained = False
         self._released: dict[str, int] | None = None
+        # where an open slide of the odometry began (:meth:`_note_slide`), and one it undid,
+        # to be bridged at the next look
+        self._slide_start: tuple | None = None
+        self._bridge_due: tuple | None = None
+        # experiences made while a slide was under way: displaced by it, no end for a bridge
+        self._made_in_slide: set[int] = set()
+        #: odometry links that bridge a slide the odometry undid (``bridge_returns``)
+        self.bridges = 0
 
     # --- the per-scan update ---------------------------------------------------------------
 
     def process(self, scan: LaserScan) -> Pose2D:
         """Feed one scan; return the robot's current pose in the cognitive map's frame."""
+        before = (self._pending, self.self_motion.pose)
         dp = self.self_motion.step(scan)
+        if self.self_motion.slide:
+            self._note_slide(*before)
         self._pending = compose(self._pending, dp)
         self._scans_since_look += 1
         self._relax_if_due()
@@ -281,6 +350,44 @@ class BioSLAM:
             self._scans_since_look = self._scans_waited = 0
         self._record(scan.stamp)
         return Pose2D(*compose(self.cognitive_map.pose(), self._pending))
+
+    def _note_slide(self, pending: FloatArray, odometry: FloatArray) -> None:
+        """The step just taken opened a slide of the odometry or undid one
+        (:attr:`SelfMotion.slide`); ``pending`` and ``odometry``: the motion since the last
+        look and the odometry's pose before the step. Where a slide began, the robot's pose
+        in the map (its anchor and offset) is kept; once it is undone, the map gets an
+        odometry link across it at the next look (:meth:`_bridge`)."""
+        motion = self.self_motion
+        if motion.slide == "opened":
+            base, offset = self.cognitive_map.anchor()
+            if base in self._made_in_slide:
+                return  # the pose it hangs off is displaced by the slide before
+            self._slide_start = (
+                base, compose(offset, pending), odometry, motion.travelled, motion.heading_var
+            )
+        elif self._slide_start is not None and self.config.loop_closure.bridge_returns:
+            self._bridge_due, self._slide_start = self._slide_start, None
+
+    def _bridge(self) -> None:
+        """An odometry link from the experience the robot's pose hung off where a slide
+        began to the one it hangs off now the slide is undone, measuring the odometry
+        across it (:attr:`bioslam.config.LoopClosureConfig.bridge_returns`)."""
+        start, self._bridge_due = self._bridge_due, None
+        assert start is not None
+        source, offset, odometry, travelled, heading_var = start
+        cmap, motion = self.cognitive_map, self.self_motion
+        target, now = cmap.anchor()
+        if source < 0 or source == target or motion.slides.open:
+            return  # (another slide began since: the robot's pose is displaced by it)
+        across = between(odometry, motion.pose)
+        dp = compose(compose(offset, across), inverse(now))
+        info = link_information(
+            motion.travelled - travelled, abs(float(across[2])), 0, cmap.config,
+            heading_var=motion.heading_var - heading_var,
+        )  # fmt: skip
+        if cmap.add_odometry_link(source, target, dp, self._stamp, info):
+            self._relax_due = True
+        self.bridges += 1
 
     def _relax_if_due(self) -> None:
         """The relaxation a closure left for the scan after it (``defer_relaxation``)."""
@@ -367,7 +474,12 @@ class BioSLAM:
         self._extent_at_look = self.self_motion.jump_extent.copy()
         doubted = self.self_motion.doubts > self._doubts_at_look
         self._doubts_at_look = self.self_motion.doubts
-        self.cognitive_map.integrate_odometry(dp, scan.stamp, broken, doubted)
+        heading_var = self.self_motion.heading_var - self._heading_var_at_look
+        self._heading_var_at_look = self.self_motion.heading_var
+        self.cognitive_map.integrate_odometry(
+            dp, scan.stamp, broken, doubted,
+            heading_var if self.config.cognitive_map.scan_heading_variance else None,
+        )  # fmt: skip
         self._stamp = scan.stamp
         self._proposed = self._nearby(self.cognitive_map.pose(), self._travelled)
         known = len(self.cognitive_map)
@@ -380,6 +492,8 @@ class BioSLAM:
             refine=self._refiner(points) if self.config.loop_closure.refine else None,
             nearby=self._proposed,
         )
+        if self._bridge_due is not None:
+            self._bridge()
         if event.kind == "loop" or self._confirmed_earlier:
             if self.config.defer_relaxation:
                 self._relax_due = True  # not on the scan that paid for the registration
@@ -390,6 +504,8 @@ class BioSLAM:
         # every experience this look made (a closure also makes one of the robot's pose)
         for experience_id in range(known, len(self.cognitive_map)):
             self._note_made(experience_id)
+            if self.self_motion.slides.open:
+                self._made_in_slide.add(experience_id)
         if event.kind != "none":
             self._travelled_at_entry = self._travelled
         self.records.append(

@@ -97,7 +97,7 @@ class RegistrationConfig:
 
 def straight_gaps(
     points: FloatArray, max_gap: float, angle: float, reach: int = 1, ratio: float = 3.0,
-    longest: float = 2.0,
+    longest: float = 2.0, tolerance: float | None = None,
 ) -> NDArray[np.bool_]:
     """Which gaps between consecutive endpoints (scan order) cross no opening: those up to
     ``max_gap``, and longer ones (up to ``longest`` metres) inside a straight run: the
@@ -105,10 +105,13 @@ def straight_gaps(
     and the gaps next to it are at least ``1 / ratio`` of its length. A 1 deg scanner
     looking along a wall at 10 m hits it a metre apart, beam after beam in a line whose
     gaps grow steadily; a depth jump (a door frame, an obstacle's edge) leaves that line,
-    and an opening in it is a gap several times its neighbours'."""
+    and an opening in it is a gap several times its neighbours'. With ``tolerance``, a gap
+    up to ``max_gap`` must also continue a neighbour's line (:func:`_in_line`)."""
     step = np.diff(points, axis=0)
     gap = np.hypot(step[:, 0], step[:, 1])
     near = gap <= max_gap
+    if tolerance is not None:
+        near &= _in_line(points, step, gap, near, tolerance)
     n = gap.size
     if angle <= 0.0 or n <= 2 * reach:
         return near
@@ -126,8 +129,40 @@ def straight_gaps(
     return near | ok
 
 
+def _in_line(
+    points: FloatArray, step: FloatArray, gap: FloatArray, near: NDArray[np.bool_],
+    tolerance: float,
+) -> NDArray[np.bool_]:
+    """Gaps that continue a surface (``points`` in the sensor frame): the endpoint before
+    them or the one after, joined to the gap by a ``near`` gap, lies within ``tolerance``
+    of the line through the gap's own two. A gap around a corner or down a depth step
+    leaves both neighbours' lines. A pair of endpoints with no joined neighbour (a post's
+    face, or a door jamb's corner seen past the wall it ends) is taken as a face when its
+    gap lies more across the beams than along them: a corner cut or a depth step between
+    two beams runs along them."""
+    unit = step / np.maximum(gap, 1e-12)[:, None]
+    before = np.zeros(gap.size, dtype=bool)
+    after = np.zeros(gap.size, dtype=bool)
+    joined = before.copy()
+    # p[k-1] against the line p[k] p[k+1], p[k+2] against the same line
+    before[1:] = near[:-1] & (_off_line(unit[1:], points[:-2] - points[1:-1]) <= tolerance)
+    after[:-1] = near[1:] & (_off_line(unit[:-1], points[2:] - points[:-2]) <= tolerance)
+    joined[1:] = near[:-1]
+    joined[:-1] |= near[1:]
+    mid = points[:-1] + 0.5 * step
+    across = _off_line(unit, mid) >= math.sqrt(0.5) * np.hypot(mid[:, 0], mid[:, 1])
+    return before | after | (~joined & across)
+
+
+def _off_line(unit: FloatArray, offset: FloatArray) -> FloatArray:
+    """Distances of ``offset`` (from a point on each line) across lines of direction
+    ``unit``."""
+    return np.abs(unit[:, 0] * offset[:, 1] - unit[:, 1] * offset[:, 0])
+
+
 def densify_scan(
-    points: FloatArray, spacing: float, max_gap: float, straight_angle: float = 0.0
+    points: FloatArray, spacing: float, max_gap: float, straight_angle: float = 0.0,
+    tolerance: float | None = None,
 ) -> FloatArray:
     """Endpoints in scan order with points added every ``spacing`` metres between neighbours
     on the same surface (:func:`straight_gaps`: closer than ``max_gap``, or, with
@@ -136,12 +171,12 @@ def densify_scan(
     cells between its points on a wall, where the other scan's points of that wall find
     nothing to land on, and a map made of a few such scans is densest near where they were
     taken: a pose moved back towards there scores better than the true one."""
-    return densify_with_mask(points, spacing, max_gap, straight_angle)[0]
+    return densify_with_mask(points, spacing, max_gap, straight_angle, tolerance=tolerance)[0]
 
 
 def densify_with_mask(
     points: FloatArray, spacing: float, max_gap: float, straight_angle: float = 0.0,
-    filled_angle: float | None = None,
+    filled_angle: float | None = None, tolerance: float | None = None,
 ) -> tuple[FloatArray, NDArray[np.bool_]]:
     """:func:`densify_scan` and which of its points were added (not endpoints); with
     ``filled_angle``, the gaps that densifying with that ``straight_angle`` fills are left
@@ -150,9 +185,9 @@ def densify_with_mask(
         return points, np.zeros(points.shape[0], dtype=bool)
     step = np.diff(points, axis=0)
     gap = np.hypot(step[:, 0], step[:, 1])
-    fill = straight_gaps(points, max_gap, straight_angle)
+    fill = straight_gaps(points, max_gap, straight_angle, tolerance=tolerance)
     if filled_angle is not None:
-        fill &= ~straight_gaps(points, max_gap, filled_angle)
+        fill &= ~straight_gaps(points, max_gap, filled_angle, tolerance=tolerance)
     extra = np.where(fill, np.floor(gap / spacing).astype(np.int64), 0)
     counts = np.append(extra + 1, 1)
     start = np.repeat(np.arange(points.shape[0]), counts)
