@@ -280,9 +280,9 @@ class OdometryConfig:
             lies more across the beams than along them (a post's face;
             :func:`bioslam.matching.registration.straight_gaps`). Filled regardless, the gaps
             around door jambs' corners and down depth steps put points off every wall, on the
-            edges that fix a pose along a corridor (simulated SICK, adversarial routes: 1-3 %
+            edges that fix a pose along a corridor (simulated SICK, adversarial routes: 0.6-3 %
             of the points those gaps added lay over 2 cm farther off the walls than their
-            endpoints; 52-90 % of those are dropped, 91-95 % of the rest kept; rooms 900 s
+            endpoints; 52-92 % of those are dropped, 91-95 % of the rest kept; rooms 900 s
             seed 5: ATE 1.31 -> 0.31 cm, the pose 20 cm off along the corridor in spins on
             the spot before). A thinned log keeps every gap: a few scans make its map, and a
             door's edge seen by two beams, or a recess's corner cut, can be all that fixes a
