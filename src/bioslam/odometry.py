@@ -280,9 +280,9 @@ class OdometryConfig:
             lies more across the beams than along them (a post's face;
             :func:`bioslam.matching.registration.straight_gaps`). Filled regardless, the gaps
             around door jambs' corners and down depth steps put points off every wall, on the
-            edges that fix a pose along a corridor (simulated SICK, adversarial routes: 1-3 %
+            edges that fix a pose along a corridor (simulated SICK, adversarial routes: 0.6-3 %
             of the points those gaps added lay over 2 cm farther off the walls than their
-            endpoints; 52-90 % of those are dropped, 91-95 % of the rest kept; rooms 900 s
+            endpoints; 52-92 % of those are dropped, 91-95 % of the rest kept; rooms 900 s
             seed 5: ATE 1.31 -> 0.31 cm, the pose 20 cm off along the corridor in spins on
             the spot before). A thinned log keeps every gap: a few scans make its map, and a
             door's edge seen by two beams, or a recess's corner cut, can be all that fixes a
@@ -324,16 +324,20 @@ class OdometryConfig:
             maze thinned to 1 m stays lost either way (38 / 131 -> 42 / 125 cm).
         implausible_density: see ``sparse_share``.
         submap_travel, submap_doubts, submap_conflict: on sparse scans the map matched
-            against is replaced by one of only the scans of the last ``submap_travel`` to
-            half that many metres when it holds walls twice
+            against can be replaced by one of only the scans of the last ``submap_travel``
+            to half that many metres when it holds walls twice
             (:meth:`LidarOdometry._turn_submaps`): a wrong step, fused, leaves the walls in
             two frames, and later scans jumped between them. It is replaced when, since the
             last turn, at least ``submap_doubts`` steps were ambiguous or broken and a scan
             matched on the recent scans' map alone landed more than ``submap_conflict``
-            metres (or that at ``length_scale`` in heading) from the pose the map gave it.
-            Replaced on doubts alone, the thinned Intel log lost the revisits that keep it
-            precise (the first 200 scans from ten starts: RPE over 1 m median 5.3 -> 10.6
-            cm); so gated, 5.3 cm. 0 travel disables it; a conflict of 0 replaces on doubts.
+            metres (or that at ``length_scale`` in heading) from the pose the map gave it
+            (a conflict of 0 replaces on doubts alone). Off by default (0 travel): at 30 m
+            the SICK maze thinned to a scan per metre went from RPE over 1 m 59.6 to 30.2
+            cm (seed 0; seed 1 unchanged, 125 cm) but seed 2, tracked at 4.4 cm, was lost
+            (80 cm) after a replacement the conflict test let through; at a 0.3 m conflict
+            nothing is replaced, and on doubts alone the thinned Intel log lost the revisits
+            that keep it precise (its first 200 scans from ten starts: median 5.3 -> 10.6
+            cm). ``benchmarks/README.md``, "Submaps on sparse scans".
         log_odds: hit/miss increments of the map cells.
     """
 
@@ -401,7 +405,7 @@ class OdometryConfig:
     break_score_ratio: float = 0.4
     break_turn: float = math.radians(25.0)
     break_margin: float = 0.1
-    submap_travel: float = 30.0
+    submap_travel: float = 0.0
     submap_doubts: int = 1
     submap_conflict: float = 0.1
     log_odds: LogOddsConfig = field(default_factory=LogOddsConfig)
@@ -608,7 +612,7 @@ class LidarOdometry:
         since (or shortly before) it holds one copy.
         Otherwise the older map keeps everything: a thinned log tracked well gains from its
         revisits (freiburg-079 thinned to a scan per metre: RPE over 1 m 4.9 -> 5.6 cm
-        when every map was replaced)."""
+        when every map was replaced). Off unless ``submap_travel`` is set."""
         c = self.config
         if self._last_inserted is None:
             return
