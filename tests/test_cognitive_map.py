@@ -499,6 +499,7 @@ def corridor_return(
     config = config or CognitiveMapConfig(
         odometry_var_per_m=0.01, odometry_heading_var_per_m=1e-3, closure_sigma_m=0.01,
         closure_sigma_rad=1e-3, closure_shape_ratio=1e4, robust_sigmas=0.0,
+        registration_covariance=True,
     )  # fmt: skip
     cm = CognitiveMap(config)
     for k, d in enumerate(steps[:-1]):
@@ -803,7 +804,7 @@ def corridor_with_undone_slide(bridge: bool) -> tuple[float, float]:
     odometry_steps = steps.copy()
     odometry_steps[8, 0] -= 0.2
     odometry_steps[13, 0] += 0.2
-    cm = CognitiveMap(CognitiveMapConfig())
+    cm = CognitiveMap(CognitiveMapConfig(registration_covariance=True))
     made: dict[int, int] = {}
     for k, d in enumerate(odometry_steps[:-1]):
         broken = (0.2, 0.0) if k in (8, 13) else (0.0, 0.0)

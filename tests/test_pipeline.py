@@ -96,6 +96,34 @@ def test_a_failure_half_way_keeps_what_was_computed(short_drive, tmp_path):
 
 
 @pytest.mark.parametrize("odometry_only", [False, True])
+def test_a_signal_between_a_scans_column_appends_leaves_whole_scans(
+    short_drive, tmp_path, odometry_only, monkeypatch
+):
+    """The scan loop can be interrupted anywhere, also half-way through recording a scan:
+    what is written then holds the scans recorded whole, every file the same length."""
+    from bioslam.slam import MatchUncertainty
+
+    scans, _ = short_drive
+    calls = {"n": 0}
+    append = MatchUncertainty.append
+
+    def interrupted_on_the_31st(self, report):
+        calls["n"] += 1
+        if calls["n"] == 31:
+            raise KeyboardInterrupt
+        append(self, report)
+
+    monkeypatch.setattr(MatchUncertainty, "append", interrupted_on_the_31st)
+    options = RunOptions(progress=False, warm_up=False, odometry_only=odometry_only)
+    result = run_slam(scans[:60], options=options)
+    assert result.interrupted
+    write_results(result, tmp_path, options=options)
+    assert len(read_tum(tmp_path / "trajectory.tum")) == 30
+    assert len(read_tum(tmp_path / "odometry.tum")) == 30
+    assert len(read_uncertainty(tmp_path / "odometry_uncertainty.csv")) == 30
+
+
+@pytest.mark.parametrize("odometry_only", [False, True])
 def test_a_run_with_a_store_directory_keeps_its_per_scan_columns_there(
     short_drive, tmp_path, odometry_only
 ):

@@ -137,9 +137,9 @@ class OdometryOnly:
 
     def process(self, scan: LaserScan) -> Pose2D:
         self.self_motion.step(scan)
-        self._stamps.append(scan.stamp)
         self._poses.append(self.self_motion.pose)
         self._uncertainty.append(self.odometry.last_report)
+        self._stamps.append(scan.stamp)  # last, as in :meth:`BioSLAM._record`
         return Pose2D(*self.self_motion.pose)
 
     @property
@@ -147,15 +147,16 @@ class OdometryOnly:
         return len(self._stamps)
 
     def trajectory(self) -> Trajectory:
-        if not len(self._stamps):
+        n = self.num_scans
+        if not n:
             return Trajectory.empty()
-        return Trajectory(self._stamps.array(), self._poses.array())
+        return Trajectory(self._stamps.array(), self._poses.array()[:n])
 
     odometry_trajectory = trajectory
 
     def odometry_uncertainty(self) -> tuple[FloatArray, FloatArray, NDArray[np.int8]]:
         """See :meth:`BioSLAM.odometry_uncertainty`."""
-        return (self._stamps.array(), *self._uncertainty.arrays())
+        return (self._stamps.array(), *self._uncertainty.arrays(self.num_scans))
 
     def release_scans(self) -> None:
         """See :meth:`BioSLAM.release_scans`."""

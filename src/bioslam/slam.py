@@ -152,10 +152,10 @@ class MatchUncertainty:
         self._covariances.append(report.covariance[self._UPPER])
         self._flags.append(report.degenerate | report.ambiguous << 1 | report.predicted_only << 2)
 
-    def arrays(self) -> tuple[FloatArray, NDArray[np.int8]]:
+    def arrays(self, n: int | None = None) -> tuple[FloatArray, NDArray[np.int8]]:
         """The covariances (N, 6: xx, xy, xθ, yy, yθ, θθ) and flags (bit 0 degenerate, bit 1
-        ambiguous, bit 2 predicted only)."""
-        return self._covariances.array().astype(np.float64), self._flags.array()
+        ambiguous, bit 2 predicted only) of the first ``n`` scans (all when None)."""
+        return self._covariances.array()[:n].astype(np.float64), self._flags.array()[:n]
 
 
 class SelfMotion:
@@ -816,11 +816,13 @@ class BioSLAM:
 
     def _record(self, stamp: float) -> None:
         exp_id, offset = self.cognitive_map.anchor()
-        self._stamps.append(stamp)
         self._anchor_ids.append(exp_id)
         self._anchor_offsets.append(compose(offset, self._pending))
         self._odometry_poses.append(self.self_motion.pose)
         self._uncertainty.append(self.odometry.last_report)
+        # last: a scan counts once its stamp is in (:attr:`num_scans`), so that a signal
+        # between these appends leaves the read-outs one scan short, not of unequal lengths
+        self._stamps.append(stamp)
 
     def finish(self) -> None:
         """Settle the cognitive map after the last scan (the final trajectory is re-derived
@@ -844,24 +846,26 @@ class BioSLAM:
         """Every scan's pose: its experience's relaxed pose composed with the odometry since,
         so that the whole trajectory follows each correction of the map. With
         ``experience_poses`` ((N, 3), e.g. :meth:`CognitiveMap.solved`) instead of the map's."""
-        if not len(self._stamps):
+        n = self.num_scans
+        if not n:
             return Trajectory.empty()
         poses = self.cognitive_map.poses_of(
-            self._anchor_ids.view(), self._anchor_offsets.view(), experience_poses
+            self._anchor_ids.view()[:n], self._anchor_offsets.view()[:n], experience_poses
         )
         return Trajectory(self._stamps.array(), poses)
 
     def odometry_trajectory(self) -> Trajectory:
         """The self-motion cue alone (as the pose cells received it), one pose per scan."""
-        if not len(self._stamps):
+        n = self.num_scans
+        if not n:
             return Trajectory.empty()
-        return Trajectory(self._stamps.array(), self._odometry_poses.array())
+        return Trajectory(self._stamps.array(), self._odometry_poses.array()[:n])
 
     def odometry_uncertainty(self) -> tuple[FloatArray, FloatArray, NDArray[np.int8]]:
         """Each scan's stamp, its odometry match's covariance (the upper triangle xx, xy,
         xθ, yy, yθ, θθ) and flags (:meth:`MatchUncertainty.arrays`), for
         :func:`bioslam.io.uncertainty.write_uncertainty`."""
-        return (self._stamps.array(), *self._uncertainty.arrays())
+        return (self._stamps.array(), *self._uncertainty.arrays(self.num_scans))
 
     def release_scans(self) -> None:
         """Once the trajectories are made (:func:`bioslam.pipeline.write_results` with
