@@ -792,10 +792,9 @@ class LidarOdometry:
         between scans)."""
         c = self.config
         gapless = dt <= c.gap_time  # the start is then a trusted prediction
-        # the prior pulls towards the motion last measured, never a standstill it did not
+        # the prior pulls towards the motion model's prediction, never a standstill it did not
         # predict (:meth:`_prior_target`)
-        repeated = compose(previous, self._last_delta)
-        target = self._prior_target(start, previous, predicted, gapless, repeated)
+        target = self._prior_target(start, previous, predicted, gapless)
         weight = self._prior_weight(dt)
         options = [self._option(level_pts, start, normals, weight, target, gapless)]
         if weight > c.search_prior_weight:
@@ -876,27 +875,17 @@ class LidarOdometry:
 
     @staticmethod
     def _prior_target(
-        start: FloatArray, previous: FloatArray, predicted: FloatArray, gapless: bool,
-        repeated: FloatArray,
+        start: FloatArray, previous: FloatArray, predicted: FloatArray, gapless: bool
     ) -> FloatArray | None:
-        """Where the motion prior pulls along a direction the scan does not constrain: when
-        :meth:`_best_start` chose to start from the last pose (standing still scored better
-        on the coarse level), the last step repeated (``repeated``), or the
-        constant-velocity prediction if that step did not move; else the start itself
+        """Where the motion prior pulls along a direction the scan does not constrain: the
+        constant-velocity prediction when :meth:`_best_start` chose to start from the last
+        pose (standing still scored better on the coarse level), else the start itself
         (None). Pulled towards that standstill start, the pose stood still along an aisle
         for seconds while the robot drove on, its slid scans were fused, and the map then
         held it there (simulated warehouse, UTM-30LX, adversarial route: 2.3 m behind
-        after 1 s of degenerate scans). The last step rather than the prediction: along
-        that direction the motion model carries its velocity unchanged while the scans
-        stay degenerate (:mod:`bioslam.motion_model`), whereas each step still takes in
-        the little the scan tells there (a corridor's end wall far ahead, a few beams):
-        pulled towards the prediction, a robot speeding up along a corridor was left
-        behind at the speed it had when the scans turned degenerate (simulated SICK, maze,
-        adversarial route, seed 4: 0.9 m/s carried at 1.2 m/s, 1.5 m behind within 3 s
-        and a 1.5 m jump back a minute later; ATE 24.3 -> 0.48 cm; seed 5 73 -> 9.6 cm).
-        After a gap the prediction is no prior."""
+        after 1 s of degenerate scans). After a gap the prediction is no prior."""
         if gapless and np.array_equal(start, previous) and not np.array_equal(start, predicted):
-            return predicted if np.array_equal(repeated, previous) else repeated
+            return predicted
         return None
 
     def _prior_weight(self, dt: float) -> float:
