@@ -618,12 +618,12 @@ class LidarOdometry:
         revisits (freiburg-079 thinned to a scan per metre: RPE over 1 m 4.9 -> 5.6 cm
         when every map was replaced). Off unless ``submap_travel`` is set."""
         c = self.config
-        if self._last_inserted is None:
+        if c.submap_travel <= 0 or self._last_inserted is None:
             return
         d = between(self._last_inserted, self.pose)
         moved = math.hypot(d[0], d[1])
         self._travel = [t + moved for t in self._travel]
-        if c.submap_travel <= 0 or not self._sparse():
+        if not self._sparse():
             self._young = None
             return
         if self._young is None and self._travel[0] >= 0.5 * c.submap_travel:

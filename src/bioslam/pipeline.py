@@ -42,7 +42,7 @@ from bioslam.slam import (
     MatchUncertainty,
     SelfMotion,
     StepRecords,
-    scan_columns,
+    row_stores,
     thin_points,
 )
 from bioslam.trajectory import Trajectory
@@ -165,7 +165,8 @@ class OdometryOnly:
     def _new_scan_columns(self, capacity: int = 1024) -> None:
         """Empty per-scan columns: each scan's stamp and odometry pose."""
         rows = self._rows if capacity > 1 else None
-        self._stamps, _, _, self._poses = scan_columns(rows, capacity)
+        make = row_stores(rows, capacity)
+        self._stamps, self._poses = make(np.float64, 0), make(np.float64, 3)
         self._uncertainty = MatchUncertainty(capacity, rows)
 
     def finish(self) -> None:

@@ -128,13 +128,22 @@ class StepRecords:
         return (self[k] for k in range(len(self)))
 
 
+def row_stores(rows: RowsFactory | None, capacity: int = 1024) -> RowsFactory:
+    """``rows``, or when None a maker of growing arrays of ``capacity`` rows in memory."""
+    if rows is not None:
+        return rows
+
+    def in_memory(dtype: Any, width: int) -> GrowingArray:
+        return GrowingArray(dtype, width, capacity=capacity)
+
+    return in_memory
+
+
 def scan_columns(rows: RowsFactory | None, capacity: int = 1024) -> tuple[Any, Any, Any, Any]:
-    """Empty stores (from ``rows``, growing arrays of ``capacity`` when None) of each scan's
-    stamp, anchor experience, offset from it and odometry pose."""
-    if rows is None:
-        def rows(dtype: Any, width: int) -> GrowingArray:
-            return GrowingArray(dtype, width, capacity=capacity)
-    return rows(np.float64, 0), rows(np.int64, 0), rows(np.float64, 3), rows(np.float64, 3)
+    """Empty stores (:func:`row_stores`) of each scan's stamp, anchor experience, offset
+    from it and odometry pose."""
+    make = row_stores(rows, capacity)
+    return make(np.float64, 0), make(np.int64, 0), make(np.float64, 3), make(np.float64, 3)
 
 
 class MatchUncertainty:
@@ -145,8 +154,8 @@ class MatchUncertainty:
 
     def __init__(self, capacity: int = 1024, rows: RowsFactory | None = None) -> None:
         """``rows``: where the columns are kept (growing arrays of ``capacity`` when None)."""
-        self._covariances = rows(np.float32, 6) if rows else GrowingArray(np.float32, 6, capacity)
-        self._flags = rows(np.int8, 0) if rows else GrowingArray(np.int8, capacity=capacity)
+        make = row_stores(rows, capacity)
+        self._covariances, self._flags = make(np.float32, 6), make(np.int8, 0)
 
     def append(self, report: MatchReport) -> None:
         self._covariances.append(report.covariance[self._UPPER])
@@ -629,7 +638,11 @@ class BioSLAM:
             shape = self._pinned_shape(
                 registration_shape(pts, normals, ratio), registered, pts, submap
             )
-            covariance = place_covariance(verdict.covariance, registered, anchor_in_experience)
+            covariance = (
+                place_covariance(verdict.covariance, registered, anchor_in_experience)
+                if self.config.cognitive_map.registration_covariance
+                else None  # (only that weighting reads it)
+            )
             measured = Measurement(verdict.pose, shape, doubted=chained, covariance=covariance)
         return measured if self._confirmed(experience, measured, submap.anchor) else None
 
