@@ -479,3 +479,56 @@ def test_slide_returns_pairs_a_slide_with_the_jump_that_undoes_it():
     # one never undone within the reach is forgotten: a jump after it opens a new one
     assert slides.jump((0.2, 0.0, 0.0), travelled=10.0) == "opened"
     assert slides.jump((-0.2, 0.0, 0.0), travelled=25.0) == "opened"
+
+
+def _corridor_grid(end_wall: bool):
+    """A corridor 2 m wide along x (walls at y = -1.03 and 0.97), with an end wall at
+    x = 1.5 or open; its submap's score grid, the scan of a robot at the origin facing
+    along it, and that scan's weak modes."""
+    from bioslam.closure import _submap_pyramid, weak_modes
+    from bioslam.cognitive_map import registration_shape
+    from bioslam.occupancy_grid import NORMAL_MAX_GAP, NORMAL_RADIUS, scan_normals
+
+    cfg = LoopClosureConfig()
+    xs = np.arange(-6.0, 6.0, 0.02)
+    walls = [np.column_stack([xs, np.full_like(xs, y)]) for y in (-1.03, 0.97)]
+    if end_wall:
+        ys = np.arange(-1.03, 0.97, 0.02)
+        walls.append(np.column_stack([np.full_like(ys, 1.51), ys]))
+    walls = np.vstack(walls)
+    walls = walls[walls[:, 0] <= 1.51]
+    far = np.column_stack([xs, np.full_like(xs, -3.01)])  # (keeps the walls inside cells)
+    query = walls[walls[:, 0] > -2.0]
+    grid = _submap_pyramid(np.vstack([walls, far]), cfg.registration).grids[
+        cfg.registration.score_level
+    ]
+    normals = scan_normals(query, NORMAL_RADIUS, NORMAL_MAX_GAP)
+    return cfg, grid, query, weak_modes(registration_shape(query, normals, 100.0))
+
+
+def test_a_registration_slid_along_an_open_corridor_keeps_the_maps_position_along_it():
+    # Gauss-Newton slid 12 cm along the corridor, where the score is flat: that is no
+    # measured correction. Across it, the registration's correction stands.
+    from bioslam.closure import settle_weak_direction
+
+    cfg, grid, query, modes = _corridor_grid(end_wall=False)
+    assert abs(modes[0, 0]) > 0.99  # the weakest: along the corridor
+    predicted = np.array([0.0, 0.04, 0.0])  # the map: right along, 4 cm off across
+    settled = settle_weak_direction(grid, np.array([0.12, 0.0, 0.0]), predicted, query, modes, cfg)
+    np.testing.assert_allclose(settled, [0.0, 0.0, 0.0], atol=1e-9)
+    off = LoopClosureConfig(weak_margin=0.0)
+    slid = np.array([0.12, 0.0, 0.0])
+    kept = settle_weak_direction(grid, slid, predicted, query, modes, off)
+    np.testing.assert_array_equal(kept, slid)
+
+
+def test_a_registration_pinned_by_the_corridors_end_keeps_its_correction_along_it():
+    # The end wall scores the true place clearly better than the map's prediction 12 cm
+    # short of it: that correction is measured, and stays.
+    from bioslam.closure import settle_weak_direction
+
+    cfg, grid, query, modes = _corridor_grid(end_wall=True)
+    truth = np.zeros(3)
+    predicted = np.array([-0.12, 0.0, 0.004])
+    settled = settle_weak_direction(grid, truth, predicted, query, modes, cfg)
+    assert abs(settled[0]) < 1e-9 and abs(settled[1]) < 1e-9

@@ -509,6 +509,21 @@ def measured_information(
     return (top, heading_info), np.array([shape[0, 0], shape[0, 1], shape[1, 1]])
 
 
+def registration_hessian(points: ArrayLike, normals: ArrayLike) -> FloatArray | None:
+    """The point-to-line Gauss-Newton Hessian (3x3: x, y, θ) a scan's geometry gives its
+    registration: each endpoint with a surface normal n constrains the motion along n and
+    the rotation by ``p x n``; None with fewer than 3 normals."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    nrm = np.asarray(normals, dtype=np.float64).reshape(-1, 2)
+    used = np.any(nrm != 0.0, axis=1)
+    if np.count_nonzero(used) < 3:
+        return None
+    p, n = pts[used], nrm[used]
+    jac = np.column_stack([n, p[:, 0] * n[:, 1] - p[:, 1] * n[:, 0]])
+    hessian = jac.T @ jac
+    return hessian + 1e-9 * np.trace(hessian) * np.eye(3)
+
+
 def registration_shape(points: ArrayLike, normals: ArrayLike, max_ratio: float) -> FloatArray:
     """The shape (xx, xy, yy; largest eigenvalue 1) of a registration's position information
     in the scan's frame, from the scan's geometry: each endpoint with a surface normal n
@@ -519,15 +534,9 @@ def registration_shape(points: ArrayLike, normals: ArrayLike, max_ratio: float) 
     corridor as hard as across it. Eigenvalues are clipped to at least ``1 / max_ratio``
     (a direction the scan does not constrain keeps some weight, as the verification has
     refused degenerate registrations); fewer than 3 normals give the isotropic shape."""
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    nrm = np.asarray(normals, dtype=np.float64).reshape(-1, 2)
-    used = np.any(nrm != 0.0, axis=1)
-    if np.count_nonzero(used) < 3:
+    hessian = registration_hessian(points, normals)
+    if hessian is None:
         return ISOTROPIC.copy()
-    p, n = pts[used], nrm[used]
-    jac = np.column_stack([n, p[:, 0] * n[:, 1] - p[:, 1] * n[:, 0]])
-    hessian = jac.T @ jac
-    hessian += 1e-9 * np.trace(hessian) * np.eye(3)
     position = np.linalg.inv(np.linalg.inv(hessian)[:2, :2])
     w, v = np.linalg.eigh(0.5 * (position + position.T))
     w = np.maximum(w / max(w[1], 1e-300), 1.0 / max_ratio)
