@@ -230,18 +230,22 @@ def test_closure_window_follows_the_shortest_chain_of_links_not_the_travel_since
     assert slam._odometry_relation(5)[1] == pytest.approx(45.2)
 
 
-def test_scans_kept_on_disk_give_the_same_run(ring_drive, tmp_path):
-    """The experiences' scans read back from a file (bioslam.io.spill) are the ones kept in
-    memory: the closures, and so the trajectory, are the same to the bit."""
+def test_scans_and_views_kept_on_disk_give_the_same_run(ring_drive, tmp_path):
+    """The experiences' scans read back from a file (bioslam.io.spill) and the views' cells
+    read from a mapped file (bioslam.view_store) are the ones kept in memory: the view
+    matches, the closures, and so the trajectory, are the same to the bit."""
     from bioslam.io.spill import SpilledScans
 
     scans, _ = ring_drive
     config = dataclasses.replace(SLAMConfig(), heading_bias=0.002)  # closures that matter
     in_memory = run(scans, config)
     store = SpilledScans(tmp_path)
-    on_disk = BioSLAM(config, scan_store=store)
+    on_disk = BioSLAM(config, scan_store=store, view_dir=tmp_path)
     for scan in scans:
         on_disk.process(scan)
+    views = on_disk.view_cells
+    assert views.num_views == in_memory.view_cells.num_views > 1
+    assert views._store is not None and views._store.in_file == views.num_views
     on_disk.finish()
     assert on_disk.cognitive_map.payloads is store and store.held_bytes == 0
     assert store.file_bytes > 0 and len(store) == len(on_disk.cognitive_map)

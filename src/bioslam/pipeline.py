@@ -403,7 +403,7 @@ def run_slam(
     rows = _row_stores(options)
     system: BioSLAM | OdometryOnly = (
         OdometryOnly(config, rows) if options.odometry_only
-        else BioSLAM(config, _scan_store(options), rows)
+        else BioSLAM(config, _scan_store(options), rows, options.scan_store_dir)
     )  # fmt: skip
     max_range = config.odometry.max_range
     keyframes = KeyframeScans(

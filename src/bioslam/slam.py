@@ -15,6 +15,7 @@ import functools
 import math
 from collections.abc import Callable, Iterator, MutableSequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, overload
 
 import numpy as np
@@ -277,18 +278,22 @@ class BioSLAM:
 
     def __init__(
         self, config: SLAMConfig | None = None, scan_store: MutableSequence[Any] | None = None,
-        rows: RowsFactory | None = None,
+        rows: RowsFactory | None = None, view_dir: str | Path | None = None,
     ) -> None:  # fmt: skip
         """``scan_store``: an empty store for the scans kept with the experiences (a list
         when None; :class:`bioslam.io.spill.SpilledScans` keeps them on disk). ``rows``:
         makes the stores of the per-scan columns, read only for the outputs (growing arrays
-        in memory when None; :class:`bioslam.io.spill.SpilledRows` keeps them on disk)."""
+        in memory when None; :class:`bioslam.io.spill.SpilledRows` keeps them on disk).
+        ``view_dir``: keep the learned views' cells in a file there, of which memory holds
+        those recently compared (:mod:`bioslam.view_store`); in memory when None."""
         self.config = config or SLAMConfig()
         self._rows = rows
         cfg = self.config
         self.self_motion = SelfMotion(cfg)
         self.boundary_cells = BoundaryCells(cfg.boundary)
-        self.view_cells = ViewCells(cfg.views, cells_per_ring=cfg.boundary.cells_per_ring)
+        self.view_cells = ViewCells(
+            cfg.views, cells_per_ring=cfg.boundary.cells_per_ring, spill_dir=view_dir
+        )
         self.pose_cells = PoseCellNetwork(cfg.pose_cells)
         self.cognitive_map = CognitiveMap.from_pose_cells(
             cfg.cognitive_map, cfg.pose_cells, scan_store

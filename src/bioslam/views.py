@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -64,6 +65,9 @@ from bioslam.view_store import CHUNK_MASK, CHUNK_SHIFT, VIEW_DTYPE, ViewStore, d
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
+
+#: With the views' cells in a file, the pages read are handed back every this many looks.
+DROP_PAGES_EVERY = 64
 
 #: Whole-bin shifts are screened against this multiple of ``s_t`` before the fractional one.
 _COARSE_SLACK = 4.0
@@ -113,7 +117,7 @@ def _similarities(
     row = np.empty(m)
     for n in range(idx.size):
         v = idx[n]
-        bits, segments, sums, _, _, values = chunks[v >> CHUNK_SHIFT]
+        bits, starts, sums, _, _, values = chunks[v >> CHUNK_SHIFT]
         at = v & CHUNK_MASK
         bound = 0.0
         for k in range(n_blocks):
@@ -122,7 +126,7 @@ def _similarities(
             bound += diff * diff / size
         if bound >= budget:
             continue
-        pos = segments[at, 0]
+        pos = starts[at]
         acc = 0.0
         for k in range(n_blocks):
             stop = min(m, (k + 1) * block)
@@ -155,18 +159,19 @@ def _shift_similarities(
     # smallest S below ``limit`` and its shift; inf when none. When both views cover the whole
     # ring, the ring sums do not change with the shift and bound every shift at once
     # (Cauchy-Schwarz, as in _similarities); a running sum that reaches the best so far stops.
-    # A view's rings are decoded (bioslam.view_store) the first time a shift reads them.
+    # A view's rings are decoded (bioslam.view_store) the first time a shift reads them: a
+    # shift reads rings in order, so the next ring to decode is always the one after the
+    # last decoded.
     rings = B.size // cols
     out = np.full(idx.size, np.inf)
     shift = np.zeros(idx.size, dtype=np.int64)
     row = np.empty(B.size)
-    decoded = np.zeros(rings, dtype=np.bool_)
     b_full = True
     for c in range(cols):
         b_full = b_full and b_cover[c]
     for n in range(idx.size):
         v = idx[n]
-        bits, segments, ring_sums, cover, _, values = chunks[v >> CHUNK_SHIFT]
+        bits, starts, ring_sums, cover, _, values = chunks[v >> CHUNK_SHIFT]
         at = v & CHUNK_MASK
         full = b_full
         for c in range(cols):
@@ -178,7 +183,8 @@ def _shift_similarities(
                 bound += diff * diff / cols
             if bound >= limit * rings * cols:
                 continue
-        decoded[:] = False
+        decoded = 0
+        pos = starts[at]
         best = limit
         for m in range(lo[n], hi[n] + 1):
             mm = m % cols
@@ -192,9 +198,9 @@ def _shift_similarities(
             acc = 0.0
             for r in range(rings):
                 base = r * cols
-                if not decoded[r]:
-                    decode_cells(bits[at], values, segments[at, r], base, cols, row)
-                    decoded[r] = True
+                if r == decoded:
+                    pos = decode_cells(bits[at], values, pos, base, cols, row)
+                    decoded += 1
                 for c in range(cols):
                     k = (c + mm) % cols
                     if b_cover[c] and cover[at, k]:
@@ -274,9 +280,9 @@ def _refine_shifts(
         if not np.isfinite(coarse[n]):
             continue
         v = idx[n]
-        bits, segments, _, cover, _, values = chunks[v >> CHUNK_SHIFT]
+        bits, starts, _, cover, _, values = chunks[v >> CHUNK_SHIFT]
         at = v & CHUNK_MASK
-        decode_cells(bits[at], values, segments[at, 0], 0, B.size, row)
+        decode_cells(bits[at], values, starts[at], 0, B.size, row)
         value, frac = _fractional_shift(row, cover[at], B, b_cover, shift[n], cols)
         value = min(value, coarse[n])
         if value < s_t:
@@ -396,12 +402,18 @@ class ViewCells:
     ``cells_per_ring``: the boundary cells' angular bins per ring (``B`` is ring after ring,
     as :class:`bioslam.boundary.BoundaryCells` lays it out). Given, views are compared over
     circular shifts (module docstring); None treats ``B`` as a plain vector (the paper).
+    ``spill_dir``: keep the views' cells in an unlinked file there, of which the process
+    holds only what the last ``DROP_PAGES_EVERY`` looks read (:mod:`bioslam.view_store`);
+    None: in memory. The matches are the same either way.
     """
 
     def __init__(
-        self, config: ViewCellConfig | None = None, cells_per_ring: int | None = None
-    ) -> None:
+        self, config: ViewCellConfig | None = None, cells_per_ring: int | None = None,
+        spill_dir: str | Path | None = None,
+    ) -> None:  # fmt: skip
         self.config = config or ViewCellConfig()
+        self._spill_dir = spill_dir
+        self._looks = 0
         if cells_per_ring is not None and cells_per_ring < 1:
             raise ValueError(f"cells_per_ring must be >= 1, got {cells_per_ring}")
         self.cells_per_ring = cells_per_ring
@@ -459,6 +471,9 @@ class ViewCells:
         b = self._checked(B)
         cover = self._coverage(coverage)
         h = self.coarse_feature(b, cover)
+        self._looks += 1
+        if self._store is not None and self._looks % DROP_PAGES_EVERY == 0:
+            self._store.drop_pages()
         # Eq. 6's sum does not survive a turn of a scanner that sees part of each ring (what
         # leaves the field of view differs): such scans are compared with the views nearest
         # in mean activity per ring instead.
@@ -621,9 +636,7 @@ class ViewCells:
         sums = block_sums(b, self.cells_per_ring or self.config.bound_block)
         key = self._ring_key(b, cover)
         if self._store is None:
-            self._store = ViewStore(
-                b.size, self.cells_per_ring or b.size, sums.size, cover.size, key.size
-            )
+            self._store = ViewStore(b.size, sums.size, cover.size, key.size, self._spill_dir)
         new_id = self._store.append(b.astype(VIEW_DTYPE), sums, cover, key)
         self._headings.append(math.nan if heading is None else float(heading))
         self._h.append(h)
