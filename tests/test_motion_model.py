@@ -1,9 +1,13 @@
+import math
+
 import numpy as np
 import pytest
 
 from bioslam.motion_model import (
     ConstantVelocityModel,
     kalman_along,
+    predict_axis,
+    sideways_along,
     translation_part,
     weak_direction_gain,
 )
@@ -129,3 +133,89 @@ def test_overlapping_windows_are_not_counted_as_independent_measurements():
         errors.append(model.twist[0] - 0.5)
     # one interval's worth of information per measurement: 2.0 cm/s RMS (3.1 counted whole)
     assert np.sqrt(np.mean(np.square(errors))) < 0.025
+
+
+def test_the_axis_covariance_grows_as_a_constant_velocity_model_and_its_speed_is_bounded():
+    """(position, velocity) along the weak direction: F P F' + Q with a white acceleration,
+    the velocity's variance bounded as the carried speed's is."""
+    p = np.diag([1e-4, 1e-3])
+    out = predict_axis(p, 0.1, 0.5, 1.0)
+    assert out[0, 0] == pytest.approx(1e-4 + 0.01 * 1e-3 + 0.25 * 1e-4 / 4)
+    assert out[0, 1] == pytest.approx(out[1, 0])
+    assert out[0, 1] == pytest.approx(0.1 * 1e-3 + 0.25 * 1e-3 / 2)
+    capped = predict_axis(p, 10.0, 0.5, 0.01)
+    assert capped[1, 1] == pytest.approx(0.01)
+    assert np.all(np.linalg.eigvalsh(capped) >= 0.0)
+
+
+def _follow(model, speeds, information, dt=0.1):
+    """A robot along body x at ``speeds`` (one per scan) in a corridor the scans do not
+    constrain along it: each match lands where the scan puts it, weighed by the filter's
+    prior against ``information`` endpoints along the axis (Gauss-Newton's blend, as
+    :func:`match_scan_to_map` does with ``prior_information``). Returns the position
+    errors and the carried speeds."""
+    x, true = 0.0, 0.0
+    errors, carried = [], []
+    for k, speed in enumerate(speeds, start=1):
+        true += speed * dt
+        prior = model.prior_information(dt)
+        predicted = x + model.twist[0] * dt
+        share = prior / (prior + information)  # the prior's share along the axis
+        x = predicted + (1.0 - share) * (true - predicted)
+        model.update(
+            k * dt, (x, 0.0, 0.0), 0.001, ALONG_X, (np.array([true - predicted, 0.0]), information)
+        )
+        errors.append(x - true)
+        carried.append(model.twist[0])
+    return np.array(errors), np.array(carried)
+
+
+def test_the_filter_follows_a_speed_change_by_the_scans_own_information_along_the_axis():
+    """A robot speeding up from 0.9 to 1.2 m/s once its scans are degenerate (a corridor
+    whose end is barely in range): with a few endpoints' worth of information along the axis
+    the speed is learnt and the pose follows without falling behind and snapping back; with
+    none the speed is carried unchanged (nothing tells it)."""
+    speeds = np.r_[np.full(20, 0.9), np.linspace(0.9, 1.2, 4), np.full(76, 1.2)]
+    model = _model(point_noise=0.05)
+    _follow(model, np.full(20, 0.9), 1.0)  # at 0.9 m/s before
+    errors, carried = _follow(model, speeds, 1.0)
+    assert carried[-1] == pytest.approx(1.2, abs=0.03)
+    assert np.abs(errors).max() < 0.1
+    assert np.abs(np.diff(errors)).max() < 0.02  # no snap
+    blind = _model(point_noise=0.05)
+    _follow(blind, np.full(20, 0.9), 1.0)
+    before = blind.twist[0]
+    _, carried = _follow(blind, speeds, 0.0)
+    assert carried[-1] == pytest.approx(before, abs=1e-6)
+
+
+def test_a_far_off_offset_is_a_slip_and_leaves_the_speed():
+    model = _model(point_noise=0.05)
+    _follow(model, np.full(20, 1.0), 1.0)
+    before = model.twist[0]
+    model.prior_information(0.1)
+    x = 2.1 + 0.5  # half a metre ahead of the prediction in one scan
+    model.update(2.1, (x, 0.0, 0.0), 0.001, ALONG_X, (np.array([0.5, 0.0]), 1.0))
+    assert model.twist[0] == pytest.approx(before, abs=1e-9)
+
+
+def test_no_sideways_slip_tells_a_stop_from_a_robot_turned_across_the_weak_axis():
+    """Carried at 1.2 m/s along a corridor the scans do not constrain, a robot that stopped
+    and turns on the spot is 30 degrees off the axis: the scan sees no motion across the
+    axis, so a wheeled robot moving on along it would slip sideways at 0.6 m/s. The speed
+    along the axis drops towards 0; driving along the axis nothing changes."""
+    turned = np.array([math.cos(-math.pi / 6), math.sin(-math.pi / 6), 0.0])  # axis, body
+    twist = 1.2 * turned.copy()
+    twist[2] = 1.5
+    # the scan's velocity across the axis (0) is in the twist already; a second of scans
+    # at 10 Hz, the carried speed's variance at its bound (0.1 m/s) before each
+    out = twist
+    for _ in range(10):
+        out, variance = sideways_along(out, 0.01, turned, 0.1)
+        assert variance < 0.01
+    along = float(out[:2] @ turned[:2])
+    assert along < 0.2
+    assert float(out[:2] @ np.array([-turned[1], turned[0]])) == pytest.approx(0.0, abs=1e-12)
+    assert out[2] == 1.5
+    straight, same = sideways_along(np.array([1.2, 0.0, 0.0]), 0.01, ALONG_X, 0.1)
+    assert straight[0] == pytest.approx(1.2) and same == 0.01

@@ -47,7 +47,7 @@ from bioslam.matching.registration import (
     densify_with_mask,
     register_scans,
 )
-from bioslam.motion_model import ConstantVelocityModel
+from bioslam.motion_model import ConstantVelocityModel, translation_part
 from bioslam.occupancy_grid import (
     NORMAL_MAX_GAP,
     LogOddsConfig,
@@ -139,6 +139,31 @@ class OdometryConfig:
             by ``accel_noise`` m/s² per second up to ``velocity_spread`` m/s squared, a
             measurement's is ``velocity_noise`` m/s squared over the scan's gain); a slip of
             the pose along a corridor then no longer stops the prediction.
+        sideways_noise: when positive, the motion model also takes it that a wheeled robot
+            does not slip sideways (lateral velocity 0, this many m/s standard deviation,
+            :func:`bioslam.motion_model.sideways_along`), and the prior along a degenerate
+            direction pulls towards the motion model's prediction whatever start
+            :meth:`LidarOdometry._best_start` chose (the last step repeated starts a spin
+            well, but carries its slide along the corridor on). In a corridor longer than
+            the range a robot that stops, then turns on the spot, is then seen to stand
+            still: carried on, its speed slid the pose along the corridor for the whole
+            turn. Off by default (0): it tells nothing driving along the corridor, and on
+            the simulated routes it helped as often as it hurt (``benchmarks/README.md``,
+            "Along the weak direction"). A scanner mounted off the axle moves sideways in a
+            turn: this noise must cover the turn rate times the offset.
+        weak_point_noise, weak_axis_prior: when ``weak_point_noise`` (metres, an endpoint's
+            standard deviation along its normal) is positive, the velocity along a
+            degenerate direction is a position-and-velocity Kalman filter's
+            (:meth:`bioslam.motion_model.ConstantVelocityModel.prior_information`): each
+            degenerate match's offset from the prior, scaled back to where the scan alone
+            put the pose (``MatchReport.prior_share``), is a position measurement of
+            ``weak_point_noise``² over the scan's information along that direction (its
+            conditioning times the largest eigenvalue of its point-to-line information, in
+            endpoints), and moves the speed by the filter's covariance; with
+            ``weak_axis_prior`` the Gauss-Newton prior there is weighed by the filter's
+            predicted information instead of ``prior_weight`` times the scan's whole
+            curvature. Off by default: on the simulated routes they helped as often as they
+            hurt (``benchmarks/README.md``, "Along the weak direction").
         subcell_sigma: width of the sub-cell map function's kernels in cells of each level
             (:func:`bioslam.occupancy_grid.subcell_point`); ``None`` uses Hector's bilinear
             M*, which biases the match towards cell centres (benchmark: more drift).
@@ -345,6 +370,20 @@ class OdometryConfig:
             nothing is replaced, and on doubts alone the thinned Intel log lost the revisits
             that keep it precise (its first 200 scans from ten starts: median 5.3 -> 10.6
             cm). ``benchmarks/README.md``, "Submaps on sparse scans".
+        echo_prior_weight, echo_scans: on sparse scans a match within a finest cell of a
+            pose where one of the last ``echo_scans`` scans was fused (an *echo*: standing
+            still, or a step back onto an earlier scan's pose) has its step prior cost
+            weighed by ``echo_prior_weight`` instead of ``step_prior_weight``, and counted
+            in full from the first steps (``StepPriorConfig.floor_steps`` does not raise its
+            floor there). A scan placed where an earlier one was taken puts its beams where
+            that scan's hit, and a sparse map, which holds a wall only where the last scans'
+            beams hit it, scores it above the true step (the SICK warehouse thinned to
+            1.5 m, seed 0: standing still 0.584 against 0.541 for the true 1.5 m on its 5th
+            step). Elsewhere the prior keeps its weight: raised everywhere (0.2 with
+            ``floor_steps`` 1), it tracked that warehouse but outweighed intel's first metre
+            on after eight turns on the spot, which the scan clearly preferred (RPE over 1 m
+            from scans 0 / 3 / 7 6.4 / 5.1 / 4.9 -> 9.7 / 35 / 6.1 cm). None: off.
+            ``benchmarks/README.md``, "Echoes of fused scans".
         log_odds: hit/miss increments of the map cells.
     """
 
@@ -369,6 +408,9 @@ class OdometryConfig:
     accel_noise: float = 0.5
     velocity_noise: float = 0.05
     velocity_spread: float = 0.1
+    sideways_noise: float = 0.0
+    weak_point_noise: float = 0.0
+    weak_axis_prior: bool = False
     mapped_logodds: float | None = 0.0
     matched_range_margin: float = 0.6
     start_margin: float = 0.1
@@ -415,6 +457,8 @@ class OdometryConfig:
     submap_travel: float = 0.0
     submap_doubts: int = 1
     submap_conflict: float = 0.1
+    echo_prior_weight: float | None = 0.2
+    echo_scans: int = 8
     log_odds: LogOddsConfig = field(default_factory=LogOddsConfig)
 
     def __post_init__(self) -> None:
@@ -436,6 +480,13 @@ class OdometryConfig:
             raise ValueError(
                 f"step_prior_weight and step_modes must be non-negative, got "
                 f"{self.step_prior_weight}, {self.step_modes}"
+            )
+        if (self.echo_prior_weight is not None and self.echo_prior_weight < 0) or (
+            self.echo_scans < 1
+        ):
+            raise ValueError(
+                f"echo_prior_weight must be None or non-negative and echo_scans positive, "
+                f"got {self.echo_prior_weight}, {self.echo_scans}"
             )
         if not 0 <= self.search_level < self.levels:
             raise ValueError(
@@ -478,7 +529,10 @@ class LidarOdometry:
         self._motion = ConstantVelocityModel(
             c.velocity_window, c.velocity_scans, c.length_scale, c.degeneracy_ratio,
             c.constrained_ratio, c.accel_noise, c.velocity_noise, c.velocity_spread,
+            sideways_noise=c.sideways_noise, point_noise=c.weak_point_noise,
         )
+        # the motion prior's pose and its information along the weak direction
+        self._axis_prior: tuple[FloatArray, float | None] | None = None
         self._last_delta = np.zeros(3)
         self._last_stamp: float | None = None
         self._scores: deque[float] = deque(maxlen=self.config.score_window)
@@ -491,6 +545,8 @@ class LidarOdometry:
         # (pose, endpoints, the straight_angle they were densified with)
         self._first_fused: tuple[FloatArray, FloatArray, float] | None = None
         self._step_prior = StepPrior(c.step_prior)
+        # the poses of the last scans fused, whose beam patterns a sparse map echoes
+        self._fused_poses: deque[FloatArray] = deque(maxlen=max(c.echo_scans, 1))
         self._searched: deque[bool] = deque(maxlen=c.score_window)
         self._num_searched = 0  # of those in _searched
         self._directions: tuple[FloatArray, FloatArray, FloatArray] | None = None
@@ -578,6 +634,7 @@ class LidarOdometry:
             pts, normals = dense, thinned_normals(dense)
         self._fuse(self.pose, pts, normals)
         self._last_inserted = self.pose.copy()
+        self._fused_poses.append(self._last_inserted)
 
     def _fill_angle(self) -> float:
         """The ``straight_angle`` a scan is densified with when fused: ``dense_straight_angle``
@@ -735,7 +792,9 @@ class LidarOdometry:
             if dt <= c.gap_time and not self.last_report.overruled:
                 # after a gap the velocity is measured afresh, and where the map overruled
                 # the motion prior, the scan measured it
-                constraint = self._mapped_constraint(level_pts[0], normals)
+                constraint = (
+                    *self._mapped_constraint(level_pts[0], normals), self._axis_offset()
+                )
             self.num_recovered += self.last_report.recovered
             self.num_degenerate += self.last_report.degenerate
             self.num_ambiguous += self.last_report.ambiguous
@@ -747,7 +806,7 @@ class LidarOdometry:
             self.last_report.inserted = True
         if self.last_report.inserted and not self._scores:
             self._remember_score(self._score_at(self.pose, kept_rows(pts, keep)))
-        self._motion.update(scan.stamp, self.pose, *(constraint or (1.0, None)))
+        self._motion.update(scan.stamp, self.pose, *(constraint or (1.0, None, None)))
         self._last_stamp = scan.stamp
         self._last_delta = between(previous, self.pose)
         return self._last_delta.copy()
@@ -802,8 +861,15 @@ class LidarOdometry:
         # the prior pulls towards the motion model's prediction, never a standstill it did not
         # predict (:meth:`_prior_target`)
         target = self._prior_target(start, previous, predicted, gapless)
+        if c.sideways_noise > 0.0 and gapless and not np.array_equal(start, predicted):
+            # the repeated step's turn is a better start in a spin, but its slide along the
+            # corridor is no motion the model predicts
+            target = predicted
         weight = self._prior_weight(dt)
-        options = [self._option(level_pts, start, normals, weight, target, gapless)]
+        information = self._motion.prior_information(dt) if gapless else None
+        self._axis_prior = (start if target is None else target, information)
+        held = information if c.weak_axis_prior else None
+        options = [self._option(level_pts, start, normals, weight, target, gapless, held)]
         if weight > c.search_prior_weight:
             options[0] = self._unless_contradicted(options[0], level_pts, start, normals, gapless)
         motion: tuple[FloatArray, ...] = (start,)  # only compared when the search ran
@@ -850,14 +916,16 @@ class LidarOdometry:
     def _option(
         self, level_pts: list[FloatArray], start: FloatArray, normals: FloatArray,
         prior_weight: float | None = None, prior_pose: FloatArray | None = None,
-        restart: bool = False,
+        restart: bool = False, prior_information: float | None = None,
     ) -> tuple[FloatArray, MatchReport, bool]:
         """Gauss-Newton from ``start``: (pose, report, failed). The motion prior pulls
         towards ``prior_pose`` (default ``start``) with ``prior_weight``, by default
         ``search_prior_weight`` (a search's seed is no motion prior); ``restart``: see
         :func:`bioslam.matching.gauss_newton.match_scan_to_map`."""
         weight = self.config.search_prior_weight if prior_weight is None else prior_weight
-        pose, report = self._match_from(level_pts, start, normals, weight, prior_pose, restart)
+        pose, report = self._match_from(
+            level_pts, start, normals, weight, prior_pose, restart, prior_information
+        )
         return pose, report, self._failed(report)
 
     def _unless_contradicted(
@@ -956,8 +1024,7 @@ class LidarOdometry:
         quality = {id(o): _match_quality(o[1]) for o in options}
 
         def merit(option: tuple[FloatArray, MatchReport, bool]) -> float:
-            step_cost = self._step_prior.cost(between(previous, option[0]))
-            return quality[id(option)] - c.step_prior_weight * step_cost
+            return quality[id(option)] - self._step_cost(previous, option[0])
 
         chosen = max(pool, key=merit)
         if chosen is not first and self._beyond(chosen[0], previous, reach) and not (
@@ -978,6 +1045,24 @@ class LidarOdometry:
             if not self._rejected(o[1])
         )
         return chosen[0], report
+
+    def _step_cost(self, previous: FloatArray, pose: FloatArray) -> float:
+        """The step prior's cost of the step from ``previous`` to ``pose``, weighed by
+        ``step_prior_weight``; at an echo of a fused scan (:meth:`_echoes`) by
+        ``echo_prior_weight``, and in full from the first steps (the prior's floor not
+        raised while it knows few, :class:`bioslam.step_prior.StepPriorConfig`)."""
+        c = self.config
+        step = between(previous, pose)
+        if c.echo_prior_weight is not None and self._echoes(pose):
+            return c.echo_prior_weight * self._step_prior.cost(step, young=False)
+        return c.step_prior_weight * self._step_prior.cost(step)
+
+    def _echoes(self, pose: FloatArray) -> bool:
+        """``pose`` is within a finest cell (and that at ``length_scale`` in heading) of a
+        pose where one of the last ``echo_scans`` scans was fused: a scan placed there puts
+        its beams where that scan's hit, and on a sparse map (a wall held only where the
+        last scans' beams hit it) scores better for it than the true step does."""
+        return any(not self._different_start(pose, f) for f in self._fused_poses)
 
     def _rejected(self, report: MatchReport) -> bool:
         """More endpoints in known free space than ``recovery_free_fraction``, or more
@@ -1201,12 +1286,13 @@ class LidarOdometry:
     def _match_from(
         self, level_pts: list[FloatArray], start: FloatArray, normals: FloatArray,
         prior_weight: float, prior_pose: FloatArray | None = None, restart: bool = False,
+        prior_information: float | None = None,
     ) -> tuple[FloatArray, MatchReport]:
         c = self.config
         pose, report = match_scan_to_map(
             self.pyramid, level_pts, start, c.max_iterations, c.step_tolerance,
             c.length_scale, c.degeneracy_ratio, c.subcell_sigma, normals, prior_weight,
-            prior_pose, restart,
+            prior_pose, restart, prior_information,
         )  # fmt: skip
         report.free_fraction = self.pyramid.finest.fraction_not_above_near(
             pose, level_pts[0], c.free_logodds
@@ -1230,6 +1316,27 @@ class LidarOdometry:
         if costs[best] < (1.0 - self.config.start_margin) * costs[0]:
             return candidates[best]
         return predicted
+
+    def _axis_offset(self) -> tuple[FloatArray | None, float]:
+        """For the motion model's filter along the weak direction
+        (:meth:`bioslam.motion_model.ConstantVelocityModel.update`): the match's offset from
+        the motion prior (robot frame) along the direction the prior held (None unless the
+        prior held one, weighed by
+        :meth:`~bioslam.motion_model.ConstantVelocityModel.prior_information`), and the
+        scan's information along it in endpoints (its conditioning times the largest
+        eigenvalue of its point-to-line information)."""
+        report = self.last_report
+        information = report.condition * report.information
+        prior = self._axis_prior
+        if prior is None or prior[1] is None or report.recovered or not report.degenerate:
+            return None, information
+        u = translation_part(report.weakest_direction)
+        if u is None:
+            return None, information
+        # where the scan alone put the pose: the prior held back ``prior_share`` of it
+        d = between(prior[0], self.pose)
+        scale = 1.0 / max(1.0 - report.prior_share, 1e-3)
+        return u[:2] * (scale * float(u[0] * d[0] + u[1] * d[1])), information
 
     def _mapped_constraint(
         self, points: FloatArray, normals: FloatArray

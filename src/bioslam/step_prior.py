@@ -115,12 +115,15 @@ class StepPrior:
         e = e / c.sigma_distance**2 + turn**2 / c.sigma_angle**2
         return np.exp(-0.5 * e)
 
-    def cost(self, step: ArrayLike) -> float:
+    def cost(self, step: ArrayLike, young: bool = True) -> float:
         """``-log((1 - f) * density + f)`` with ``f`` the floor: 0 for a step like all recent
-        ones, at most ``-log(f)`` for a step unlike any."""
+        ones, at most ``-log(f)`` for a step unlike any. ``young``: the floor is raised
+        while few steps are known (``floor_steps``)."""
         if len(self._steps) < self.config.min_steps:
             return 0.0
-        f = min(max(self.config.floor, self.config.floor_steps / len(self._steps)), 1.0)
+        f = self.config.floor
+        if young:
+            f = min(max(f, self.config.floor_steps / len(self._steps)), 1.0)
         return -math.log((1.0 - f) * self.density(step) + f)
 
     def modes(self, count: int) -> list[np.ndarray]:

@@ -46,6 +46,12 @@ class MatchReport:
             least constrained direction of the scan's geometry, degenerate or not (zeros when
             the match was given no normals): the motion model keeps its velocity along it.
         score: mean M* over the matched endpoints at the finest level (1 = all on walls).
+        information: largest eigenvalue of the scan's point-to-line information (with
+            normals; :func:`geometric_information`): times ``condition``, the endpoints'
+            worth of information along the weakest direction.
+        prior_share: along a degenerate direction, the motion prior's share of the
+            curvature at the match (:func:`prior_share`): the match moved from the prior by
+            ``1 - prior_share`` of where the scan alone put it.
         num_points: endpoints used for matching (after subsampling).
         inserted: the scan was fused into the map.
         predicted_only: no usable scan; the pose is the constant-velocity prediction.
@@ -76,6 +82,8 @@ class MatchReport:
     condition: float = 1.0
     weakest_direction: FloatArray = field(default_factory=lambda: np.zeros(3))
     score: float = 0.0
+    information: float = 0.0
+    prior_share: float = 0.0
     num_points: int = 0
     inserted: bool = False
     predicted_only: bool = False
@@ -448,6 +456,7 @@ def match_scan_to_map(
     prior_weight: float | None = None,
     prior_pose: ArrayLike | None = None,
     restart: bool = False,
+    prior_information: float | None = None,
 ) -> tuple[FloatArray, MatchReport]:
     """Eq. 3: the pose maximising Σ M*(R_p e_i + T_p) (Eq. 4 transform), by Gauss-Newton.
 
@@ -474,6 +483,14 @@ def match_scan_to_map(
     start is redone there from the start (:func:`_worse_than_start`): for a start that is a
     trusted prediction; from a search's seed or after a gap the coarse levels' move may be
     the escape from a wrong start (intel: RPE 13.5 cm with restarts there, 10.5 without).
+    With ``prior_information`` (the prior's information along the weak direction in
+    endpoints' worth: an endpoint's variance over the prediction's,
+    :meth:`bioslam.motion_model.ConstantVelocityModel.prior_information`) the prior is
+    weighed against the scan's own information along that direction instead of its whole
+    curvature: the weight is ``prior_information`` over the largest eigenvalue of the
+    point-to-line information, so that the prior and the scan's curvature along the weak
+    direction (its conditioning times the largest) stand as the endpoints' information
+    there and the prediction's.
 
     """
     pose = np.asarray(initial_pose, dtype=np.float64).copy()
@@ -481,8 +498,9 @@ def match_scan_to_map(
     hold = np.zeros(3)
     weight = 0.0
     if normals is not None:
-        cond, weakest = geometric_conditioning(level_points[0], normals, length_scale)
+        cond, weakest, top = geometric_information(level_points[0], normals, length_scale)
         report.condition = cond
+        report.information = float(top)
         report.weakest_direction = np.asarray(weakest, dtype=np.float64)
         if cond < degeneracy_ratio:
             c, s = math.cos(pose[2]), math.sin(pose[2])
@@ -490,7 +508,9 @@ def match_scan_to_map(
                              weakest[2]])  # fmt: skip
             report.degenerate = True
             report.degenerate_direction = hold
-            if prior_weight is not None:
+            if prior_information is not None and top > 0.0:
+                weight = prior_information / top
+            elif prior_weight is not None:
                 weight = prior_weight * (1.0 - cond / degeneracy_ratio)
     target = pose.copy() if prior_pose is None else np.asarray(prior_pose, dtype=np.float64)
     prior = (hold, target.reshape(3).copy(), weight)
@@ -526,6 +546,8 @@ def match_scan_to_map(
         report.degenerate = bool(degenerate)
         if degenerate:
             report.degenerate_direction = np.asarray(weakest, dtype=np.float64)
+    if weight > 0.0:
+        report.prior_share = prior_share(scan[0], prior[0], weight, length_scale)
     report.converged = bool(converged)
     report.score = float(mean)
     report.covariance_terms = (
@@ -533,6 +555,20 @@ def match_scan_to_map(
         report.degenerate_direction.copy(), report.condition,
     )  # fmt: skip
     return pose, report
+
+
+def prior_share(H: FloatArray, direction: FloatArray, weight: float, length_scale: float) -> float:
+    """The motion prior's share of the curvature along ``direction`` (unit, scaled) at the
+    match: :func:`_add_prior`'s weight against the scan's own normal matrix ``H`` there. The
+    match moved from the prior by ``1 - share`` of where the scan alone put it: along a
+    featureless corridor the map's texture and edges give ``H`` a curvature far above what
+    the scan's few surfaces across the axis do, and taken as the geometry's (its
+    conditioning), a pull of a millimetre by them read as a metre of evidence."""
+    scale = np.array([1.0, 1.0, 1.0 / length_scale])
+    hs = np.asarray(H, dtype=np.float64) * np.outer(scale, scale)
+    k = weight * float(np.trace(hs))
+    along = float(direction @ hs @ direction)
+    return k / (k + along) if k + along > 0.0 else 0.0
 
 
 def match_covariance(
@@ -604,6 +640,16 @@ def geometric_conditioning(
     information). Returns the smallest / largest eigenvalue of that information, with theta
     scaled by ``length_scale``, and its weakest unit direction (x, y, theta * length_scale)
     in the sensor frame. A featureless corridor gives ~0 along its axis."""
+    return geometric_information(points, normals, length_scale)[:2]
+
+
+def geometric_information(
+    points: FloatArray, normals: FloatArray, length_scale: float
+) -> tuple[float, FloatArray, float]:
+    """:func:`geometric_conditioning` and the largest eigenvalue of the point-to-line
+    information (about the number of endpoints whose normals pin its strongest direction):
+    the conditioning times it is the information along the weakest direction, in endpoints
+    (a far end wall's few beams)."""
     return _conditioning_kernel(
         np.ascontiguousarray(points, dtype=np.float64),
         np.ascontiguousarray(normals, dtype=np.float64),
@@ -623,7 +669,7 @@ def mapped_conditioning(
     ox, oy = grid.origin.tolist()
     pts = np.ascontiguousarray(points, dtype=np.float64)
     used = _mapped_normals(grid.logodds, ox, oy, grid.resolution, pts, normals, p, level)
-    return _conditioning_kernel(pts, used, float(length_scale))
+    return _conditioning_kernel(pts, used, float(length_scale))[:2]
 
 
 @numba.njit(cache=True)
@@ -655,7 +701,7 @@ def _conditioning_kernel(points, normals, length_scale):
         _add_outer(info, nx, ny, (points[k, 0] * ny - points[k, 1] * nx) / length_scale)
     _mirror_upper(info)
     if used < 3:
-        return 0.0, np.array([1.0, 0.0, 0.0])
+        return 0.0, np.array([1.0, 0.0, 0.0]), 0.0
     w, v = np.linalg.eigh(info)
-    return max(w[0], 0.0) / w[2], v[:, 0].copy()
+    return max(w[0], 0.0) / w[2], v[:, 0].copy(), w[2]
 
