@@ -22,7 +22,7 @@ so what a chunk holds in memory is its views' nonzero values. The typed list is 
 and extended by compiled functions cached on disk (calling its methods from Python would
 compile them at every start: half a second and 60 MB).
 
-Given a directory (``spill_dir``), a chunk's zero bits and values (1.2 kB of a view's 1.6 kB
+Given a directory (``spill_dir``), a chunk's zero bits and values (1.5 kB of a view's 2.1 kB
 on the warehouse) live in an unlinked file there, mapped into memory: the kernels read them
 as before, but only the views a look compares are read, a few dozen of thousands, and
 :meth:`ViewStore.drop_pages` hands the pages read so far back to the system's page cache
@@ -105,8 +105,11 @@ def _add_chunk(chunks: Any, chunk: Any) -> None:
     chunks.append(chunk)
 
 
-#: Bytes of a page: a chunk's file region and its values start on one.
-_PAGE = mmap.PAGESIZE
+#: A chunk's file region and its values start on a multiple of this (a page).
+_PAGE = mmap.ALLOCATIONGRANULARITY
+#: Whether the system can reserve a file's space and drop mapped pages (POSIX with
+#: ``madvise``: Linux, the BSDs); elsewhere the views stay in memory.
+_CAN_MAP = hasattr(os, "posix_fallocate") and hasattr(mmap, "MADV_DONTNEED")
 
 
 def _pages(nbytes: int) -> int:
@@ -137,7 +140,7 @@ class ViewStore:
         self.file_value_count = 0  # of which in the file
         self._maps: list[mmap.mmap] = []  # the chunks' file regions, mapped
         self._file: IO[bytes] | None = None
-        if spill_dir is not None:
+        if spill_dir is not None and _CAN_MAP:
             try:
                 self._file = tempfile.TemporaryFile(dir=spill_dir, buffering=0)  # noqa: SIM115
             except OSError:
