@@ -83,7 +83,6 @@ class MatchReport:
     weakest_direction: FloatArray = field(default_factory=lambda: np.zeros(3))
     score: float = 0.0
     information: float = 0.0
-    prior_share: float = 0.0
     num_points: int = 0
     inserted: bool = False
     predicted_only: bool = False
@@ -99,6 +98,13 @@ class MatchReport:
     #: the report someone reads (the searches' and closures' candidates are never read)
     covariance_terms: tuple | None = field(default=None, repr=False)
     _covariance: FloatArray | None = field(default=None, init=False, repr=False)
+    #: :func:`prior_share`'s arguments (None where no prior acted), computed on first use
+    prior_terms: tuple | None = field(default=None, repr=False)
+
+    @property
+    def prior_share(self) -> float:
+        """See the class's attributes (0 where no prior acted)."""
+        return 0.0 if self.prior_terms is None else prior_share(*self.prior_terms)
 
     @property
     def covariance(self) -> FloatArray:
@@ -547,7 +553,7 @@ def match_scan_to_map(
         if degenerate:
             report.degenerate_direction = np.asarray(weakest, dtype=np.float64)
     if weight > 0.0:
-        report.prior_share = prior_share(scan[0], prior[0], weight, length_scale)
+        report.prior_terms = (scan[0], prior[0], weight, length_scale)
     report.converged = bool(converged)
     report.score = float(mean)
     report.covariance_terms = (
