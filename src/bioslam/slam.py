@@ -646,11 +646,14 @@ class BioSLAM:
         )  # fmt: skip
         pts = np.ascontiguousarray(points, dtype=np.float64)
         ratio = self.config.cognitive_map.closure_shape_ratio
-        normals = functools.cache(lambda: scan_normals(pts, NORMAL_RADIUS, NORMAL_MAX_GAP))
+        # the scan's own constraint shape, computed at most once and only where it is read
+        scan_shape = functools.cache(
+            lambda: registration_shape(pts, scan_normals(pts, NORMAL_RADIUS, NORMAL_MAX_GAP), ratio)
+        )
         if verdict.accepted and cfg.weak_margin > 0.0:
             # a correction along what the scan barely pins must earn its score
             grids = submap.pyramid.grids
-            modes = weak_modes(registration_shape(pts, normals(), ratio))
+            modes = weak_modes(scan_shape())
             settled = settle_weak_direction(
                 grids[min(cfg.registration.score_level, len(grids) - 1)], verdict.pose,
                 mapped, pts, modes, cfg, submap.seen,
@@ -666,9 +669,7 @@ class BioSLAM:
             # error: keep the map's estimate rather than inject that error into the map.
             measured = Measurement(np.asarray(predicted, dtype=np.float64), doubted=chained)
         else:
-            shape = self._pinned_shape(
-                registration_shape(pts, normals(), ratio), registered, pts, submap
-            )
+            shape = self._pinned_shape(scan_shape(), registered, pts, submap)
             covariance = (
                 place_covariance(verdict.covariance, registered, anchor_in_experience)
                 if self.config.cognitive_map.registration_covariance
