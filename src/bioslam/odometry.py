@@ -1081,11 +1081,14 @@ class LidarOdometry:
         return report.free_fraction + report.through_fraction <= c.recovery_free_fraction
 
     def _untrusted(self, failed: bool, dt: float, previous: FloatArray, start: FloatArray) -> bool:
-        """The match failed, the scan came after a gap, or the predicted step is large."""
+        """The match failed, the scan came after a gap, the predicted step is large, or this
+        is the first match: the motion model knows no velocity yet and predicts standing
+        still, which a log cut from a longer recording does not start with (a SICK at 5 Hz,
+        1.2 m/s through a pillared hall: read as standing still from the first step)."""
         c = self.config
         step = between(previous, start)
         large = math.hypot(step[0], step[1]) > c.large_step or abs(step[2]) > c.large_turn
-        return failed or dt > c.gap_time or large
+        return failed or dt > c.gap_time or large or self.num_scans == 2
 
     def _search_window(
         self, start: FloatArray, hold: tuple[FloatArray, ...]
