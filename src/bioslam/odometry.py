@@ -861,10 +861,6 @@ class LidarOdometry:
         # the prior pulls towards the motion model's prediction, never a standstill it did not
         # predict (:meth:`_prior_target`)
         target = self._prior_target(start, previous, predicted, gapless)
-        if c.sideways_noise > 0.0 and gapless and not np.array_equal(start, predicted):
-            # the repeated step's turn is a better start in a spin, but its slide along the
-            # corridor is no motion the model predicts
-            target = predicted
         weight = self._prior_weight(dt)
         information = self._motion.prior_information(dt) if gapless else None
         self._axis_prior = (start if target is None else target, information)
@@ -948,9 +944,8 @@ class LidarOdometry:
         free[1].iterations += report.iterations
         return free
 
-    @staticmethod
     def _prior_target(
-        start: FloatArray, previous: FloatArray, predicted: FloatArray, gapless: bool
+        self, start: FloatArray, previous: FloatArray, predicted: FloatArray, gapless: bool
     ) -> FloatArray | None:
         """Where the motion prior pulls along a direction the scan does not constrain: the
         constant-velocity prediction when :meth:`_best_start` chose to start from the last
@@ -958,8 +953,13 @@ class LidarOdometry:
         (None). Pulled towards that standstill start, the pose stood still along an aisle
         for seconds while the robot drove on, its slid scans were fused, and the map then
         held it there (simulated warehouse, UTM-30LX, adversarial route: 2.3 m behind
-        after 1 s of degenerate scans). After a gap the prediction is no prior."""
-        if gapless and np.array_equal(start, previous) and not np.array_equal(start, predicted):
+        after 1 s of degenerate scans). With ``sideways_noise`` the prediction also when
+        the start is the last step repeated: its turn is a better start in a spin, but its
+        slide along the corridor is no motion the model predicts. After a gap the
+        prediction is no prior."""
+        if not gapless or np.array_equal(start, predicted):
+            return None
+        if self.config.sideways_noise > 0.0 or np.array_equal(start, previous):
             return predicted
         return None
 
