@@ -34,6 +34,10 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
   ``--figure PNG`` draws each run's step errors.
 - ``intelsparse``: the Intel log thinned further, to a scan per 1.5 m / 45 degrees of the
   reference's motion (steps up to 2.2 m and 70 degrees), from each scan of ``--starts``.
+- ``typicalstep``: the SICK preset on the four worlds, both routes, seeds 2-7 (routes no
+  default was tuned on), a third of the run's duration, thinned to a scan per 1 m / 0.6 rad,
+  with and without the search around the typical step
+  (``OdometryConfig.typical_search_distance``).
 - ``warehouse``: the warehouse of identical aisles, 600 s, SICK (181 beams, 10 Hz) and
   UTM-30LX, with and without the wide-basin search: ATE, and jumps (the position error
   changing by more than 0.3 m between consecutive scans).
@@ -364,6 +368,7 @@ def _worst_pairs(est: Trajectory, ref: Trajectory, est_idx: np.ndarray, ref_pose
 
 # no wide-basin search: Gauss-Newton from the prediction alone
 NO_SEARCH = OdometryConfig(search_distance=0.0)
+NO_TYPICAL = OdometryConfig(typical_search_distance=0.0)
 
 
 def short_range_models() -> list[tuple[str, object]]:
@@ -523,6 +528,15 @@ def main() -> None:
                      thin=(1.5, 0.6))
             for world in ("warehouse", "maze")
             for seed in (0, 1)
+        ],
+        "typicalstep": lambda: [
+            sim_case(f"{world} {route} sick, a scan per 1 m / 0.6 rad, seed {seed}{label}",
+                     LIDAR_PRESETS["sick"], duration / 3, config, world=world, seed=seed,
+                     thin=(1.0, 0.6), route=route)
+            for world in ("rooms", "warehouse", "maze", "hall")
+            for route in ("tour", "adversarial")
+            for seed in range(2, 8)
+            for label, config in (("", None), (", no typical search", NO_TYPICAL))
         ],
         "warehouse": lambda: [
             sim_case(f"warehouse {lidar}{label}", LIDAR_PRESETS[lidar], duration, config,
