@@ -17,10 +17,9 @@ No file or terminal I/O here.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -664,7 +663,7 @@ class LidarOdometry:
         few scans, where a door's edge seen by two beams, or a recess's corner, is all that
         fixes a step a metre on (a corridor with doors, a scan per metre: filled only where
         lines continue, the second scan stood still)."""
-        return not (self._last_inserted is None or self._sparse() or self._sparse_so_far())
+        return not (self._last_inserted is None or self._as_sparse())
 
     def _fuse(self, pose: FloatArray, pts: FloatArray, normals: FloatArray) -> None:
         static = self._not_in_known_free_space(pose, pts)
@@ -746,6 +745,11 @@ class LidarOdometry:
         (standing still) outscored the true step a metre on."""
         n = len(self._searched)
         return 0 < n < self.config.sparse_scans and self._num_searched == n
+
+    def _as_sparse(self) -> bool:
+        """Matched as sparse scans: :meth:`_sparse`, or :meth:`_sparse_so_far` before it can
+        tell."""
+        return self._sparse() or self._sparse_so_far()
 
     def _densify_first(self, dt: float) -> None:
         """The first scan, fused before anything told how far apart the scans are, gets the
@@ -886,6 +890,7 @@ class LidarOdometry:
             self._num_searched -= self._searched[0]
         self._searched.append(searched)
         self._num_searched += searched
+        as_sparse = self._as_sparse()
         if searched:
             forward = compose(previous, np.array([self._typical_step, 0.0, 0.0]))
             motion = (start, predicted, compose(previous, self._last_delta), forward)
@@ -896,7 +901,7 @@ class LidarOdometry:
             points = level_pts[min(c.search_level + 1, c.levels - 1)]
             centre, distance, angle = self._search_window(start, (previous, *motion[1:]))
             seeds = self._search_seeds(points, centre, distance, angle, options[0][0])
-            if self._sparse() or self._sparse_so_far():
+            if as_sparse:
                 seeds += self._typical_seeds(points, forward, seeds)
             seeds += self._distinct_hypotheses(motion)
             options += [self._option(level_pts, seed, normals) for seed in seeds]
@@ -910,7 +915,7 @@ class LidarOdometry:
                 self._weigh_walls(options[weighed:], level_pts[0])
         jump = self._jump_limits()
         reach = (jump[0] + c.max_speed * dt, jump[1] + c.max_turn_rate * dt)
-        if (self._sparse() or self._sparse_so_far()) and len(options) > 1:
+        if as_sparse and len(options) > 1:
             pose, report = self._choose_sparse(options, previous, reach)
         else:
             pose, report = self._choose(options, motion, previous, reach, jump, gapless)
@@ -1172,7 +1177,7 @@ class LidarOdometry:
         wide = self._searcher.config
         depth = self._searcher.depth_for(self._searcher.resolution)
         # no rival: the seed is the prior's candidate, the wide search judged ambiguity
-        self._searcher.config = dataclasses.replace(
+        self._searcher.config = replace(
             wide, distance=min(c.typical_search_distance, wide.distance), min_rival_ratio=1.0
         )
         if self._searcher.depth_for(self._searcher.resolution) != depth:
