@@ -865,7 +865,8 @@ class LidarOdometry:
         its rival and from the other motion hypotheses (the constant-velocity prediction,
         the last step repeated, the typical step straight on: after a turn on the spot in
         a log thinned to a scan per metre the first two say "turning", the last "a metre
-        on"; on sparse scans also the step prior's typical steps), keeping the plausible
+        on"; on sparse scans also the step prior's typical steps, and each match its scan leaves
+        free along a corridor slid there, :meth:`_slid`), keeping the plausible
         match nearest ``start`` (:meth:`_choose`), or on sparse scans and while every scan
         so far came after a gap (:meth:`_sparse_so_far`: standing still is then no motion
         prior) the best one (:meth:`_choose_sparse`). When
@@ -906,6 +907,10 @@ class LidarOdometry:
             seeds += self._distinct_hypotheses(motion)
             options += [self._option(level_pts, seed, normals) for seed in seeds]
             self._weigh_walls(options, level_pts[0])
+            if as_sparse:
+                slid = [self._option(level_pts, s, normals) for s in self._slid(options, forward)]
+                self._weigh_walls(slid, level_pts[0])
+                options += slid
             if all(self._hopeless(o, previous) for o in options):
                 weighed = len(options)
                 for side in (-1.0, 1.0):
@@ -1186,6 +1191,31 @@ class LidarOdometry:
         found = self._searcher.search(points, forward).pose
         self._searcher.config = wide
         return [found] if all(self._distinct(found, s) for s in seeds) else []
+
+    def _slid(
+        self, options: list[tuple[FloatArray, MatchReport, bool]], forward: FloatArray
+    ) -> list[FloatArray]:
+        """Seeds: each sound match that its scan leaves free along a direction (a corridor
+        whose ends are out of sight), slid along it to the point nearest the typical step
+        forward. On such a plateau the search's lattice winner is any of its points, and
+        Gauss-Newton from there stays where it starts; the step prior, which can tell the
+        plateau's points apart, weighs only the matches it is shown (simulated maze, SICK,
+        thinned to a scan per metre, seed 4: a turn of 36° into a corridor placed 1.8 m
+        along it, the plateau's point 0.15 m from the truth fitting better and never a
+        candidate)."""
+        seeds: list[FloatArray] = []
+        for pose, report, failed in options:
+            if failed or not report.degenerate or self._rejected(report):
+                continue
+            free = translation_part(report.degenerate_direction)
+            if free is None:
+                continue
+            along = float(free[0] * (forward[0] - pose[0]) + free[1] * (forward[1] - pose[1]))
+            seed = pose + along * free
+            known = [o[0] for o in options] + seeds
+            if all(self._different_start(seed, k) for k in known):
+                seeds.append(seed)
+        return seeds
 
     def _choose(
         self, options: list[tuple[FloatArray, MatchReport, bool]],
