@@ -38,6 +38,8 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
   default was tuned on), a third of the run's duration, thinned to a scan per 1 m / 0.6 rad,
   with and without the search around the typical step
   (``OdometryConfig.typical_search_distance``).
+- ``typicalstep15``: the same thinned coarser, to a scan per 1.5 m / 0.6 rad, on the
+  warehouse, the maze and the rooms, seeds 2-4.
 - ``warehouse``: the warehouse of identical aisles, 600 s, SICK (181 beams, 10 Hz) and
   UTM-30LX, with and without the wide-basin search: ATE, and jumps (the position error
   changing by more than 0.3 m between consecutive scans).
@@ -537,6 +539,14 @@ def main() -> None:
             for route in ("tour", "adversarial")
             for seed in range(2, 8)
             for label, config in (("", None), (", no typical search", NO_TYPICAL))
+        ],
+        "typicalstep15": lambda: [
+            sim_case(f"{world} {route} sick, a scan per 1.5 m / 0.6 rad, seed {seed}",
+                     LIDAR_PRESETS["sick"], duration / 3, world=world, seed=seed,
+                     thin=(1.5, 0.6), route=route)
+            for world in ("warehouse", "maze", "rooms")
+            for route in ("tour", "adversarial")
+            for seed in range(2, 5)
         ],
         "warehouse": lambda: [
             sim_case(f"warehouse {lidar}{label}", LIDAR_PRESETS[lidar], duration, config,
