@@ -67,8 +67,11 @@ def test_few_steps_give_a_weak_prior_and_none_a_flat_one():
     for _ in range(3):
         prior.add((1.0, 0.0, 0.0))
     assert prior.cost((-1.0, 0.0, 0.0)) == 0.0  # floor_steps / 3 > 1: still flat
-    for _ in range(2):
-        prior.add((1.0, 0.0, 0.0))
+    assert prior.flat
+    prior.add((1.0, 0.0, 0.0))
+    assert prior.flat and prior.cost((-1.0, 0.0, 0.0)) == 0.0  # 4 / 4: flat still
+    prior.add((1.0, 0.0, 0.0))
+    assert not prior.flat
     # five steps alike: the floor is 4/5, so even the most unlike step costs little
     assert 0.0 < prior.cost((-1.0, 0.0, 0.0)) <= -math.log(4.0 / 5.0) + 1e-12
     assert len(prior) == 5

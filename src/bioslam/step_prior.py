@@ -86,6 +86,14 @@ class StepPrior:
     def __len__(self) -> int:
         return len(self._steps)
 
+    @property
+    def flat(self) -> bool:
+        """Every step costs the same (:meth:`cost` with ``young``): too few are known to
+        tell a typical one from any other."""
+        n = len(self._steps)
+        c = self.config
+        return n < c.min_steps or c.floor >= 1.0 or c.floor_steps >= n
+
     def add(self, step: ArrayLike) -> None:
         """Remember an accepted step (metres, metres, radians)."""
         dx, dy, dth = (float(v) for v in np.asarray(step, dtype=np.float64).reshape(3))
