@@ -40,6 +40,8 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
   (``OdometryConfig.typical_search_distance``).
 - ``typicalstep15``: the same thinned coarser, to a scan per 1.5 m / 0.6 rad, on the
   warehouse, the maze and the rooms, seeds 2-4.
+- ``typicalsteprplidar``: the RPLIDAR preset (360°, 12 m, sweeping at 7 Hz) on the four
+  worlds, both routes, seeds 2 and 3, thinned to a scan per 1 m / 0.6 rad.
 - ``warehouse``: the warehouse of identical aisles, 600 s, SICK (181 beams, 10 Hz) and
   UTM-30LX, with and without the wide-basin search: ATE, and jumps (the position error
   changing by more than 0.3 m between consecutive scans).
@@ -547,6 +549,14 @@ def main() -> None:
             for world in ("warehouse", "maze", "rooms")
             for route in ("tour", "adversarial")
             for seed in range(2, 5)
+        ],
+        "typicalsteprplidar": lambda: [
+            sim_case(f"{world} {route} rplidar, a scan per 1 m / 0.6 rad, seed {seed}",
+                     LIDAR_PRESETS["rplidar"], duration / 3, world=world, seed=seed,
+                     thin=(1.0, 0.6), route=route)
+            for world in ("rooms", "warehouse", "maze", "hall")
+            for route in ("tour", "adversarial")
+            for seed in (2, 3)
         ],
         "warehouse": lambda: [
             sim_case(f"warehouse {lidar}{label}", LIDAR_PRESETS[lidar], duration, config,
