@@ -1204,14 +1204,14 @@ class LidarOdometry:
     ) -> list[tuple[FloatArray, MatchReport, bool]]:
         """Gauss-Newton from each of the searches' ``seeds`` (those the full descent pulled
         away, :meth:`_pulled`) on the levels up to the search level only, where it ends apart
-        from every match in ``options``. A lattice pose of the
-        search lies within a cell of the search level's best fit; the coarsest level's blur
-        pulled it 0.2-0.25 m into a basin of the finer levels that fitted worse, and the pose
-        then sat 0.2 m off for tens of scans (SICK, thinned to a scan per metre, rooms and
-        maze, turns of 15-40°). None while the step prior is flat: a further candidate is only
-        as safe as the prior that weighs it against look-alikes (the warehouse of identical
-        aisles, 5th scan: a finer basin 2 m back fitted 0.01 better than the true step a
-        metre on, and four steps known could not tell the two apart)."""
+        from every match in ``options``. A lattice pose of the search lies within a cell of
+        the search level's best fit; the coarsest level's blur pulled it 0.2-0.25 m into a
+        basin of the finer levels that fitted worse, and the pose then sat 0.2 m off for tens
+        of scans (SICK, thinned to a scan per metre, rooms and maze, turns of 15-40°). None
+        while the step prior is flat: a further candidate is only as safe as the prior that
+        weighs it against look-alikes (the warehouse of identical aisles, 5th scan: a finer
+        basin 2 m back fitted 0.01 better than the true step a metre on, and four steps known
+        could not tell the two apart)."""
         c = self.config
         if self._step_prior.flat:
             return []
