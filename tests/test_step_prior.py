@@ -115,3 +115,16 @@ def test_modes_are_the_typical_steps_each_distinct():
     assert all(m[0] < 0.1 for m in modes[1:])
     assert len(prior.modes(10)) < 10  # three kinds of step: few distinct ones
     assert prior_of(thinned_log_steps()[:2]).modes(3) == []
+
+
+def test_a_step_unlike_the_few_known_costs_when_not_young():
+    """Below ``min_steps`` the young prior is flat, but the cost an echo pays (not young)
+    already counts the steps known: two metres on make standing still cost the most."""
+    prior = StepPrior()
+    assert prior.cost((0.0, 0.0, 0.0), young=False) == 0.0  # nothing known at all
+    prior.add((1.0, 0.0, 0.0))
+    prior.add((1.0, 0.0, 0.0))
+    assert prior.cost((0.0, 0.0, 0.0)) == 0.0
+    worst = -math.log(prior.config.floor)
+    assert prior.cost((0.0, 0.0, 0.0), young=False) == pytest.approx(worst, abs=0.01)
+    assert prior.cost((1.0, 0.0, 0.0), young=False) < 0.05 * worst

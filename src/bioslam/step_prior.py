@@ -126,13 +126,17 @@ class StepPrior:
     def cost(self, step: ArrayLike, young: bool = True) -> float:
         """``-log((1 - f) * density + f)`` with ``f`` the floor: 0 for a step like all recent
         ones, at most ``-log(f)`` for a step unlike any. ``young``: the floor is raised
-        while few steps are known (``floor_steps``)."""
-        if len(self._steps) < self.config.min_steps:
+        while few steps are known (``floor_steps``) and the cost is 0 below ``min_steps``;
+        not young, every step known counts: a step the odometry must not take however few it
+        knows (onto the pose where a scan was just fused, whose beam pattern a sparse map
+        echoes)."""
+        if len(self._steps) < (self.config.min_steps if young else 1):
             return 0.0
         f = self.config.floor
         if young:
             f = min(max(f, self.config.floor_steps / len(self._steps)), 1.0)
-        return -math.log((1.0 - f) * self.density(step) + f)
+        s = np.asarray(step, dtype=np.float64).reshape(3)
+        return -math.log((1.0 - f) * float(np.mean(self._kernel(self._history(), s))) + f)
 
     def modes(self, count: int) -> list[np.ndarray]:
         """Up to ``count`` typical steps: the recent steps of highest density, each more
