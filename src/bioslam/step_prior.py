@@ -49,7 +49,8 @@ class StepPriorConfig:
             (which the scan preferred) lost to a match 0.8 m short, whose walls then pulled
             the pose on every revisit (RPE over 1 m from scans 0-9: median 6.1 cm, at most
             8.3 cm with 2; 5.5 and 6.8 cm with 4; 5.3-5.8 and at most 7.0 cm with 3 to 5).
-        min_steps: below this many steps the prior is flat (cost 0).
+        min_steps: below this many steps the prior is flat (cost 0), but for the cost of an
+            echo (:meth:`StepPrior.cost` not young), which counts every step known.
     """
 
     window: int = 100
@@ -105,6 +106,9 @@ class StepPrior:
         step equals every recent one); 1 while fewer than ``min_steps`` are known."""
         if len(self._steps) < self.config.min_steps:
             return 1.0
+        return self._mean_kernel(step)
+
+    def _mean_kernel(self, step: ArrayLike) -> float:
         s = np.asarray(step, dtype=np.float64).reshape(3)
         return float(np.mean(self._kernel(self._history(), s)))
 
@@ -135,8 +139,7 @@ class StepPrior:
         f = self.config.floor
         if young:
             f = min(max(f, self.config.floor_steps / len(self._steps)), 1.0)
-        s = np.asarray(step, dtype=np.float64).reshape(3)
-        return -math.log((1.0 - f) * float(np.mean(self._kernel(self._history(), s))) + f)
+        return -math.log((1.0 - f) * self._mean_kernel(step) + f)
 
     def modes(self, count: int) -> list[np.ndarray]:
         """Up to ``count`` typical steps: the recent steps of highest density, each more
