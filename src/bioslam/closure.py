@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 from bioslam.config import LoopClosureConfig
 from bioslam.geometry import between, compose, inverse, transform_points, wrap_angle
 from bioslam.matching.branch_and_bound import WideBasinConfig, WideBasinMatcher, refine
-from bioslam.matching.gauss_newton import MatchReport
+from bioslam.matching.gauss_newton import MatchReport, levels_up_to
 from bioslam.matching.registration import RegistrationConfig, densify_scan, map_hits
 from bioslam.occupancy_grid import NORMAL_MAX_GAP, LogOddsConfig, MapPyramid, OccupancyGrid
 
@@ -546,14 +546,14 @@ def verify(
     # Gauss-Newton from the lattice pose on the searched level and finer only: a coarser
     # level's blur would let it slide along a corridor, away from what the search found.
     level = min(config.search_level, len(pyramid.grids) - 1)
-    pose, report = refine(pyramid, found.pose, query, _levels_up_to(reg.max_iterations, level))
+    pose, report = refine(pyramid, found.pose, query, levels_up_to(reg.max_iterations, level))
     # The map's own prediction, refined where it stands. Along a corridor the window's best
     # may lie on a plateau the scan barely constrains, far from the truth and with no
     # distinct lattice rival (Gauss-Newton may also slide along it): a correction away from
     # the prediction must fit clearly better than the prediction itself. The two are
     # compared on every point: judged only where the submap looked, a pose that pushes
     # points out of its sight would gain by it.
-    kept, kept_report = refine(pyramid, predicted, query, _levels_up_to(reg.max_iterations, 0))
+    kept, kept_report = refine(pyramid, predicted, query, levels_up_to(reg.max_iterations, 0))
     fit, kept_fit = (seen_hit_fraction(judge, p, query, reg.hit_level) for p in (pose, kept))
     agree = within(between(kept, pose), config.rival_distance, config.rival_angle)
     if agree and kept_fit >= fit - config.prior_tie:
@@ -658,7 +658,7 @@ def outside_rival(
     reg = config.registration
     found = _wide_search(pyramid, query, predicted, wide, config)
     level = min(config.search_level, len(pyramid.grids) - 1)
-    iterations = _levels_up_to(reg.max_iterations, level)
+    iterations = levels_up_to(reg.max_iterations, level)
     judge = pyramid.grids[reg.score_level]
     for start in (found.pose, found.rival_pose):
         if start is None or within(between(predicted, start), *window):
@@ -669,11 +669,6 @@ def outside_rival(
         if seen_hit_fraction(judge, pose, query, reg.hit_level) >= fit - config.prior_tie:
             return True
     return False
-
-
-def _levels_up_to(iterations: tuple[int, ...], level: int) -> tuple[int, ...]:
-    """Gauss-Newton iterations per level (finest first) with the levels above ``level`` off."""
-    return tuple(n if k <= level else 0 for k, n in enumerate(iterations))
 
 
 def _submap_pyramid(reference: FloatArray, reg: RegistrationConfig) -> MapPyramid:

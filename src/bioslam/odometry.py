@@ -33,6 +33,7 @@ from bioslam.matching.gauss_newton import (
     geometric_conditioning,
     grid_args,
     kept_rows,
+    levels_up_to,
     mapped_conditioning,
     match_scan_to_map,
     matched_normals,
@@ -905,13 +906,14 @@ class LidarOdometry:
             seeds = self._search_seeds(points, centre, distance, angle, options[0][0])
             if as_sparse:
                 seeds += self._typical_seeds(points, forward, seeds)
-            located = len(seeds)
-            seeds += self._distinct_hypotheses(motion)
-            options += [self._option(level_pts, seed, normals) for seed in seeds]
+            located = [self._option(level_pts, seed, normals) for seed in seeds]
+            options += located
+            options += [
+                self._option(level_pts, seed, normals)
+                for seed in self._distinct_hypotheses(motion)
+            ]
             if as_sparse:
-                found = zip(seeds[:located], options[1 : located + 1], strict=True)
-                pulled = [seed for seed, option in found if self._pulled(seed, option[0])]
-                options += self._finer_basins(level_pts, pulled, normals, options)
+                options += self._finer_basins(level_pts, normals, seeds, located, options)
             self._weigh_walls(options, level_pts[0])
             if as_sparse:
                 slid = [self._option(level_pts, s, normals) for s in self._slid(options, forward)]
@@ -1199,27 +1201,28 @@ class LidarOdometry:
         return [found] if all(self._distinct(found, s) for s in seeds) else []
 
     def _finer_basins(
-        self, level_pts: list[FloatArray], seeds: list[FloatArray], normals: FloatArray,
+        self, level_pts: list[FloatArray], normals: FloatArray, seeds: list[FloatArray],
+        located: list[tuple[FloatArray, MatchReport, bool]],
         options: list[tuple[FloatArray, MatchReport, bool]],
     ) -> list[tuple[FloatArray, MatchReport, bool]]:
-        """Gauss-Newton from each of the searches' ``seeds`` (those the full descent pulled
-        away, :meth:`_pulled`) on the levels up to the search level only, where it ends apart
-        from every match in ``options``. A lattice pose of the search lies within a cell of
-        the search level's best fit; the coarsest level's blur pulled it 0.2-0.25 m into a
-        basin of the finer levels that fitted worse, and the pose then sat 0.2 m off for tens
-        of scans (SICK, thinned to a scan per metre, rooms and maze, turns of 15-40°). None
-        while the step prior is flat: a further candidate is only as safe as the prior that
-        weighs it against look-alikes (the warehouse of identical aisles, 5th scan: a finer
-        basin 2 m back fitted 0.01 better than the true step a metre on, and four steps known
-        could not tell the two apart)."""
+        """Gauss-Newton from each of the searches' ``seeds`` whose full descent (``located``,
+        one match per seed) it pulled away (:meth:`_pulled`), on the levels up to the search
+        level only, where it ends apart from every match in ``options``. A lattice pose of
+        the search lies within a cell of the search level's best fit; the coarsest level's
+        blur pulled it 0.2-0.25 m into a basin of the finer levels that fitted worse, and the
+        pose then sat 0.2 m off for tens of scans (SICK, thinned to a scan per metre, rooms
+        and maze, turns of 15-40°). None while the step prior is flat: a further candidate
+        is only as safe as the prior that weighs it against look-alikes (the warehouse of
+        identical aisles, 5th scan: a finer basin 2 m back fitted 0.01 better than the true
+        step a metre on, and four steps known could not tell the two apart)."""
         c = self.config
         if self._step_prior.flat:
             return []
-        iterations = tuple(
-            n if k <= c.search_level else 0 for k, n in enumerate(c.max_iterations)
-        )
+        iterations = levels_up_to(c.max_iterations, c.search_level)
         found: list[tuple[FloatArray, MatchReport, bool]] = []
-        for seed in seeds:
+        for seed, match in zip(seeds, located, strict=True):
+            if not self._pulled(seed, match[0]):
+                continue
             pose, report = self._match_from(
                 level_pts, seed, normals, c.search_prior_weight, iterations=iterations
             )
@@ -1247,6 +1250,7 @@ class LidarOdometry:
         thinned to a scan per metre, seed 4: a turn of 36° into a corridor placed 1.8 m
         along it, the plateau's point 0.15 m from the truth fitting better and never a
         candidate)."""
+        known = [option[0] for option in options]
         seeds: list[FloatArray] = []
         for pose, report, failed in options:
             if failed or not report.degenerate or self._rejected(report):
@@ -1256,9 +1260,9 @@ class LidarOdometry:
                 continue
             along = float(free[0] * (forward[0] - pose[0]) + free[1] * (forward[1] - pose[1]))
             seed = pose + along * free
-            known = [o[0] for o in options] + seeds
             if all(self._different_start(seed, k) for k in known):
                 seeds.append(seed)
+                known.append(seed)
         return seeds
 
     def _choose(

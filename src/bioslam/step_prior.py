@@ -134,7 +134,7 @@ class StepPrior:
         not young, every step known counts: a step the odometry must not take however few it
         knows (onto the pose where a scan was just fused, whose beam pattern a sparse map
         echoes)."""
-        if len(self._steps) < (self.config.min_steps if young else 1):
+        if self.flat if young else not self._steps:
             return 0.0
         f = self.config.floor
         if young:

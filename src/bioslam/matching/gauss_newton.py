@@ -449,6 +449,13 @@ def kept_rows(points, keep):
     return out
 
 
+def levels_up_to(iterations: tuple[int, ...], level: int) -> tuple[int, ...]:
+    """Gauss-Newton iterations per level (finest first) with the levels above ``level`` off:
+    a descent that starts on ``level``, from a pose a search located on that level's lattice,
+    which a coarser level's blur would only pull away."""
+    return tuple(n if k <= level else 0 for k, n in enumerate(iterations))
+
+
 def match_scan_to_map(
     pyramid: MapPyramid,
     level_points: list[FloatArray],
