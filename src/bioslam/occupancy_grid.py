@@ -589,7 +589,7 @@ class OccupancyGrid:
         pts = _as_points(points)
         if pts.shape[0] == 0:
             return 0.0
-        x, y, theta = (float(v) for v in np.asarray(pose, dtype=np.float64).reshape(3))
+        x, y, theta = np.asarray(pose, dtype=np.float64).reshape(3).tolist()
         ox, oy = self.origin.tolist()
         return count(self.logodds, pts, x, y, theta, ox, oy, self.resolution, *args) / pts.shape[0]
 

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from bioslam.geometry import between, compose, transform_points
+from bioslam.geometry import between, compose, separation, transform_points
 from bioslam.matching.branch_and_bound import WideBasinConfig, WideBasinMatcher
 from bioslam.matching.deskew import deskew_points, se2_exp, se2_log, usable_endpoints
 from bioslam.matching.gauss_newton import (
@@ -866,9 +866,9 @@ class LidarOdometry:
         its rival and from the other motion hypotheses (the constant-velocity prediction,
         the last step repeated, the typical step straight on: after a turn on the spot in
         a log thinned to a scan per metre the first two say "turning", the last "a metre
-        on"; on sparse scans also the step prior's typical steps, the searches' seeds on the
-        finer levels alone, :meth:`_finer_basins`, and each match its scan leaves free along
-        a corridor slid there, :meth:`_slid`), keeping the plausible
+        on"; on sparse scans also the step prior's typical steps, the searches' seeds and the
+        hypotheses on the finer levels alone, :meth:`_finer_basins`, and each match its
+        scan leaves free along a corridor slid there, :meth:`_slid`), keeping the plausible
         match nearest ``start`` (:meth:`_choose`), or on sparse scans and while every scan
         so far came after a gap (:meth:`_sparse_so_far`: standing still is then no motion
         prior) the best one (:meth:`_choose_sparse`). When
@@ -906,14 +906,10 @@ class LidarOdometry:
             seeds = self._search_seeds(points, centre, distance, angle, options[0][0])
             if as_sparse:
                 seeds += self._typical_seeds(points, forward, seeds)
-            located = [self._option(level_pts, seed, normals) for seed in seeds]
-            options += located
-            options += [
-                self._option(level_pts, seed, normals)
-                for seed in self._distinct_hypotheses(motion)
-            ]
+            seeds += self._distinct_hypotheses(motion)
+            options += [self._option(level_pts, seed, normals) for seed in seeds]
             if as_sparse:
-                options += self._finer_basins(level_pts, normals, seeds, located, options)
+                options += self._finer_basins(level_pts, normals, seeds, options)
             self._weigh_walls(options, level_pts[0])
             if as_sparse:
                 slid = [self._option(level_pts, s, normals) for s in self._slid(options, forward)]
@@ -1202,42 +1198,34 @@ class LidarOdometry:
 
     def _finer_basins(
         self, level_pts: list[FloatArray], normals: FloatArray, seeds: list[FloatArray],
-        located: list[tuple[FloatArray, MatchReport, bool]],
         options: list[tuple[FloatArray, MatchReport, bool]],
     ) -> list[tuple[FloatArray, MatchReport, bool]]:
-        """Gauss-Newton from each of the searches' ``seeds`` whose full descent (``located``,
-        one match per seed) it pulled away (:meth:`_pulled`), on the levels up to the search
-        level only, where it ends apart from every match in ``options``. A lattice pose of
-        the search lies within a cell of the search level's best fit; the coarsest level's
-        blur pulled it 0.2-0.25 m into a basin of the finer levels that fitted worse, and the
-        pose then sat 0.2 m off for tens of scans (SICK, thinned to a scan per metre, rooms
-        and maze, turns of 15-40°). None while the step prior is flat: a further candidate
-        is only as safe as the prior that weighs it against look-alikes (the warehouse of
-        identical aisles, 5th scan: a finer basin 2 m back fitted 0.01 better than the true
-        step a metre on, and four steps known could not tell the two apart)."""
+        """Gauss-Newton from each of the searches' and the motion hypotheses' ``seeds`` on
+        the levels up to the search level only, where it ends apart from every match in
+        ``options``. A lattice pose of the search lies within a cell of the search level's
+        best fit; the coarsest level's blur pulled it 0.2-0.25 m into a basin of the finer
+        levels that fitted worse, and the pose then sat 0.2 m off for tens of scans (SICK,
+        thinned to a scan per metre, rooms and maze, turns of 15-40°). A motion hypothesis
+        (the typical step, the last one repeated) is as often such a start, and a pull of
+        less than a search-level cell as often leaves the finer basin it started in: run
+        only for the searches' seeds pulled farther than a cell, 10 of 48 thinned routes
+        fitted worse (benchmarks README, "The finer levels for every seed"). None while
+        the step prior is flat: a further candidate is only as safe as the prior that
+        weighs it against look-alikes (the warehouse of identical aisles, 5th scan: a finer
+        basin 2 m back fitted 0.01 better than the true step a metre on, and four steps
+        known could not tell the two apart)."""
         c = self.config
         if self._step_prior.flat:
             return []
         iterations = levels_up_to(c.max_iterations, c.search_level)
         found: list[tuple[FloatArray, MatchReport, bool]] = []
-        for seed, match in zip(seeds, located, strict=True):
-            if not self._pulled(seed, match[0]):
-                continue
+        for seed in seeds:
             pose, report = self._match_from(
                 level_pts, seed, normals, c.search_prior_weight, iterations=iterations
             )
             if all(self._different_start(pose, o[0]) for o in options + found):
                 found.append((pose, report, self._failed(report)))
         return found
-
-    def _pulled(self, seed: FloatArray, pose: FloatArray) -> bool:
-        """Gauss-Newton ended farther than a search-level cell (or that at ``length_scale``
-        in heading) from the search's lattice ``seed``: some level coarser than the search's
-        pulled it (:meth:`_finer_basins`)."""
-        c = self.config
-        cell = c.resolution * 2**c.search_level
-        d = between(seed, pose)
-        return math.hypot(d[0], d[1]) > cell or abs(d[2]) * c.length_scale > cell
 
     def _slid(
         self, options: list[tuple[FloatArray, MatchReport, bool]], forward: FloatArray
@@ -1333,19 +1321,19 @@ class LidarOdometry:
     def _different_start(self, a: FloatArray, b: FloatArray) -> bool:
         """Farther apart than a finest cell (or its width at ``length_scale`` in heading):
         Gauss-Newton from each may end in different places."""
-        d = between(a, b)
+        distance, turn = separation(a, b)
         c = self.config
-        return math.hypot(d[0], d[1]) > c.resolution or abs(d[2]) > c.resolution / c.length_scale
+        return distance > c.resolution or turn > c.resolution / c.length_scale
 
     def _pose_distance(self, a: FloatArray, b: FloatArray) -> float:
-        d = between(a, b)
-        return math.hypot(d[0], d[1]) + self.config.length_scale * abs(d[2])
+        distance, turn = separation(a, b)
+        return distance + self.config.length_scale * turn
 
     def _distinct(self, a: FloatArray, b: FloatArray) -> bool:
         """Farther apart than the search's rival distance or angle: different places."""
-        d = between(a, b)
+        distance, turn = separation(a, b)
         cfg = self._searcher.config
-        return math.hypot(d[0], d[1]) > cfg.rival_distance or abs(d[2]) > cfg.rival_angle
+        return distance > cfg.rival_distance or turn > cfg.rival_angle
 
     @staticmethod
     def _beyond(pose: FloatArray, previous: FloatArray, reach: tuple[float, float]) -> bool:

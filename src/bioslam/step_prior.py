@@ -152,15 +152,16 @@ class StepPrior:
         h = self._history()
         c = self.config
         density = self._kernel(h[:, None, :], h[None, :, :]).sum(1)
+        # far[i, j]: step i lies beyond twice the kernel widths of step j
+        d = h[:, None, :] - h[None, :, :]
+        far = (np.hypot(d[..., 0], d[..., 1]) > 2 * c.sigma_distance) | (
+            np.abs(wrap_angle(d[..., 2])) > 2 * c.sigma_angle
+        )
+        order = np.argsort(-density, kind="stable")
+        open_ = np.ones(len(h), dtype=bool)  # far from every step chosen so far
         chosen: list[np.ndarray] = []
-        for i in np.argsort(-density, kind="stable"):
-            far = all(
-                math.hypot(h[i, 0] - m[0], h[i, 1] - m[1]) > 2 * c.sigma_distance
-                or abs(wrap_angle(h[i, 2] - m[2])) > 2 * c.sigma_angle
-                for m in chosen
-            )
-            if far:
-                chosen.append(h[i].copy())
-                if len(chosen) == count:
-                    break
+        while len(chosen) < count and open_.any():
+            i = order[open_[order]][0]
+            chosen.append(h[i].copy())
+            open_ &= far[:, i]
         return chosen
