@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from bioslam.step_prior import StepPrior, StepPriorConfig
+from bioslam.step_prior import StepPrior, StepPriorConfig, heading_cone_offset
 
 
 def thinned_log_steps(n: int = 100, seed: int = 0) -> np.ndarray:
@@ -32,7 +32,7 @@ def prior_of(steps: np.ndarray, **kwargs: float) -> StepPrior:
 
 def test_a_thinned_logs_own_steps_are_cheap_and_look_alikes_are_not():
     prior = prior_of(thinned_log_steps())
-    cap = -math.log(prior.config.floor)
+    cap = -math.log(prior.config.floor * prior.config.cone_floor)
     forward = prior.cost((1.0, 0.0, 0.0))
     spin = prior.cost((0.05, 0.0, math.radians(-30.0)))
     assert forward < 1.0 and spin < 2.0
@@ -62,7 +62,8 @@ def test_a_few_wrong_steps_among_many_do_not_make_their_kind_typical():
 
 
 def test_few_steps_give_a_weak_prior_and_none_a_flat_one():
-    prior = StepPrior()
+    """Without the kinematic density (``cone_sigma`` None) the young prior is flat."""
+    prior = StepPrior(StepPriorConfig(cone_sigma=None))
     assert prior.cost((5.0, 5.0, 3.0)) == 0.0 and prior.density((5.0, 5.0, 3.0)) == 1.0
     for _ in range(3):
         prior.add((1.0, 0.0, 0.0))
@@ -75,6 +76,39 @@ def test_few_steps_give_a_weak_prior_and_none_a_flat_one():
     # five steps alike: the floor is 4/5, so even the most unlike step costs little
     assert 0.0 < prior.cost((-1.0, 0.0, 0.0)) <= -math.log(4.0 / 5.0) + 1e-12
     assert len(prior) == 5
+
+
+@pytest.mark.parametrize(
+    ("step", "offset"),
+    [
+        ((1.0, 0.0, 0.6), 0.0),  # a metre on, then a turn
+        ((1.0 * math.cos(0.6), 1.0 * math.sin(0.6), 0.6), 0.0),  # a turn, then a metre on
+        ((1.0 * math.cos(0.3), 1.0 * math.sin(0.3), 0.6), 0.0),  # an arc
+        ((0.0, 0.0, -1.2), 0.0),  # a turn on the spot
+        ((1.0, -0.3, 0.6), 0.3),  # beside the start heading's ray, on the far side
+        ((0.0, 1.0, 0.0), 1.0),  # a metre sideways, going straight
+        ((-1.0, -0.5, 0.2), math.hypot(1.0, 0.5)),  # behind both headings
+        ((math.cos(0.5), math.sin(0.5), -0.4), math.sin(0.5)),  # left of a right turn
+    ],
+)
+def test_the_heading_cone_holds_every_forward_step_of_a_wheeled_robot(step, offset):
+    assert heading_cone_offset(step) == pytest.approx(offset, abs=1e-9)
+
+
+def test_with_no_step_known_only_what_a_wheeled_robot_cannot_do_costs():
+    """The first steps of a log: nothing learned, but a metre back along an aisle or two
+    metres sideways after a turn (the look-alikes that lost thinned warehouse and maze
+    routes from their first scans) cost the most, a metre on or a turn nothing."""
+    prior = StepPrior()
+    worst = -math.log(prior.config.cone_floor)
+    for step in ((1.0, 0.0, 0.0), (0.0, 0.0, 0.6), (0.9, 0.1, 0.6), (0.05, 0.0, -0.6)):
+        assert prior.cost(step) < 0.05, step
+    for step in ((-1.3, -0.1, 0.03), (0.87, -1.93, 0.64)):
+        assert prior.cost(step) == pytest.approx(worst, abs=0.01), step
+    for _ in range(5):
+        prior.add((1.0, 0.0, 0.0))
+    # learned and kinematic: unlike every step known, a step behind costs more than a turn
+    assert prior.cost((-1.0, 0.0, 0.0)) > prior.cost((0.0, 0.0, 0.6)) + 0.5 * worst
 
 
 def test_the_window_forgets_old_steps():
@@ -92,7 +126,8 @@ def test_angles_wrap():
 
 BAD_CONFIGS = [
     {"window": 0}, {"min_steps": 0}, {"sigma_distance": 0.0}, {"sigma_angle": -1.0},
-    {"floor": 0.0}, {"floor": 1.5}, {"floor_steps": -1.0},
+    {"floor": 0.0}, {"floor": 1.5}, {"floor_steps": -1.0}, {"cone_sigma": 0.0},
+    {"cone_floor": 0.0}, {"cone_floor": 1.5},
 ]  # fmt: skip
 
 
