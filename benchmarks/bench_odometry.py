@@ -42,6 +42,9 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
   warehouse, the maze and the rooms, seeds 2-4.
 - ``typicalsteprplidar``: the RPLIDAR preset (360°, 12 m, sweeping at 7 Hz) on the four
   worlds, both routes, seeds 2 and 3, thinned to a scan per 1 m / 0.6 rad.
+- ``typicalstepreversing``: the ``reversing`` route (the tour, backing up 12 s along its
+  own path every 45 s) on the four worlds, SICK and URG-04LX, seeds 2 and 3, thinned to a
+  scan per 1 m / 0.6 rad: steps a metre behind the robot.
 - ``warehouse``: the warehouse of identical aisles, 600 s, SICK (181 beams, 10 Hz) and
   UTM-30LX, with and without the wide-basin search: ATE, and jumps (the position error
   changing by more than 0.3 m between consecutive scans).
@@ -556,6 +559,14 @@ def main() -> None:
                      thin=(1.0, 0.6), route=route)
             for world in ("rooms", "warehouse", "maze", "hall")
             for route in ("tour", "adversarial")
+            for seed in (2, 3)
+        ],
+        "typicalstepreversing": lambda: [
+            sim_case(f"{world} reversing {lidar}, a scan per 1 m / 0.6 rad, seed {seed}",
+                     LIDAR_PRESETS[lidar], duration / 3, world=world, seed=seed,
+                     thin=(1.0, 0.6), route="reversing")
+            for world in ("rooms", "warehouse", "maze", "hall")
+            for lidar in ("sick", "urg04lx")
             for seed in (2, 3)
         ],
         "warehouse": lambda: [

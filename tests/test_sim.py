@@ -338,3 +338,31 @@ def test_hand_made_routes_are_checked():
     spin = Route(np.array([0.0, 2.0]), np.array([[1.0, 2.0, 0.0], [1.0, 2.0, 2.0]]))
     assert spin.duration == 2.0
     assert spin.pose_at([0.5, 5.0]) == pytest.approx(np.array([[1, 2, 0.5], [1, 2, 2.0]]))
+
+
+def test_the_reversing_route_backs_up_along_its_own_path():
+    """The ``reversing`` route: the tour, backing up (heading kept, the path retraced) for a
+    few seconds at a time, then forward again over the same stretch; it lasts its duration
+    and never leaves the tour's clearance."""
+    from bioslam.sim import ROUTES
+    from bioslam.sim.route import check_clearance
+
+    world = maze_world()
+    tour = make_route(world, duration=200.0, seed=2)
+    route = ROUTES["reversing"](world, duration=200.0, seed=2)
+    assert route.duration == pytest.approx(200.0, abs=0.06)
+    dt = 0.1
+    poses = route.pose_at(np.arange(0.0, route.duration, dt))
+    velocity = np.diff(poses[:, :2], axis=0) / dt
+    along = velocity[:, 0] * np.cos(poses[:-1, 2]) + velocity[:, 1] * np.sin(poses[:-1, 2])
+    sideways = -velocity[:, 0] * np.sin(poses[:-1, 2]) + velocity[:, 1] * np.cos(poses[:-1, 2])
+    backing = along < -0.05
+    # 12 s back in every 45 + 12 + 12 s: a sixth of the time, in stretches
+    assert 0.12 < backing.mean() < 0.25
+    assert np.count_nonzero(np.diff(backing.astype(int)) == 1) >= 2
+    assert np.max(np.abs(sideways)) < 0.05  # a wheeled robot: never sideways
+    # every pose lies on the tour's path
+    path = tour.pose_at(np.arange(0.0, tour.duration, 0.05))[:, :2]
+    gaps = np.min(np.hypot(*(poses[::20, None, :2] - path[None, :, :]).T), axis=0)
+    assert gaps.max() < 0.03
+    check_clearance(world, poses, 0.25)

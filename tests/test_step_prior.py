@@ -79,36 +79,42 @@ def test_few_steps_give_a_weak_prior_and_none_a_flat_one():
 
 
 @pytest.mark.parametrize(
-    ("step", "offset"),
+    ("step", "forward", "reverse"),
     [
-        ((1.0, 0.0, 0.6), 0.0),  # a metre on, then a turn
-        ((1.0 * math.cos(0.6), 1.0 * math.sin(0.6), 0.6), 0.0),  # a turn, then a metre on
-        ((1.0 * math.cos(0.3), 1.0 * math.sin(0.3), 0.6), 0.0),  # an arc
-        ((0.0, 0.0, -1.2), 0.0),  # a turn on the spot
-        ((1.0, -0.3, 0.6), 0.3),  # beside the start heading's ray, on the far side
-        ((0.0, 1.0, 0.0), 1.0),  # a metre sideways, going straight
-        ((-1.0, -0.5, 0.2), math.hypot(1.0, 0.5)),  # behind both headings
-        ((math.cos(0.5), math.sin(0.5), -0.4), math.sin(0.5)),  # left of a right turn
+        ((1.0, 0.0, 0.6), 0.0, 1.0),  # a metre on, then a turn
+        ((math.cos(0.6), math.sin(0.6), 0.6), 0.0, 1.0),  # a turn, then a metre on
+        ((math.cos(0.3), math.sin(0.3), 0.6), 0.0, 1.0),  # an arc
+        ((0.0, 0.0, -1.2), 0.0, 0.0),  # a turn on the spot
+        ((-1.0, 0.0, 0.0), 1.0, 0.0),  # backing up straight
+        ((-math.cos(0.3), -math.sin(0.3), 0.6), 1.0, 0.0),  # backing up on an arc
+        ((1.0, -0.3, 0.6), 0.3, math.hypot(1.0, 0.3)),  # beside the start heading's ray
+        ((0.0, 1.0, 0.0), 1.0, 1.0),  # a metre sideways, going straight
+        ((math.cos(0.5), math.sin(0.5), -0.4), math.sin(0.5), 1.0),  # left of a right turn
     ],
 )
-def test_the_heading_cone_holds_every_forward_step_of_a_wheeled_robot(step, offset):
-    assert heading_cone_offset(step) == pytest.approx(offset, abs=1e-9)
+def test_the_heading_cones_hold_every_step_of_a_wheeled_robot(step, forward, reverse):
+    assert heading_cone_offset(step) == pytest.approx(forward, abs=1e-9)
+    assert heading_cone_offset(step, reverse=True) == pytest.approx(reverse, abs=1e-9)
 
 
-def test_with_no_step_known_only_what_a_wheeled_robot_cannot_do_costs():
-    """The first steps of a log: nothing learned, but a metre back along an aisle or two
-    metres sideways after a turn (the look-alikes that lost thinned warehouse and maze
-    routes from their first scans) cost the most, a metre on or a turn nothing."""
+def test_with_no_step_known_only_what_a_wheeled_robot_cannot_do_costs_the_most():
+    """The first steps of a log: nothing learned, but two metres sideways after a turn (the
+    look-alike that lost a thinned maze route at its first turn) costs the most; backing up a
+    metre (where a warehouse aisle's look-alike lies) part of it; a metre on or a turn
+    nothing."""
     prior = StepPrior()
-    worst = -math.log(prior.config.cone_floor)
+    c = prior.config
+    worst = -math.log(c.cone_floor)
     for step in ((1.0, 0.0, 0.0), (0.0, 0.0, 0.6), (0.9, 0.1, 0.6), (0.05, 0.0, -0.6)):
         assert prior.cost(step) < 0.05, step
-    for step in ((-1.3, -0.1, 0.03), (0.87, -1.93, 0.64)):
-        assert prior.cost(step) == pytest.approx(worst, abs=0.01), step
+    assert prior.cost((0.87, -1.93, 0.64)) == pytest.approx(worst, abs=0.01)
+    backing = -math.log(c.cone_floor + (1.0 - c.cone_floor) * c.cone_reverse)
+    assert prior.cost((-1.3, 0.0, 0.0)) == pytest.approx(backing, abs=1e-9)
+    assert 0.3 * worst < backing < 0.7 * worst
     for _ in range(5):
         prior.add((1.0, 0.0, 0.0))
-    # learned and kinematic: unlike every step known, a step behind costs more than a turn
-    assert prior.cost((-1.0, 0.0, 0.0)) > prior.cost((0.0, 0.0, 0.6)) + 0.5 * worst
+    # learned and kinematic: unlike every step known, sideways costs more than back
+    assert prior.cost((0.0, 1.0, 0.0)) > prior.cost((-1.0, 0.0, 0.0)) + 0.2
 
 
 def test_the_window_forgets_old_steps():
@@ -127,7 +133,7 @@ def test_angles_wrap():
 BAD_CONFIGS = [
     {"window": 0}, {"min_steps": 0}, {"sigma_distance": 0.0}, {"sigma_angle": -1.0},
     {"floor": 0.0}, {"floor": 1.5}, {"floor_steps": -1.0}, {"cone_sigma": 0.0},
-    {"cone_floor": 0.0}, {"cone_floor": 1.5},
+    {"cone_floor": 0.0}, {"cone_floor": 1.5}, {"cone_reverse": -0.1}, {"cone_reverse": 1.5},
 ]  # fmt: skip
 
 

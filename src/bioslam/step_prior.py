@@ -17,17 +17,20 @@ unlike them) and on a thinned log (whose steps are a metre or a turn). A few wro
 among the recent ones barely change a density, where a nearest-neighbour rule would adopt them.
 
 What no number of steps is needed to know: a wheeled robot (differential drive or car-like, the
-robots of nearly every public 2D LiDAR log) drives along its heading, and between two scans its
-heading sweeps from the first scan's to the second's, so its displacement points between the
-two (a metre on then a turn, a turn on the spot then a metre on, an arc: all inside that cone).
-A step that puts the robot sideways of the cone or behind it is unlikely for any such robot
-(:func:`heading_cone_offset`). This kinematic density takes the place of the uniform floor: a
-step unlike any recent one still costs a bounded amount, more if it leaves the cone; and while
-few steps are known (the floor raised, or the learned part flat) it is most of the prior. The
-thinned warehouse and maze routes that were lost from their first scans (a look-alike a metre
-back along an aisle, or two metres sideways after the first turn, fitting a map of four or
-eleven scans better than the true step) hold with it; ``cone_sigma`` None turns it off for a
-robot that moves sideways (omnidirectional bases).
+robots of nearly every public 2D LiDAR log) drives along its heading, forwards or in reverse,
+and between two scans its heading sweeps from the first scan's to the second's, so its
+displacement points between the two, or between their opposites when it backs up (a metre on
+then a turn, a turn on the spot then a metre on, an arc: all inside that cone). A step that
+puts the robot sideways of both cones is unlikely for any such robot; one in the opposite cone
+(backing up) less likely than one forward, but possible (:func:`heading_cone_offset`). This
+kinematic density takes the place of the uniform floor: a step unlike any recent one still
+costs a bounded amount, more if it leaves the cones; and while few steps are known (the floor
+raised, or the learned part flat) it is most of the prior. Thinned routes lost within their
+first scans (a look-alike two metres sideways after the first turn, or a metre back along a
+warehouse aisle, fitting a map of a few scans better than the true step) hold with it. A cone
+that charged backing up as much as stepping sideways lost routes that back up
+(``bioslam.sim.reversing``); one that did not charge it at all lost the warehouse routes again.
+``cone_sigma`` None turns it off for a robot that moves sideways (omnidirectional bases).
 
 No file or terminal I/O here.
 """
@@ -66,14 +69,18 @@ class StepPriorConfig:
             kinematic one alone), but for the cost of an echo (:meth:`StepPrior.cost` not
             young), which counts every step known.
         cone_sigma: how far (metres) a step's displacement may leave the cone between its
-            start and end headings (:func:`heading_cone_offset`) before the kinematic
-            density falls (a Gaussian of the offset); the width of the learned kernel, so
-            that a step off the cone by what tells two options apart costs as much as one
-            unlike the recent steps by as much. None: no kinematic density (uniform floor).
-        cone_floor: the kinematic density's least value (a step far off the cone, or a
-            metre behind): its cost is at most ``-log(cone_floor)`` more than a uniform
-            floor's, so that after an odometry error the true pose, whose step leaves the
-            cone, can still win on the scan's evidence.
+            start and end headings, or its opposite (:func:`heading_cone_offset`), before the
+            kinematic density falls (a Gaussian of the offset); the width of the learned
+            kernel, so that a step off the cone by what tells two options apart costs as much
+            as one unlike the recent steps by as much. None: no kinematic density (uniform
+            floor).
+        cone_reverse: the kinematic density inside the opposite cone (backing up),
+            relative to the forward cone's: a robot does back up, but a metre back along an
+            aisle is also where a repetitive place's look-alike lies.
+        cone_floor: the kinematic density's least value (a step far off the cones): its
+            cost is at most ``-log(cone_floor)`` more than a uniform floor's, so that after an
+            odometry error the true pose, whose step leaves the cones, can still win on the
+            scan's evidence.
     """
 
     window: int = 100
@@ -83,6 +90,7 @@ class StepPriorConfig:
     floor_steps: float = 4.0
     min_steps: int = 3
     cone_sigma: float | None = 0.25
+    cone_reverse: float = 0.3
     cone_floor: float = 0.1
 
     def __post_init__(self) -> None:
@@ -102,14 +110,23 @@ class StepPriorConfig:
             raise ValueError(f"cone_sigma must be None or positive, got {self.cone_sigma}")
         if not 0.0 < self.cone_floor <= 1.0:
             raise ValueError(f"cone_floor must be in (0, 1], got {self.cone_floor}")
+        if not 0.0 <= self.cone_reverse <= 1.0:
+            raise ValueError(f"cone_reverse must be in [0, 1], got {self.cone_reverse}")
 
 
-def heading_cone_offset(step: ArrayLike) -> float:
+def heading_cone_offset(step: ArrayLike, reverse: bool = False) -> float:
     """How far (metres) the displacement of ``step`` (dx, dy, dθ in the frame of its start)
-    lies outside the cone of directions between its start and end headings (0 and dθ): 0
-    inside it, the distance to the nearer edge ray beside it, the whole displacement behind
-    both. A robot that drives along its heading while turning one way moves inside it."""
+    lies outside the cone of directions between its start and end headings (0 and dθ), or
+    with ``reverse`` the opposite cone (a robot backing up): 0 inside it, else the distance
+    to the nearer edge ray beside it, the whole displacement behind both. A robot that
+    drives along its heading while turning one way moves inside one of them."""
     dx, dy, turn = np.asarray(step, dtype=np.float64).reshape(3).tolist()
+    return _forward_cone_offset(-dx, -dy, turn) if reverse else _forward_cone_offset(dx, dy, turn)
+
+
+def _forward_cone_offset(dx: float, dy: float, turn: float) -> float:
+    """The distance of (dx, dy) from the cone of directions between 0 and ``turn``: 0 inside,
+    to the nearer edge ray beside it, the whole displacement behind both."""
     direction = math.atan2(dy, dx)
     low, high = min(0.0, turn), max(0.0, turn)
     if low <= direction <= high:
@@ -197,13 +214,17 @@ class StepPrior:
 
     def kinematic(self, step: ArrayLike) -> float:
         """The kinematic density of ``step``, in [``cone_floor``, 1]: 1 inside its heading
-        cone (:func:`heading_cone_offset`), falling as a Gaussian of ``cone_sigma`` outside
-        it; 1 for every step without ``cone_sigma``."""
+        cone (:func:`heading_cone_offset`), ``cone_reverse`` of that inside the opposite
+        one, each falling as a Gaussian of ``cone_sigma`` outside; 1 for every step without
+        ``cone_sigma``."""
         c = self.config
         if c.cone_sigma is None:
             return 1.0
-        offset = heading_cone_offset(step) / c.cone_sigma
-        return c.cone_floor + (1.0 - c.cone_floor) * math.exp(-0.5 * offset * offset)
+        forward, reverse = (heading_cone_offset(step, r) / c.cone_sigma for r in (False, True))
+        inside = max(
+            math.exp(-0.5 * forward * forward), c.cone_reverse * math.exp(-0.5 * reverse * reverse)
+        )
+        return c.cone_floor + (1.0 - c.cone_floor) * inside
 
     def modes(self, count: int) -> list[np.ndarray]:
         """Up to ``count`` typical steps: the recent steps of highest density, each more

@@ -20,7 +20,7 @@ if TYPE_CHECKING:
     from bioslam.sim import MovingObstacle, Route, World
 
 #: ``--route`` names (``bioslam.sim.ROUTES``; named here so that ``--help`` loads no Numba).
-ROUTE_NAMES = ("tour", "adversarial")
+ROUTE_NAMES = ("tour", "adversarial", "reversing")
 #: ``--storage`` names (``bioslam.io.bag_writer.STORAGES``; likewise without loading rosbags).
 STORAGE_NAMES = ("sqlite3", "mcap")
 BAG_NAME = "scans"
@@ -49,7 +49,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         choices=ROUTE_NAMES,
         default="tour",
         help="'tour': along the corridor centre-lines (default); 'adversarial': weaving up to "
-        "0.5 m off centre, turning back part way, spinning on the spot, then driving fast",
+        "0.5 m off centre, turning back part way, spinning on the spot, then driving fast; "
+        "'reversing': the tour, backing up 12 s along its own path every 45 s",
     )
     p.add_argument("--lidar", choices=sorted(LIDAR_PRESETS), default="utm30lx", help="LiDAR preset")
     p.add_argument("--duration", type=float, default=600.0, help="seconds (default 600)")
@@ -131,11 +132,19 @@ def _make_route(world: World, args: argparse.Namespace) -> Route:
         "max_yaw_rate": args.max_yaw_rate,
         "fast_turns": args.fast_turns or None,
     }
-    if args.route == "tour":
+    from dataclasses import replace
+
+    if args.route in ("tour", "reversing"):
         if args.lateral_offset is not None or args.turn_back_every is not None:
             raise ValueError("--lateral-offset and --turn-back-every need --route adversarial")
-        return make_route(world, duration=args.duration, seed=args.seed, **limits)
-    from dataclasses import replace
+        if args.route == "tour":
+            return make_route(world, duration=args.duration, seed=args.seed, **limits)
+        from bioslam.sim.reversing import make_reversing_route
+        from bioslam.sim.route import RouteConfig
+
+        given = {k: v for k, v in limits.items() if v is not None}
+        config = replace(RouteConfig(), **given)
+        return make_reversing_route(world, duration=args.duration, seed=args.seed, config=config)
 
     from bioslam.sim.adversarial import AdversarialConfig
 

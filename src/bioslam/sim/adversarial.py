@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 from scipy.ndimage import minimum_filter1d
 
 from bioslam.geometry import wrap_angle
+from bioslam.sim.reversing import make_reversing_route
 from bioslam.sim.route import (
     CoverageWalker,
     Route,
@@ -299,4 +300,8 @@ def make_adversarial_route(
 
 #: Route generators by name (``bioslam sim --route``): each takes ``(world, duration, seed,
 #: config)``.
-ROUTES = {"tour": make_route, "adversarial": make_adversarial_route}
+ROUTES = {
+    "tour": make_route,
+    "adversarial": make_adversarial_route,
+    "reversing": make_reversing_route,
+}
