@@ -335,11 +335,12 @@ class OdometryConfig:
             logged 3 of 903 right steps (16-18 breaks by the motion thresholds), freiburg-079
             thinned to 1 m from scan 1 one of its two wrong turns and one of 478 right steps.
         step_prior, step_prior_weight: the density of the recent steps for which the search
-            ran (:class:`bioslam.step_prior.StepPrior`; a run that turns sparse halfway is not
+            ran, mixed with the heading cones a wheeled robot moves in
+            (:class:`bioslam.step_prior.StepPrior`; a run that turns sparse halfway is not
             then held to the millimetre steps of its dense part, and dense scans pay nothing
-            for it) and the weight of its cost (``-log``, at most ``-log(step_prior.floor)``)
-            against a match's quality (mean M* less the negative evidence,
-            :func:`_match_quality`).
+            for it) and the weight of its cost (``-log``, at most ``-log(step_prior.floor *
+            step_prior.cone_floor)``) against a match's quality (mean M* less the negative
+            evidence, :func:`_match_quality`).
         step_modes: on sparse scans, Gauss-Newton also starts from this many typical recent
             steps (:meth:`bioslam.step_prior.StepPrior.modes`: a metre on, a turn either way
             on the spot, an arc), taken from the previous pose. The motion model's
