@@ -87,20 +87,7 @@ def inverse(p: ArrayLike) -> FloatArray:
 
 def between(a: ArrayLike, b: ArrayLike) -> FloatArray:
     """The relative pose of ``b`` seen from ``a``: ``⊖a ⊕ b``."""
-    if _is_single(a) and _is_single(b):
-        return _between_single(a, b)  # type: ignore[arg-type]
     return compose(inverse(a), b)
-
-
-def _between_single(a: FloatArray, b: FloatArray) -> FloatArray:
-    # ⊖a ⊕ b in plain floats, in the very operations of inverse and compose (bit for bit
-    # their result): the odometry weighs candidate poses by it tens of times a scan.
-    ax, ay, at = a.tolist()
-    bx, by, bt = b.tolist()
-    c, s = math.cos(at), math.sin(at)
-    ix, iy, it = -c * ax - s * ay, s * ax - c * ay, _wrap_scalar(-at)
-    c, s = math.cos(it), math.sin(it)
-    return np.array([ix + c * bx - s * by, iy + s * bx + c * by, _wrap_scalar(it + bt)])
 
 
 def separation(a: FloatArray, b: FloatArray) -> tuple[float, float]:

@@ -1051,9 +1051,13 @@ class LidarOdometry:
         if all(o[2] for o in pool):  # no match both fits and is consistent with the map
             pool = options
         quality = {id(o): _match_quality(o[1]) for o in options}
+        merits: dict[int, float] = {}  # the broken-turn check asks again for the same ones
 
         def merit(option: tuple[FloatArray, MatchReport, bool]) -> float:
-            return quality[id(option)] - self._step_cost(previous, option[0])
+            key = id(option)
+            if key not in merits:
+                merits[key] = quality[key] - self._step_cost(previous, option[0])
+            return merits[key]
 
         chosen = max(pool, key=merit)
         if chosen is not first and self._beyond(chosen[0], previous, reach) and not (
@@ -1208,9 +1212,9 @@ class LidarOdometry:
         levels that fitted worse, and the pose then sat 0.2 m off for tens of scans (SICK,
         thinned to a scan per metre, rooms and maze, turns of 15-40°). A motion hypothesis
         (the typical step, the last one repeated) is as often such a start, and a pull of
-        less than a search-level cell as often leaves the finer basin it started in: run
-        only for the searches' seeds pulled farther than a cell, 10 of 48 thinned routes
-        fitted worse (benchmarks README, "The finer levels for every seed"). None while
+        less than a search-level cell as often leaves the finer basin it started in (the
+        rule before, only the searches' seeds pulled farther than a cell, did worse on 10 of
+        48 thinned routes: benchmarks README, "The finer levels for every seed"). None while
         the step prior is flat: a further candidate is only as safe as the prior that
         weighs it against look-alikes (the warehouse of identical aisles, 5th scan: a finer
         basin 2 m back fitted 0.01 better than the true step a metre on, and four steps

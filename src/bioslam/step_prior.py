@@ -220,7 +220,9 @@ class StepPrior:
         c = self.config
         if c.cone_sigma is None:
             return 1.0
-        forward, reverse = (heading_cone_offset(step, r) / c.cone_sigma for r in (False, True))
+        dx, dy, turn = np.asarray(step, dtype=np.float64).reshape(3).tolist()
+        forward = _forward_cone_offset(dx, dy, turn) / c.cone_sigma
+        reverse = _forward_cone_offset(-dx, -dy, turn) / c.cone_sigma
         inside = max(
             math.exp(-0.5 * forward * forward), c.cone_reverse * math.exp(-0.5 * reverse * reverse)
         )

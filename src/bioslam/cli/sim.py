@@ -125,31 +125,25 @@ def save_world_figure(
 
 
 def _make_route(world: World, args: argparse.Namespace) -> Route:
-    from bioslam.sim import ROUTES, make_route
+    from dataclasses import replace
+
+    from bioslam.sim import ROUTES, RouteConfig
 
     limits = {
         "max_speed": args.max_speed,
         "max_yaw_rate": args.max_yaw_rate,
         "fast_turns": args.fast_turns or None,
     }
-    from dataclasses import replace
-
+    given = {k: v for k, v in limits.items() if v is not None}
     if args.route in ("tour", "reversing"):
         if args.lateral_offset is not None or args.turn_back_every is not None:
             raise ValueError("--lateral-offset and --turn-back-every need --route adversarial")
-        if args.route == "tour":
-            return make_route(world, duration=args.duration, seed=args.seed, **limits)
-        from bioslam.sim.reversing import make_reversing_route
-        from bioslam.sim.route import RouteConfig
-
-        given = {k: v for k, v in limits.items() if v is not None}
         config = replace(RouteConfig(), **given)
-        return make_reversing_route(world, duration=args.duration, seed=args.seed, config=config)
+        return ROUTES[args.route](world, duration=args.duration, seed=args.seed, config=config)
 
     from bioslam.sim.adversarial import AdversarialConfig
 
     adv = AdversarialConfig()
-    given = {k: v for k, v in limits.items() if v is not None}
     weave = {"lateral_offset": args.lateral_offset, "turn_back_every": args.turn_back_every}
     adv = replace(adv, route=replace(adv.route, **given),
                   **{k: v for k, v in weave.items() if v is not None})

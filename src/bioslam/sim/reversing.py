@@ -1,4 +1,4 @@
-"""A tour that backs up: the robot stops now and then and reverses along its own path (ours).
+"""A tour that backs up: now and then the robot reverses along its own path (ours).
 
 Robots back out of dead ends and doorways; a thinned log then holds steps a metre *behind* the
 robot, which a matcher that assumes forward motion takes for look-alikes. This route is the
