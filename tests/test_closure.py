@@ -184,6 +184,34 @@ def test_half_a_metre_sideways_what_the_old_pass_never_saw_is_not_held_against_i
     assert math.hypot(err[0], err[1]) < 0.03 and abs(err[2]) < math.radians(0.5)
 
 
+def test_what_the_old_pass_never_saw_does_not_pull_the_registration():
+    # The old pass drove the centre-line facing east with a 180 deg scanner; the robot comes
+    # back 0.3 m to the north facing west, its scanner seeing the corridor behind where the
+    # old pass looked. On every point, those the submap never saw are drawn onto the walls
+    # it did see, and Gauss-Newton slides from the truth itself.
+    from bioslam.closure import _submap_pyramid, refine_where_seen
+    from bioslam.matching.branch_and_bound import refine
+    from bioslam.matching.gauss_newton import levels_up_to
+
+    around = [(5.0 + 0.5 * k, 1.0, 0.0) for k in range(5)]
+    submap, seen = _submap(CORRIDOR_ROOM, 2, around, fov=180.0)
+    robot = _offset(around[2], 0.3, math.pi)
+    truth = np.array(between(around[2], robot))
+    query = _points(CORRIDOR_ROOM, robot, fov=180.0)
+    config = LoopClosureConfig()
+    pyramid = _submap_pyramid(submap, config.registration)
+    iterations = levels_up_to(config.registration.max_iterations, 0)
+    on_every_point, _ = refine(pyramid, truth, query, iterations)
+    where_seen, report = refine_where_seen(pyramid, truth, query, iterations, seen)
+    assert math.hypot(*between(truth, on_every_point)[:2]) > 0.1
+    assert math.hypot(*between(truth, where_seen)[:2]) < 0.01
+    # what the old pass saw of this place is the corridor's two walls
+    assert report.degenerate
+    predicted = compose(truth, (0.1, -0.05, math.radians(3.0)))
+    verdict = verify(submap, query, predicted, (0.5, 0.3), config, seen)
+    assert not verdict.accepted and verdict.reason == "degenerate"
+
+
 def test_points_put_in_space_the_old_pass_saw_free_still_count_as_misses():
     around = [(5.0 + 0.5 * k, 1.0, 0.0) for k in range(5)]
     submap, seen = _submap(CORRIDOR_ROOM, 2, around, fov=180.0)

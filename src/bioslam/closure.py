@@ -546,14 +546,18 @@ def verify(
     # Gauss-Newton from the lattice pose on the searched level and finer only: a coarser
     # level's blur would let it slide along a corridor, away from what the search found.
     level = min(config.search_level, len(pyramid.grids) - 1)
-    pose, report = refine(pyramid, found.pose, query, levels_up_to(reg.max_iterations, level))
+    pose, report = refine_where_seen(
+        pyramid, found.pose, query, levels_up_to(reg.max_iterations, level), seen
+    )
     # The map's own prediction, refined where it stands. Along a corridor the window's best
     # may lie on a plateau the scan barely constrains, far from the truth and with no
     # distinct lattice rival (Gauss-Newton may also slide along it): a correction away from
     # the prediction must fit clearly better than the prediction itself. The two are
     # compared on every point: judged only where the submap looked, a pose that pushes
     # points out of its sight would gain by it.
-    kept, kept_report = refine(pyramid, predicted, query, levels_up_to(reg.max_iterations, 0))
+    kept, kept_report = refine_where_seen(
+        pyramid, predicted, query, levels_up_to(reg.max_iterations, 0), seen
+    )
     fit, kept_fit = (seen_hit_fraction(judge, p, query, reg.hit_level) for p in (pose, kept))
     agree = within(between(kept, pose), config.rival_distance, config.rival_angle)
     if agree and kept_fit >= fit - config.prior_tie:
@@ -589,7 +593,7 @@ def verify(
     elif not within(between(predicted, pose), distance, angle):
         reason = "beyond drift"
     elif rival_window is not None and outside_rival(
-        pyramid, query, predicted, (distance, angle), rival_window, fit, config
+        pyramid, query, predicted, (distance, angle), rival_window, fit, config, seen
     ):
         reason = "ambiguous"
     return Verdict(
@@ -637,6 +641,7 @@ def outside_rival(
     rival_window: tuple[float, float],
     fit: float,
     config: LoopClosureConfig,
+    seen: SeenArea | None = None,
 ) -> bool:
     """Whether a pose outside ``window`` (m, rad) around ``predicted`` but within
     ``rival_window`` (capped at the search window) fits ``query`` as well as the pose
@@ -663,12 +668,37 @@ def outside_rival(
     for start in (found.pose, found.rival_pose):
         if start is None or within(between(predicted, start), *window):
             continue
-        pose, _ = refine(pyramid, start, query, iterations)
+        pose, _ = refine_where_seen(pyramid, start, query, iterations, seen)
         if within(between(predicted, pose), *window):
             continue  # slid back into the window: the accepted pose's own peak
         if seen_hit_fraction(judge, pose, query, reg.hit_level) >= fit - config.prior_tie:
             return True
     return False
+
+
+def refine_where_seen(
+    pyramid: MapPyramid,
+    start: FloatArray,
+    query: FloatArray,
+    iterations: tuple[int, ...],
+    seen: SeenArea | None,
+) -> tuple[FloatArray, MatchReport]:
+    """Gauss-Newton (:func:`bioslam.matching.branch_and_bound.refine`) from ``start`` on the
+    points of ``query`` that land, there, where the submap's scans looked (``seen``; all
+    points without it or when fewer than three do). A point where the old pass never looked
+    has nothing of its own to land on, and the map function pulls it onto the nearest wall
+    it did see: on the simulated maze (SICK scanner, a third of the revisit's scan unseen)
+    that slid the refined pose 6-23 cm from the truth from a start within 1 cm of it; on
+    the seen points alone it stayed within 1.4 cm. The report (its degeneracy too) is of
+    the points matched: where the seen part is one corridor's two walls, the registration
+    cannot place the robot along it, whatever else the scan shows. (Judged on the whole
+    scan instead, such checks were accepted slid 20-30 cm along the corridor from the
+    lattice's pose: maze, SICK scanner, ATE 1.33 cm against 0.39.)"""
+    if seen is not None:
+        covered = seen.covers(transform_points(start, query))
+        if np.count_nonzero(covered) >= 3:
+            query = query[covered]
+    return refine(pyramid, start, query, iterations)
 
 
 def _submap_pyramid(reference: FloatArray, reg: RegistrationConfig) -> MapPyramid:
