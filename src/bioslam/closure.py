@@ -519,7 +519,8 @@ def verify(
 
     The window is searched whole by the wide-basin matcher (branch and bound,
     :mod:`bioslam.matching.branch_and_bound`), which also reports the best distinct rival;
-    Gauss-Newton refines the winner. Accepted only when the result fits (``min_score`` of the
+    Gauss-Newton refines the winner on the points that land where the submap looked
+    (:func:`refine_where_seen`). Accepted only when the result fits (``min_score`` of the
     points land on the submap), is constrained in every direction (not degenerate), and no
     distinct pose in the window fits nearly as well (``rival / best < max_ambiguity``): in a
     corridor or among identical rooms the scan alone cannot say where it is, and a false
