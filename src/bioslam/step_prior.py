@@ -201,15 +201,15 @@ class StepPrior:
         every step known counts against a uniform floor: a step the odometry must not take
         however few it knows (onto the pose where a scan was just fused, whose beam pattern
         a sparse map echoes)."""
-        if not young:
+        if young:
+            kinematic = self.kinematic(step)
+            if self.flat:
+                return -math.log(kinematic)
+            f = min(max(self.config.floor, self.config.floor_steps / len(self._steps)), 1.0)
+        else:
             if not self._steps:
                 return 0.0
-            f = self.config.floor
-            return -math.log((1.0 - f) * self._mean_kernel(step) + f)
-        kinematic = self.kinematic(step)
-        if self.flat:
-            return -math.log(kinematic)
-        f = min(max(self.config.floor, self.config.floor_steps / len(self._steps)), 1.0)
+            kinematic, f = 1.0, self.config.floor
         return -math.log((1.0 - f) * self._mean_kernel(step) + f * kinematic)
 
     def kinematic(self, step: ArrayLike) -> float:
