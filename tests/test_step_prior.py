@@ -158,6 +158,46 @@ def test_modes_are_the_typical_steps_each_distinct():
     assert prior_of(thinned_log_steps()[:2]).modes(3) == []
 
 
+def reference_modes(steps: np.ndarray, count: int, sigma_d: float, sigma_a: float) -> list:
+    """The definition of :meth:`StepPrior.modes`, pair by pair: density the sum of the
+    Gaussian kernel over every known step; densest first (the older of equals), each
+    beyond twice a kernel width of every one chosen before it."""
+    def kernel(a: np.ndarray, b: np.ndarray) -> float:
+        turn = math.remainder(a[2] - b[2], 2 * math.pi)
+        e = ((a[0] - b[0]) ** 2 + (a[1] - b[1]) ** 2) / sigma_d**2 + turn**2 / sigma_a**2
+        return math.exp(-0.5 * e)
+
+    density = [sum(kernel(a, b) for b in steps) for a in steps]
+    chosen: list = []
+    for i in sorted(range(len(steps)), key=lambda k: -density[k]):
+        far = all(
+            math.hypot(*(steps[i][:2] - c[:2])) > 2 * sigma_d
+            or abs(math.remainder(steps[i][2] - c[2], 2 * math.pi)) > 2 * sigma_a
+            for c in chosen
+        )
+        if far and len(chosen) < count:
+            chosen.append(steps[i])
+    return chosen
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_modes_follow_their_definition(seed):
+    """The modes (computed in a compiled loop) are those of the definition, on steps that
+    include exact repeats (ties in density) and turns across ±180°."""
+    rng = np.random.default_rng(seed)
+    steps = thinned_log_steps(int(rng.integers(5, 100)), seed)
+    steps[::7] = steps[0]  # repeats: equal densities, the older first
+    steps[1::9, 2] = math.pi - rng.uniform(0.0, 0.05, len(steps[1::9]))
+    steps[2::9, 2] = -math.pi + rng.uniform(0.0, 0.05, len(steps[2::9]))
+    prior = prior_of(steps)
+    c = prior.config
+    got = prior.modes(8)
+    want = reference_modes(steps, 8, c.sigma_distance, c.sigma_angle)
+    assert len(got) == len(want) >= 3
+    for g, w in zip(got, want, strict=True):
+        np.testing.assert_allclose(g, w, atol=1e-12)
+
+
 def test_a_step_unlike_the_few_known_costs_when_not_young():
     """Below ``min_steps`` the young prior is flat, but the cost an echo pays (not young)
     already counts the steps known: two metres on make standing still cost the most."""

@@ -41,6 +41,7 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -236,19 +237,41 @@ class StepPrior:
         spot or along an arc, and which one it did last says little about the next."""
         if len(self._steps) < self.config.min_steps or count < 1:
             return []
-        h = self._history()
         c = self.config
-        density = self._kernel(h[:, None, :], h[None, :, :]).sum(1)
-        # far[i, j]: step i lies beyond twice the kernel widths of step j
-        d = h[:, None, :] - h[None, :, :]
-        far = (np.hypot(d[..., 0], d[..., 1]) > 2 * c.sigma_distance) | (
-            np.abs(wrap_angle(d[..., 2])) > 2 * c.sigma_angle
-        )
-        order = np.argsort(-density, kind="stable")
-        open_ = np.ones(len(h), dtype=bool)  # far from every step chosen so far
-        chosen: list[np.ndarray] = []
-        while len(chosen) < count and open_.any():
-            i = order[open_[order]][0]
-            chosen.append(h[i].copy())
-            open_ &= far[:, i]
-        return chosen
+        chosen = _typical_steps(self._history(), c.sigma_distance, c.sigma_angle, count)
+        return [step.copy() for step in chosen]
+
+
+@numba.njit(cache=True)
+def _typical_steps(steps: np.ndarray, sigma_distance: float, sigma_angle: float, count: int):
+    """:meth:`StepPrior.modes` on ``steps`` (n, 3): up to ``count`` rows, densest first, each
+    beyond twice a kernel width of every one before it. In loops: the pairwise arrays of
+    the vectorised form cost 0.8 ms a scan on intel (a window of 100 steps), a tenth of the
+    odometry's whole step there."""
+    n = steps.shape[0]
+    density = np.empty(n)
+    for i in range(n):
+        total = 0.0
+        for j in range(n):
+            turn = steps[i, 2] - steps[j, 2]
+            turn = math.pi - (math.pi - turn) % (2.0 * math.pi)
+            dx, dy = steps[i, 0] - steps[j, 0], steps[i, 1] - steps[j, 1]
+            e = (dx * dx + dy * dy) / sigma_distance**2 + turn * turn / sigma_angle**2
+            total += math.exp(-0.5 * e)
+        density[i] = total
+    order = np.argsort(-density, kind="mergesort")  # stable: the older of equals first
+    open_ = np.ones(n, dtype=np.bool_)  # far from every step chosen so far
+    chosen = []
+    for i in order:
+        if len(chosen) == count:
+            break
+        if not open_[i]:
+            continue
+        chosen.append(steps[i])
+        for k in range(n):
+            dx, dy = steps[k, 0] - steps[i, 0], steps[k, 1] - steps[i, 1]
+            turn = steps[k, 2] - steps[i, 2]
+            turn = math.pi - (math.pi - turn) % (2.0 * math.pi)
+            far = math.hypot(dx, dy) > 2 * sigma_distance or abs(turn) > 2 * sigma_angle
+            open_[k] = open_[k] and far
+    return chosen
