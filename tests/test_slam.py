@@ -333,6 +333,50 @@ def test_the_map_relaxes_after_a_closure_on_the_next_scan_to_the_same_trajectory
     np.testing.assert_allclose(at_once.trajectory().poses, slam.trajectory().poses, atol=1e-9)
 
 
+def _relaxations(scans: list, config: SLAMConfig) -> tuple[BioSLAM, list[int], np.ndarray]:
+    """The scans whose look closed a loop, and per scan: whether the map relaxed, whether
+    the odometry fused the scan, whether the system looked."""
+    slam = BioSLAM(config)
+    relaxed = [0]
+    relax = slam.cognitive_map.relax
+
+    def counted(*args, **kwargs):
+        relaxed[0] += 1
+        return relax(*args, **kwargs)
+
+    slam.cognitive_map.relax = counted  # type: ignore[method-assign]
+    closed_at, rows = [], []
+    for k, scan in enumerate(scans):
+        before, looks = relaxed[0], len(slam.records)
+        slam.process(scan)
+        looked = len(slam.records) > looks
+        rows.append((relaxed[0] > before, slam.odometry.last_report.inserted, looked))
+        if looked and slam.records[-1].event == "loop":
+            closed_at.append(k)
+    slam.finish()
+    return slam, closed_at, np.array(rows)
+
+
+def test_a_deferred_relaxation_waits_for_a_scan_the_odometry_fuses(ring_drive):
+    """A closure's relaxation runs on the next scan the odometry fuses (slow already) or
+    a look's, ``view_wait`` scans after the scan after the closure at the latest (sooner
+    when the proximity cue reads the map), so that fewer scans are slow; the map ends where
+    relaxing at once puts it."""
+    scans, _ = ring_drive
+    config = dataclasses.replace(SLAMConfig(), heading_bias=0.002, view_wait=2)
+    slam, closed_at, rows = _relaxations(scans, config)
+    _, _, next_scan = _relaxations(scans, dataclasses.replace(config, view_wait=0))
+    assert len(closed_at) >= 3
+    relaxed_at = np.flatnonzero(rows[:, 0])
+    for k in closed_at:
+        assert relaxed_at[relaxed_at > k][0] <= k + 1 + config.view_wait
+    # relaxations on scans otherwise fast (neither fused nor looked at)
+    plain, plain_next = (int(np.sum(r[:, 0] & ~r[:, 1] & ~r[:, 2])) for r in (rows, next_scan))
+    assert plain <= plain_next // 2
+    at_once, _ = _per_scan_work(scans, dataclasses.replace(config, defer_relaxation=False))
+    np.testing.assert_allclose(at_once.trajectory().poses, slam.trajectory().poses, atol=1e-9)
+
+
 def _looks_and_fused(scans: list, config: SLAMConfig) -> tuple[BioSLAM, np.ndarray]:
     """Per scan: whether the system looked, and whether the odometry fused the scan."""
     slam = BioSLAM(config)

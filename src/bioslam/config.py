@@ -283,12 +283,17 @@ class SLAMConfig:
             verification's window: closures across doubted odometry steps are now
             challenged from outside it (:func:`bioslam.closure.outside_rival`). 0 looks as
             soon as due (benchmarks README, "Loop closure").
-        defer_relaxation: after a loop closure the map relaxes (Eq. 14) on the next scan,
+        defer_relaxation: after a loop closure the map relaxes (Eq. 14) on a later scan,
             not on the one that registered the closure: the check (fusing its submap,
             registering) and the relaxation (a sparse solve over the map's recent window)
             together on one scan set the full system's p99 (benchmarks README, "Loop
-            closure"). The closures and the final trajectory are the same; the pose
-            reported for the closure's own scan is the map's before its correction.
+            closure"). It waits, as a look does (``view_wait``), for the next scan the
+            odometry fuses, which is slow already, or runs when a look or the proximity cue
+            reads the map: on freiburg-079 the relaxations fell on 115 scans of 4,791
+            otherwise fast, 5 so, and the full system's median scan went from 1.61 to 1.45
+            times the odometry's. The closures and the final trajectory are the same; the
+            poses reported for the closure's scan and the few after it are the map's before
+            its correction.
         heading_bias: an artificial gyro-like heading drift (rad/s) added to every odometry
             step before it reaches the pose cells and the map; 0 in normal use. It exists for
             ablations that show loop closure pulling an extra drift back down.

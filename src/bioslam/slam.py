@@ -332,8 +332,10 @@ class BioSLAM:
         self.submaps = SubmapCache()
         self._scans_since_look = 0
         self._last_forced = -np.inf
-        # a relaxation after a closure, left for the next scan (``SLAMConfig.defer_relaxation``)
+        # a relaxation after a closure, left for a later scan (``SLAMConfig.defer_relaxation``),
+        # and the scans it has waited for one the odometry fuses
         self._relax_due = False
+        self._relax_waited = 0
         self._scans_waited = 0
         self._far_before = False
         # the last chain test of the proximity cue (:meth:`_nearby`) and its map state
@@ -406,9 +408,24 @@ class BioSLAM:
         self.bridges += 1
 
     def _relax_if_due(self) -> None:
-        """The relaxation a closure left for the scan after it (``defer_relaxation``)."""
+        """The relaxation a closure left for a later scan (``defer_relaxation``): the next one
+        the odometry fuses into its map, which is slow already, or the ``view_wait``-th
+        (:meth:`_relax_now` runs it sooner when the map is read)."""
+        if not self._relax_due:
+            return
+        fused = self.self_motion.odometry.last_report.inserted
+        if not fused and self._relax_waited < self.config.view_wait:
+            self._relax_waited += 1
+            return
+        self._relax_now()
+
+    def _relax_now(self) -> None:
+        """The relaxation left for later, before anything reads the map's poses (a look, the
+        proximity cue): what they see, and so the closures and the final trajectory, are
+        as if it had run on the scan after the closure."""
         if self._relax_due:
             self._relax_due = False
+            self._relax_waited = 0
             self.cognitive_map.relax()
 
     def _due(self, step: FloatArray) -> bool:
@@ -436,8 +453,7 @@ class BioSLAM:
             return True
         if self._travelled + moved - self._last_forced < cfg.loop_closure.registration_interval:
             return False  # a candidate forces one look per registration interval at most
-        here = compose(self.cognitive_map.pose(), self._pending)
-        if self._nearby(here, self._travelled + moved) is None:
+        if self._nearby(self._travelled + moved, self._pending) is None:
             return False
         if self._held_by_count(step) and self._waits(step):
             return False  # the cue holds over a scan or two: check on the fused scan
@@ -486,6 +502,7 @@ class BioSLAM:
 
     def _perceive(self, scan: LaserScan, dp: FloatArray) -> None:
         """The view cells, pose cells and cognitive map for one scan, after motion ``dp``."""
+        self._relax_now()
         # the odometry's endpoints: de-skewed, and already computed
         points = self.self_motion.odometry.last_points
         # Egocentric views of corridors running in different directions look alike; the map
@@ -512,7 +529,7 @@ class BioSLAM:
             heading_var if self.config.cognitive_map.scan_heading_variance else None,
         )  # fmt: skip
         self._stamp = scan.stamp
-        self._proposed = self._nearby(self.cognitive_map.pose(), self._travelled)
+        self._proposed = self._nearby(self._travelled)
         known = len(self.cognitive_map)
         event = self.cognitive_map.update(
             match.view_id,
@@ -554,17 +571,20 @@ class BioSLAM:
         self._breaks_at[experience_id] = self.self_motion.breaks
         self._extent_at[experience_id] = self.self_motion.break_extent
 
-    def _nearby(self, pose: FloatArray, travelled: float) -> int | None:
-        """The path-integration cue: the experience nearest the robot's map ``pose`` (after
-        ``travelled`` metres of odometry), made long enough ago to be a loop and not already
-        joined to the current one by a short chain of links
-        (:func:`bioslam.closure.nearest_experience`); None while no registration is due."""
+    def _nearby(self, travelled: float, pending: FloatArray | None = None) -> int | None:
+        """The path-integration cue: the experience nearest the robot's map pose (the map's,
+        then ``pending`` motion not yet integrated, after ``travelled`` metres of odometry),
+        made long enough ago to be a loop and not already joined to the current one by a
+        short chain of links (:func:`bioslam.closure.nearest_experience`); None while no
+        registration is due."""
         cfg = self.config.loop_closure
         cmap = self.cognitive_map
         if not (cfg.proximity and cfg.refine) or len(cmap) < 2:
             return None
         if travelled - self._last_registration < cfg.registration_interval:
             return None
+        self._relax_now()
+        pose = cmap.pose() if pending is None else compose(cmap.pose(), pending)
         drift, _ = self._drift_bound(travelled, False)
         found = nearest_experience(
             cmap.experience_poses_view, self._made_at[: len(cmap)], pose, travelled,
@@ -872,7 +892,7 @@ class BioSLAM:
     def finish(self) -> None:
         """Settle the cognitive map after the last scan (the final trajectory is re-derived
         from it)."""
-        self._relax_if_due()
+        self._relax_now()
         if not self.cognitive_map.converged:
             self.cognitive_map.solve()
             self.cognitive_map.relax()
