@@ -25,7 +25,8 @@ from typing import Any
 
 from bioslam.boundary import BoundaryCellConfig
 from bioslam.cognitive_map import CognitiveMapConfig
-from bioslam.odometry import OdometryConfig, RegistrationConfig
+from bioslam.matching.registration import RegistrationConfig
+from bioslam.odometry_config import OdometryConfig
 from bioslam.pose_cells import PoseCellConfig
 from bioslam.views import ViewCellConfig
 
