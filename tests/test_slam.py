@@ -292,10 +292,8 @@ def test_per_scan_columns_kept_on_disk_give_the_same_outputs_in_a_block_of_memor
     on_disk.release_scans()  # the outputs are made: in memory again, empty
     assert len(on_disk.trajectory().poses) == 0
 
-def _per_scan_work(scans: list, config: SLAMConfig) -> tuple[BioSLAM, list[tuple[int, int]]]:
-    """Per scan: loop-closure checks registered, map relaxations run; a last row for
-    ``finish`` (a closure on the last scan is relaxed there)."""
-    slam = BioSLAM(config)
+def _count_relaxations(slam: BioSLAM) -> list[int]:
+    """A one-item list that counts the map's relaxations from now on."""
     relaxed = [0]
     relax = slam.cognitive_map.relax
 
@@ -304,6 +302,14 @@ def _per_scan_work(scans: list, config: SLAMConfig) -> tuple[BioSLAM, list[tuple
         return relax(*args, **kwargs)
 
     slam.cognitive_map.relax = counted  # type: ignore[method-assign]
+    return relaxed
+
+
+def _per_scan_work(scans: list, config: SLAMConfig) -> tuple[BioSLAM, list[tuple[int, int]]]:
+    """Per scan: loop-closure checks registered, map relaxations run; a last row for
+    ``finish`` (a closure on the last scan is relaxed there)."""
+    slam = BioSLAM(config)
+    relaxed = _count_relaxations(slam)
     work = []
     for scan in scans:
         checks, relaxes = len(slam.checks), relaxed[0]
@@ -337,14 +343,7 @@ def _relaxations(scans: list, config: SLAMConfig) -> tuple[BioSLAM, list[int], n
     """The scans whose look closed a loop, and per scan: whether the map relaxed, whether
     the odometry fused the scan, whether the system looked."""
     slam = BioSLAM(config)
-    relaxed = [0]
-    relax = slam.cognitive_map.relax
-
-    def counted(*args, **kwargs):
-        relaxed[0] += 1
-        return relax(*args, **kwargs)
-
-    slam.cognitive_map.relax = counted  # type: ignore[method-assign]
+    relaxed = _count_relaxations(slam)
     closed_at, rows = [], []
     for k, scan in enumerate(scans):
         before, looks = relaxed[0], len(slam.records)
