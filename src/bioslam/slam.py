@@ -576,7 +576,8 @@ class BioSLAM:
         then ``pending`` motion not yet integrated, after ``travelled`` metres of odometry),
         made long enough ago to be a loop and not already joined to the current one by a
         short chain of links (:func:`bioslam.closure.nearest_experience`); None while no
-        registration is due."""
+        registration is due. A relaxation left for later runs first: the cue reads the map's
+        poses (:meth:`_relax_now`)."""
         cfg = self.config.loop_closure
         cmap = self.cognitive_map
         if not (cfg.proximity and cfg.refine) or len(cmap) < 2:
