@@ -45,6 +45,10 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
 - ``typicalstepreversing``: the ``reversing`` route (the tour, backing up 12 s along its
   own path every 45 s) on the four worlds, SICK and URG-04LX, seeds 2 and 3, thinned to a
   scan per 1 m / 0.6 rad: steps a metre behind the robot.
+- ``turnonspot``: logs thinned by distance alone, which keep no scan while the robot turns
+  on the spot (up to 180° between two scans): freiburg-079 at a scan per metre, and the SICK
+  preset on the four worlds' ``adversarial`` route (it spins and turns back), seeds 4 and 5,
+  a third of the run's duration.
 - ``warehouse``: the warehouse of identical aisles, 600 s, SICK (181 beams, 10 Hz) and
   UTM-30LX, with and without the wide-basin search: ATE, and jumps (the position error
   changing by more than 0.3 m between consecutive scans).
@@ -568,6 +572,15 @@ def main() -> None:
             for world in ("rooms", "warehouse", "maze", "hall")
             for lidar in ("sick", "urg04lx")
             for seed in (2, 3)
+        ],
+        "turnonspot": lambda: [
+            log_case("freiburg-079 thinned to a scan per 1 m by distance alone",
+                     "freiburg-079-corrected.log.gz", False, None, thinned(1.0, math.inf)),
+            *(sim_case(f"{world} adversarial sick, a scan per 1 m by distance alone, seed {seed}",
+                       LIDAR_PRESETS["sick"], duration / 3, world=world, seed=seed,
+                       thin=(1.0, None), route="adversarial")
+              for world in ("hall", "maze", "warehouse", "rooms")
+              for seed in (4, 5)),
         ],
         "warehouse": lambda: [
             sim_case(f"warehouse {lidar}{label}", LIDAR_PRESETS[lidar], duration, config,
