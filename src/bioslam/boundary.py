@@ -40,6 +40,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from bioslam.compiled import wrap_scalar
 from bioslam.geometry import wrap_angle
 from bioslam.scan import LaserScan
 
@@ -153,11 +154,6 @@ class BoundaryCellConfig:
 
 
 @njit(cache=True)
-def _wrap(a: float) -> float:
-    return math.pi - ((math.pi - a) % (2.0 * math.pi))
-
-
-@njit(cache=True)
 def boundary_cell_update(
     d: float, alpha: float, d_i: float, alpha_i: float, sigma_d: float, sigma_alpha: float
 ) -> float:
@@ -167,7 +163,7 @@ def boundary_cell_update(
     angle difference wrapped to ``(-pi, pi]`` so that fields straddling the rear are continuous.
     """
     rd = (d - d_i) / sigma_d
-    ra = _wrap(alpha - alpha_i) / sigma_alpha
+    ra = wrap_scalar(alpha - alpha_i) / sigma_alpha
     return math.exp(-rd * rd - ra * ra) / d
 
 
@@ -203,7 +199,7 @@ def _accumulate(
         dp = d[p]
         centre = round(alpha[p] / step)
         # |offset| <= step/2 + half*step < pi, so no wrapping is needed below.
-        offset = _wrap(alpha[p] - centre * step)
+        offset = wrap_scalar(alpha[p] - centre * step)
         for k in range(lo_k, hi_k + 1):
             ra = (offset - k * step) / sigma_alpha
             ang[k - lo_k] = math.exp(-ra * ra)

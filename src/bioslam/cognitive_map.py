@@ -65,6 +65,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
+from bioslam.compiled import wrap_scalar
 from bioslam.geometry import between, compose, inverse, wrap_angle
 from bioslam.growing import GrowingArray, IdRows
 from bioslam.pose_cells import PoseCellConfig, wrapped_cell_distance
@@ -258,11 +259,6 @@ class MapEvent:
 
 
 @njit(cache=True)
-def _wrap(a):
-    return math.pi - (math.pi - a) % (2.0 * math.pi)
-
-
-@njit(cache=True)
 def _relax_sweep(poses, src, dst, dps, weights, out_ptr, out_e, in_ptr, in_e, a):
     """One in-place sweep of the weighted Eq. 14 over nodes 1..N-1; returns the largest
     (move, turn). ``weights[e]`` is link e's (position, heading) information."""
@@ -287,12 +283,12 @@ def _relax_sweep(poses, src, dst, dps, weights, out_ptr, out_e, in_ptr, in_e, a)
         r_th = 0.0
         for q in range(out_ptr[i], out_ptr[i + 1]):
             e = out_e[q]
-            r_th += weights[e, 1] * _wrap(poses[dst[e], 2] - th_i - dps[e, 2])
+            r_th += weights[e, 1] * wrap_scalar(poses[dst[e], 2] - th_i - dps[e, 2])
         for q in range(in_ptr[i], in_ptr[i + 1]):
             e = in_e[q]
-            r_th += weights[e, 1] * _wrap(poses[src[e], 2] + dps[e, 2] - th_i)
+            r_th += weights[e, 1] * wrap_scalar(poses[src[e], 2] + dps[e, 2] - th_i)
         d_th = scale * r_th / w_th
-        th_i = _wrap(th_i + d_th)
+        th_i = wrap_scalar(th_i + d_th)
         poses[i, 2] = th_i
         c = math.cos(th_i)
         s = math.sin(th_i)

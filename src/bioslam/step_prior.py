@@ -45,6 +45,7 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike
 
+from bioslam.compiled import wrap_scalar
 from bioslam.geometry import wrap_angle
 
 
@@ -253,7 +254,7 @@ def _typical_steps(steps: np.ndarray, sigma_distance: float, sigma_angle: float,
     for i in range(n):
         total = 0.0
         for j in range(n):
-            turn = _wrapped(steps[i, 2] - steps[j, 2])
+            turn = wrap_scalar(steps[i, 2] - steps[j, 2])
             dx, dy = steps[i, 0] - steps[j, 0], steps[i, 1] - steps[j, 1]
             e = (dx * dx + dy * dy) / sigma_distance**2 + turn * turn / sigma_angle**2
             total += math.exp(-0.5 * e)
@@ -269,13 +270,8 @@ def _typical_steps(steps: np.ndarray, sigma_distance: float, sigma_angle: float,
         chosen.append(steps[i])
         for k in range(n):
             dx, dy = steps[k, 0] - steps[i, 0], steps[k, 1] - steps[i, 1]
-            turn = _wrapped(steps[k, 2] - steps[i, 2])
+            turn = wrap_scalar(steps[k, 2] - steps[i, 2])
             far = math.hypot(dx, dy) > 2 * sigma_distance or abs(turn) > 2 * sigma_angle
             open_[k] = open_[k] and far
     return chosen
 
-
-@numba.njit(cache=True)
-def _wrapped(angle: float) -> float:
-    """:func:`bioslam.geometry.wrap_angle` of one angle, the same operations."""
-    return math.pi - (math.pi - angle) % (2.0 * math.pi)
