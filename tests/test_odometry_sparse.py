@@ -15,6 +15,7 @@ from bioslam.geometry import between
 from bioslam.io.logs import open_log
 from bioslam.odometry import LidarOdometry, MatchReport, OdometryConfig, turned_windows
 from bioslam.step_prior import StepPriorConfig
+from bioslam.thinning import thin_indices
 from bioslam.trajectory import Trajectory
 
 
@@ -314,6 +315,46 @@ def test_a_room_turned_round_is_not_taken_for_a_step_onto_new_ground():
     assert np.abs(np.degrees(truth[:, 2])).max() < 60.0  # no turn reaches the far ring
     error = np.hypot(*(est[:, :2] - true_poses[:, :2]).T)
     assert np.sqrt(np.mean(error**2)) < 0.10
+
+
+def test_a_corner_turned_between_two_scans_is_searched_when_no_match_fits():
+    """The maze on its tour, seed 0, thinned by distance alone: the fourth step turns 83° round
+    a corner. Every match in the ±45° window put as many beams through walls and into free
+    space as it fitted (quality ≤ 0) without failing outright, so the turned windows were never
+    searched and the route was lost (ATE 19.6 m on dff5551); they are searched when no match is
+    credible, and every step's heading holds within 5°."""
+    steps, true_steps, est, true_poses = thinned_route_steps(
+        "maze", "tour", 0, OdometryConfig(), angle=None
+    )
+    assert np.degrees(np.abs(true_steps[:, 2])).max() > 80.0
+    assert np.degrees(np.abs(between(true_steps, steps)[:, 2])).max() < 5.0
+    error = np.hypot(*(est[:, :2] - true_poses[:, :2]).T)
+    assert np.sqrt(np.mean(error**2)) < 0.5
+
+
+def test_a_real_log_thinned_by_path_length_alone_is_followed():
+    """freiburg-079 kept a scan per metre of path, as ``bioslam thin --distance 1`` does: 401
+    scans, turns of up to 147° between two. At that turn one match, failed and a step unlike
+    any recent one, still fitted more than it contradicted (quality 0.13) and kept the far
+    ring of windows unsearched; the odometry placed the turn at 60° and was lost (5 steps off
+    by more than 0.3 m or 5°, 17 m off at the end, on dff5551). None now."""
+    source = open_log(shared_log("freiburg-079-corrected.log.gz"))
+    scans = list(source)
+    stamps = np.array([s.stamp for s in scans])
+    reference = source.reference.at(stamps).poses
+    keep = thin_indices(reference, distance=1.0)
+    odo = LidarOdometry(initial_pose=reference[keep[0]])
+    est = []
+    for k in keep:
+        odo.update(scans[k])
+        est.append(odo.pose.copy())
+    est = np.array(est)
+    truth = between(reference[keep[:-1]], reference[keep[1:]])
+    assert np.degrees(np.abs(truth[:, 2])).max() > 140.0
+    miss = between(truth, between(est[:-1], est[1:]))
+    wrong = (np.hypot(miss[:, 0], miss[:, 1]) > 0.3) | (np.degrees(np.abs(miss[:, 2])) > 5.0)
+    assert wrong.sum() == 0, np.flatnonzero(wrong)
+
 
 @pytest.mark.parametrize("degrees", [20.0, 30.0, 45.0, 60.0, 90.0, 100.0])
 def test_the_turned_windows_cover_every_heading(degrees):

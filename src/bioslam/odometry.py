@@ -82,9 +82,9 @@ def turned_windows(half_width: float) -> list[tuple[float, ...]]:
     half_width`` apart either way, nearest first (one window where the two sides meet at
     180°). A log thinned by distance alone keeps no scan while the robot turns on the spot:
     freiburg-079 at a scan per metre turns more than 135° between 5 of its 401 scans, up to
-    179°. The odometry searches a ring only while every match so far sees through walls, and
-    one beyond the first only while every match is contradicted by the map
-    (:meth:`LidarOdometry._contradicted`): a room looks much like itself turned round, and
+    179°. The odometry searches the first ring while every match so far sees through walls
+    or none is credible, and one beyond it only while none is credible
+    (:meth:`LidarOdometry._credible`): a room looks much like itself turned round, and
     where the true step's match only fitted too little of a scan seeing new ground, the room
     turned round outscored it (6 of the rooms world's 12 routes thinned to a scan per metre
     and 0.6 rad were lost with the far rings searched as the near ones)."""
@@ -460,9 +460,10 @@ class LidarOdometry:
         match nearest ``start`` (:meth:`_choose`), or on sparse scans and while every scan
         so far came after a gap (:meth:`_sparse_so_far`: standing still is then no motion
         prior) the best one (:meth:`_choose_sparse`). When
-        every match so found sees through walls, the search is repeated for a turn of about
-        ``2 * search_angle`` either way from ``previous`` (thinned logs turn up to 80°
-        between scans)."""
+        every match so found sees through walls, or none is credible (:meth:`_credible`),
+        the search is repeated for a turn of about ``2 * search_angle`` either way from
+        ``previous`` (thinned logs turn up to 80° between scans), and on round the circle
+        while none is credible (:func:`turned_windows`)."""
         c = self.config
         gapless = dt <= c.gap_time  # the start is then a trusted prediction
         # the prior pulls towards the motion model's prediction, never a standstill it did not
@@ -504,9 +505,9 @@ class LidarOdometry:
                 self._weigh_walls(slid, level_pts[0])
                 options += slid
             for k, ring in enumerate(turned_windows(c.search_angle)):
-                if not all(self._hopeless(o, previous) for o in options):
-                    break
-                if k > 0 and not all(self._contradicted(o) for o in options):
+                if any(self._credible(o, previous) for o in options) and (
+                    k > 0 or not all(self._hopeless(o, previous) for o in options)
+                ):
                     break  # a match that only failed its score: a room turned round fits better
                 weighed = len(options)
                 for angle in ring:
@@ -616,11 +617,19 @@ class LidarOdometry:
             return True
         return self._sparse() and self._implausible(between(previous, option[0]))
 
-    def _contradicted(self, option: tuple[FloatArray, MatchReport, bool]) -> bool:
-        """A match the map rejects, or whose quality is no better than none (its endpoints'
-        fit outweighed by the beams it puts through known walls or into known free space),
-        as opposed to one that merely fits too little of a scan that sees new ground."""
-        return self._rejected(option[1]) or _match_quality(option[1]) <= 0.0
+    def _credible(self, option: tuple[FloatArray, MatchReport, bool], previous: FloatArray) -> bool:
+        """A match that may yet be the true step: not contradicted by the map (rejected, or
+        its quality no better than none: its endpoints' fit outweighed by the beams it puts
+        through known walls or into known free space), and not both failed and a step unlike
+        the recent ones. A step like the recent ones that merely fits too little of a scan
+        seeing new ground is credible; a failed match 2.5 m and 60° off the typical step is
+        not (freiburg-079 thinned to a scan per metre of path, a 147° turn between two
+        scans: such a match, quality 0.13, kept the far ring unsearched and the run lost)."""
+        report = option[1]
+        if self._rejected(report) or _match_quality(report) <= 0.0:
+            return False
+        implausible = self._sparse() and self._implausible(between(previous, option[0]))
+        return not (option[2] and implausible)
 
     def _implausible(self, step: FloatArray) -> bool:
         """The step prior's density of ``step`` is below ``implausible_density``: a step
