@@ -46,9 +46,10 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
   own path every 45 s) on the four worlds, SICK and URG-04LX, seeds 2 and 3, thinned to a
   scan per 1 m / 0.6 rad: steps a metre behind the robot.
 - ``turnonspot``: logs thinned by distance alone, which keep no scan while the robot turns
-  on the spot (up to 180° between two scans): freiburg-079 at a scan per metre, and the SICK
-  preset on the four worlds' ``adversarial`` route (it spins and turns back), seeds 4 and 5,
-  a third of the run's duration.
+  on the spot (up to 180° between two scans): freiburg-079 at a scan per metre of
+  displacement and of path (as ``bioslam thin`` does), and the SICK preset on the four
+  worlds' ``adversarial`` route (it spins and turns back) and tour, seeds 4 and 5, a third
+  of the run's duration.
 - ``warehouse``: the warehouse of identical aisles, 600 s, SICK (181 beams, 10 Hz) and
   UTM-30LX, with and without the wide-basin search: ATE, and jumps (the position error
   changing by more than 0.3 m between consecutive scans).
@@ -305,6 +306,18 @@ def thinned(distance: float, angle: float):
                 kept.append(scan)
                 last = pose
         return kept
+
+    return select
+
+
+def path_thinned(distance: float):
+    """A scan selector for :func:`log_case` that thins a log as ``bioslam thin --distance``
+    does: a scan per ``distance`` metres of the reference's path (a turn on the spot, or
+    the way to a point and back, counts as no distance or as the whole path)."""
+
+    def select(scans: list, ref: Trajectory) -> list:
+        poses = ref.at(np.array([s.stamp for s in scans])).poses
+        return [scans[k] for k in thin_indices(poses, distance)]
 
     return select
 
@@ -576,9 +589,12 @@ def main() -> None:
         "turnonspot": lambda: [
             log_case("freiburg-079 thinned to a scan per 1 m by distance alone",
                      "freiburg-079-corrected.log.gz", False, None, thinned(1.0, math.inf)),
-            *(sim_case(f"{world} adversarial sick, a scan per 1 m by distance alone, seed {seed}",
+            log_case("freiburg-079 thinned to a scan per 1 m of path (bioslam thin)",
+                     "freiburg-079-corrected.log.gz", False, None, path_thinned(1.0)),
+            *(sim_case(f"{world} {route} sick, a scan per 1 m by distance alone, seed {seed}",
                        LIDAR_PRESETS["sick"], duration / 3, world=world, seed=seed,
-                       thin=(1.0, None), route="adversarial")
+                       thin=(1.0, None), route=route)
+              for route in ("adversarial", "tour")
               for world in ("hall", "maze", "warehouse", "rooms")
               for seed in (4, 5)),
         ],
