@@ -618,17 +618,22 @@ class LidarOdometry:
         return self._sparse() and self._implausible(between(previous, option[0]))
 
     def _credible(self, option: tuple[FloatArray, MatchReport, bool], previous: FloatArray) -> bool:
-        """A match that may yet be the true step: not contradicted by the map (rejected, or
-        its quality no better than none: its endpoints' fit outweighed by the beams it puts
-        through known walls or into known free space), and not both failed and a step unlike
-        the recent ones. A step like the recent ones that merely fits too little of a scan
-        seeing new ground is credible; a failed match 2.5 m and 60° off the typical step is
-        not (freiburg-079 thinned to a scan per metre of path, a 147° turn between two
-        scans: such a match, quality 0.13, kept the far ring unsearched and the run lost)."""
+        """A match that may yet be the true step: not rejected by the map, its quality above
+        what the step prior charges for its step (on sparse scans, where the prior weighs the
+        matches; above none on dense ones), and not both failed and a step unlike the recent
+        ones. A step like the recent ones that merely fits too little of a scan seeing new
+        ground is credible. Not credible: a failed match 2.5 m and 60° off the typical step
+        (freiburg-079 thinned to a scan per metre of path, a 147° turn between two scans: at
+        quality 0.13 it kept the far ring unsearched and the run was lost), nor one that
+        barely fits (quality 0.01) a step 1.4 m back and 39° off that the prior charges 0.22
+        for (the warehouse's tour thinned by distance alone, seed 4: a turn of 50° out of the
+        ±45° window, the turned windows never searched and the route lost)."""
         report = option[1]
-        if self._rejected(report) or _match_quality(report) <= 0.0:
+        sparse = self._sparse()
+        cost = self._step_cost(previous, option[0]) if sparse else 0.0
+        if self._rejected(report) or _match_quality(report) - cost <= 0.0:
             return False
-        implausible = self._sparse() and self._implausible(between(previous, option[0]))
+        implausible = sparse and self._implausible(between(previous, option[0]))
         return not (option[2] and implausible)
 
     def _implausible(self, step: FloatArray) -> bool:
