@@ -94,6 +94,39 @@ def test_scrolling_keeps_content_in_place_and_memory_constant():
     assert not grid.known_mask().any() and grid.nbytes == before
 
 
+def _scrolled(layer: np.ndarray, drow: int, dcol: int) -> np.ndarray:
+    """``layer`` with cell (r, c) taken from (r + drow, c + dcol), 0 where that is outside."""
+    out = np.zeros_like(layer)
+    rows, cols = layer.shape[:2]
+    for r in range(rows):
+        for c in range(cols):
+            if 0 <= r + drow < rows and 0 <= c + dcol < cols:
+                out[r, c] = layer[r + drow, c + dcol]
+    return out
+
+
+@pytest.mark.parametrize(
+    "drow, dcol", [(3, -2), (-3, 2), (0, 5), (0, -5), (4, 0), (-4, 0), (-1, -1), (17, 3), (0, -40)]
+)
+def test_every_layer_scrolls_cell_for_cell_in_place(drow, dcol):
+    """Each layer (log-odds, stamps, the four sub-cell moments, hits, weights) scrolled by
+    whole cells either way, or past its edge, moves every value to its new cell and zeroes
+    the cells that came in; the arrays themselves are kept (no copy of the map a scroll)."""
+    rng = np.random.default_rng(abs(drow) * 100 + abs(dcol))
+    grid = OccupancyGrid(0.1, (1.7, 1.2))  # 12 rows x 17 columns
+    for name in grid._layers:
+        layer = getattr(grid, name)
+        layer[...] = rng.integers(1, 1000, size=layer.shape).astype(layer.dtype)
+    before = {name: getattr(grid, name).copy() for name in grid._layers}
+    arrays = {name: getattr(grid, name) for name in grid._layers}
+    origin = grid.origin.copy()
+    grid.shift_cells(drow, dcol)
+    for name in grid._layers:
+        assert getattr(grid, name) is arrays[name]
+        np.testing.assert_array_equal(getattr(grid, name), _scrolled(before[name], drow, dcol))
+    np.testing.assert_allclose(grid.origin, origin + 0.1 * np.array([dcol, drow]))
+
+
 def test_grow_to_include_keeps_alignment_and_content():
     grid = OccupancyGrid(0.05, 2.0, auto_grow=True)
     grid.insert_scan([0.0, 0.0, 0.0], _wall_scan(0.6, half_width=0.5))

@@ -150,6 +150,29 @@ def _count_through_walls(logodds, pts, x, y, theta, ox, oy, res, level, margin):
 
 
 @numba.njit(cache=True)
+def _scroll_in_place(a, drow, dcol):
+    """``a[r, c] = a[r + drow, c + dcol]`` for every cell, 0 where that lies outside ``a``,
+    without a second array: rows are visited in the order that reads each row before it is
+    overwritten, and a row that only moves sideways goes through a one-row buffer."""
+    rows, cols = a.shape
+    lo, hi = max(-dcol, 0), min(cols, cols - dcol)  # the columns that keep a value
+    buffer = np.empty(max(hi - lo, 0), dtype=a.dtype)
+    for k in range(rows):
+        r = k if drow >= 0 else rows - 1 - k
+        src = r + drow
+        if src < 0 or src >= rows or hi <= lo:
+            a[r, :] = 0
+            continue
+        if src == r:
+            buffer[:] = a[src, lo + dcol : hi + dcol]
+            a[r, lo:hi] = buffer
+        else:
+            a[r, lo:hi] = a[src, lo + dcol : hi + dcol]
+        a[r, :lo] = 0
+        a[r, hi:] = 0
+
+
+@numba.njit(cache=True)
 def _add_clamped(grid, r, c, delta, lo, hi) -> None:
     v = grid[r, c] + delta
     if v < lo:
@@ -659,17 +682,16 @@ class OccupancyGrid:
         what falls outside is forgotten, so memory stays constant."""
         if drow == 0 and dcol == 0:
             return
+        # in place: a new array per layer (28 MB for a 48 m grid at 5 cm) cost its page
+        # faults on every scroll, 6-53 ms a time on intel, the slowest of its scans
         for name in self._layers:
-            old = getattr(self, name)
-            new = np.zeros_like(old)
-            rows, cols = old.shape[:2]
-            if abs(drow) < rows and abs(dcol) < cols:
-                src_r = slice(max(drow, 0), rows + min(drow, 0))
-                dst_r = slice(max(-drow, 0), rows + min(-drow, 0))
-                src_c = slice(max(dcol, 0), cols + min(dcol, 0))
-                dst_c = slice(max(-dcol, 0), cols + min(-dcol, 0))
-                new[dst_r, dst_c] = old[src_r, src_c]
-            setattr(self, name, new)
+            layer = getattr(self, name)
+            if not layer.flags.c_contiguous:
+                layer = np.ascontiguousarray(layer)
+                setattr(self, name, layer)
+            rows, cols = layer.shape[:2]
+            per_cell = layer.size // max(rows * cols, 1)  # a cell's values, side by side
+            _scroll_in_place(layer.reshape(rows, -1), drow, dcol * per_cell)
         self.origin = self.origin + self.resolution * np.array([dcol, drow], dtype=np.float64)
 
     def recenter(self, x: float, y: float, quantum: int = 1) -> None:
