@@ -16,7 +16,10 @@ For each case (world, scanner, route):
   180 or 270 deg scanner then shares little or nothing of its field of view with it);
 * ATE RMSE of the full system and of its own odometry;
 * per-scan wall time: the full system's median, p99 and mean, and the odometry alone on the
-  same scans, run interleaved with it scan by scan (ratios of medians and of means).
+  same scans, run interleaved with it scan by scan (ratios of medians and of means), after
+  the warm-up ``bioslam run`` does before its first scan (every compiled kernel's first call,
+  SciPy's sparse solver loaded by a loop closure: :func:`bioslam.pipeline.warm_up`), so that
+  start-up costs are not counted as the first scans' (``--cold`` counts them).
 
     python benchmarks/bench_loops.py [--cases maze-tour,rooms-adversarial,...] [--duration 600]
         [--thin 5]
@@ -42,6 +45,7 @@ from bioslam.config import SLAMConfig, config_from_dict
 from bioslam.evaluation import evaluate
 from bioslam.geometry import between, wrap_angle
 from bioslam.odometry import LidarOdometry
+from bioslam.pipeline import warm_up
 from bioslam.scan import LaserScan
 from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world, simulate_scans
 from bioslam.slam import BioSLAM
@@ -382,8 +386,13 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[],
                     help="setting override, e.g. --set loop_closure.deadband=0 (a bare name "
                          "is a loop_closure setting)")
+    ap.add_argument("--cold", action="store_true",
+                    help="no warm-up: the first calls of the compiled kernels and the first "
+                         "closure's loading of the sparse solver count as the scans'")
     args = ap.parse_args()
     config = config_from_dict(overrides(args.set), "--set")
+    if not args.cold:
+        print(f"warm-up (as bioslam run does): {warm_up(config):.1f} s", flush=True)
     for path in args.log:
         print(report_log(path, config), flush=True)
     for name in args.cases.split(",") if args.cases else ():
