@@ -505,8 +505,8 @@ class LidarOdometry:
                 self._weigh_walls(slid, level_pts[0])
                 options += slid
             for k, ring in enumerate(turned_windows(c.search_angle)):
-                if any(self._credible(o, previous) for o in options) and (
-                    k > 0 or not all(self._hopeless(o, previous) for o in options)
+                if (k > 0 or not all(self._hopeless(o, previous) for o in options)) and any(
+                    self._credible(o, previous) for o in options
                 ):
                     break  # a match that only failed its score: a room turned round fits better
                 weighed = len(options)
