@@ -89,6 +89,40 @@ def test_intel_thinned_log_from_ten_starts_has_few_wrong_steps():
     assert np.median(rmse) < 0.09 and np.sum(rmse <= 0.10) >= 8, rmse
 
 
+def test_the_search_pools_the_map_again_only_when_it_changed():
+    """The two windows turned either way from the last pose share their box: the map is
+    pooled once for both, and again whenever the map took a scan, scrolled, or the box moved;
+    every search then finds what a searcher pooled afresh finds."""
+    from bioslam.matching.branch_and_bound import WideBasinMatcher
+
+    rng = np.random.default_rng(3)
+    odo = LidarOdometry()
+    for k, pose in enumerate(room_path(3, 0.3)):
+        odo.update(make_scan(ROOM, pose, stamp=0.1 * k, sigma=0.01, rng=rng))
+    pooled = []
+    set_map = odo._searcher.set_map
+    odo._searcher.set_map = lambda grid, box=None: (pooled.append(box), set_map(grid, box))
+    points = make_scan(ROOM, (0.5, 0.2, 0.3), sigma=0.01, rng=rng).endpoints()
+    grid = odo.pyramid.grids[odo.config.search_level]
+
+    def search_matches_a_fresh_pooling(centre):
+        found = odo._search_seeds(points, centre, 1.0, 0.6)[0]
+        fresh = WideBasinMatcher(odo._searcher.config)
+        fresh.set_map(grid, pooled[-1])
+        np.testing.assert_array_equal(found, fresh.search(points, centre).pose)
+
+    start = odo.pose.copy()
+    search_matches_a_fresh_pooling(start)
+    search_matches_a_fresh_pooling(start + np.array([0.0, 0.0, 1.5]))  # same box
+    assert len(pooled) == 1
+    grid.insert_scan(start, points[:20])
+    search_matches_a_fresh_pooling(start)
+    grid.shift_cells(2, -1)
+    search_matches_a_fresh_pooling(start)
+    search_matches_a_fresh_pooling(start + np.array([0.4, 0.0, 0.0]))
+    assert len(pooled) == 4
+
+
 def test_a_match_that_slid_off_the_map_is_not_taken_on_sparse_scans():
     """Intel from its 5th scan: the map there held the first pass's walls, so every match that
     fitted had some endpoints in known free space (rejected), and one Gauss-Newton run slid
