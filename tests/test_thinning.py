@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bioslam.geometry import between
 from bioslam.io.logs import open_log
 from bioslam.io.tum import read_tum
 from bioslam.sim import load_world, make_adversarial_route
@@ -146,6 +147,10 @@ def test_thin_a_simulated_bag_by_its_ground_truth(tmp_path):
     gt = read_tum(sim / "gt.tum")
     keep = thin_indices(gt.poses, 0.5, np.deg2rad(20.0))
     assert 3 <= summary["scans_kept"] == len(keep) < 60
+    steps = between(gt.poses[keep[:-1]], gt.poses[keep[1:]])
+    turns = np.degrees(np.abs(steps[:, 2]))
+    assert summary["largest_turn_deg"] == pytest.approx(turns.max(), abs=0.05)
+    assert summary["largest_step_m"] == pytest.approx(np.hypot(*steps[:, :2].T).max(), abs=5e-4)
     original = list(open_log(sim / "scans"))
     assert_same_scans(list(open_log(out / "scans")), [original[i] for i in keep])
     thinned_gt = read_tum(out / "gt.tum")

@@ -177,4 +177,20 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "scans_in": int(stamps.size),
         "scans_kept": int(written),
         "path_length_m": round(guide.path_length(), 3),
+        **_largest_steps(guide.poses[keep]),
+    }
+
+
+def _largest_steps(kept: np.ndarray) -> dict[str, float]:
+    """The largest displacement and turn between consecutive kept scans, along the guide:
+    what the odometry must bridge (with ``--distance`` alone a turn on the spot between two
+    scans can reach 180°)."""
+    from bioslam.geometry import between
+
+    if len(kept) < 2:
+        return {"largest_step_m": 0.0, "largest_turn_deg": 0.0}
+    steps = between(kept[:-1], kept[1:])
+    return {
+        "largest_step_m": round(float(np.hypot(steps[:, 0], steps[:, 1]).max()), 3),
+        "largest_turn_deg": round(float(np.degrees(np.abs(steps[:, 2])).max()), 1),
     }
