@@ -568,6 +568,12 @@ class OccupancyGrid:
         return (x0, y0, x0 + cols * self.resolution, y0 + rows * self.resolution)
 
     @property
+    def insertions(self) -> int:
+        """Scans inserted so far: it changes whenever the map's content does (scrolling and
+        growing change :attr:`origin` or :attr:`shape` instead)."""
+        return self._stamp
+
+    @property
     def nbytes(self) -> int:
         return int(sum(getattr(self, n).nbytes for n in self._layers))
 

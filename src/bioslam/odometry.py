@@ -787,11 +787,12 @@ class LidarOdometry:
 
     def _pool(self, grid: OccupancyGrid, box: tuple[float, float, float, float]) -> None:
         """The searcher's pooled map of ``box`` of ``grid``, pooled again only when the grid,
-        its content (its insertion count), its origin or size, the box or the pooling depth changed:
-        the two windows turned either way from the last pose share their box, and the
-        pooling (0.7 ms on intel) then ran twice on the scans that were slow already."""
+        its content (:attr:`~bioslam.occupancy_grid.OccupancyGrid.insertions`), its origin or
+        size, the box or the pooling depth changed: the two windows turned either way from
+        the last pose share their box, and the pooling (0.7 ms on intel) ran twice on the
+        scans that were slow already."""
         depth = self._searcher.depth_for(grid.resolution)
-        key = (grid._stamp, *grid.origin.tolist(), *grid.shape, *box, depth)
+        key = (grid.insertions, *grid.origin.tolist(), *grid.shape, *box, depth)
         if self._pooled is not None and self._pooled[0] is grid and self._pooled[1] == key:
             return
         self._searcher.set_map(grid, box)

@@ -274,4 +274,3 @@ def _typical_steps(steps: np.ndarray, sigma_distance: float, sigma_angle: float,
             far = math.hypot(dx, dy) > 2 * sigma_distance or abs(turn) > 2 * sigma_angle
             open_[k] = open_[k] and far
     return chosen
-

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from bioslam.cli.sim import BAG_NAME, GT_NAME, GT_TOPIC, SCAN_TOPIC
+from bioslam.geometry import between
 from bioslam.trajectory import Trajectory
 
 #: What a CARMEN log's name must contain for its laser poses to be read as a reference.
@@ -185,8 +186,6 @@ def _largest_steps(kept: np.ndarray) -> dict[str, float]:
     """The largest displacement and turn between consecutive kept scans, along the guide:
     what the odometry must bridge (with ``--distance`` alone a turn on the spot between two
     scans can reach 180°)."""
-    from bioslam.geometry import between
-
     if len(kept) < 2:
         return {"largest_step_m": 0.0, "largest_turn_deg": 0.0}
     steps = between(kept[:-1], kept[1:])
