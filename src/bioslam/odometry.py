@@ -32,6 +32,7 @@ from bioslam.matching.gauss_newton import (
     FloatArray,
     MatchReport,
     geometric_conditioning,
+    geometric_information,
     grid_args,
     kept_rows,
     levels_up_to,
@@ -128,6 +129,8 @@ class LidarOdometry:
         self.num_broken = 0
         self._searcher = WideBasinMatcher()
         self._pooled: tuple[OccupancyGrid, tuple] | None = None  # what the searcher pooled
+        # the endpoints and normals last matched, and their geometric information
+        self._geometry: tuple[FloatArray, FloatArray, tuple] | None = None
         self._motion = ConstantVelocityModel(
             c.velocity_window, c.velocity_scans, c.length_scale, c.degeneracy_ratio,
             c.constrained_ratio, c.accel_noise, c.velocity_noise, c.velocity_spread,
@@ -1040,12 +1043,21 @@ class LidarOdometry:
         pose, report = match_scan_to_map(
             self.pyramid, level_pts, start, iterations or c.max_iterations, c.step_tolerance,
             c.length_scale, c.degeneracy_ratio, c.subcell_sigma, normals, prior_weight,
-            prior_pose, restart, prior_information,
+            prior_pose, restart, prior_information, self._scan_geometry(level_pts[0], normals),
         )  # fmt: skip
         report.free_fraction = self.pyramid.finest.fraction_not_above_near(
             pose, level_pts[0], c.free_logodds
         )
         return pose, report
+
+    def _scan_geometry(self, points: FloatArray, normals: FloatArray) -> tuple:
+        """:func:`~bioslam.matching.gauss_newton.geometric_information` of the scan's
+        endpoints, once a scan: Gauss-Newton runs from up to twenty starts on sparse scans."""
+        held = self._geometry
+        if held is None or held[0] is not points or held[1] is not normals:
+            info = geometric_information(points, normals, self.config.length_scale)
+            self._geometry = held = (points, normals, info)
+        return held[2]
 
     def _best_start(
         self, coarse_pts: FloatArray, previous: FloatArray, predicted: FloatArray
