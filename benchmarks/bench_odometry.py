@@ -56,6 +56,10 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
 - ``warehouseadv``: the same warehouse on the ``adversarial`` route (weaving up to 0.5 m off
   the aisles' centre-lines, turning back, spinning on the spot, then driving fast), 3600 s
   (720 s with ``--quick``), seed 3, UTM-30LX and SICK: a route the defaults were not tuned on.
+- ``alignment``: the UTM-30LX on the four worlds' ``adversarial`` route, seed 15, a fifth
+  of the run's duration, the odometry started on the world's frame and off it (half a
+  coarsest cell, a finest cell, no whole cell, turned 7 and 33 degrees): where a log's walls
+  fall in the map's cells is chance (``bioslam run`` starts the map at the first scan).
 - ``maps``: occupancy maps built from the odometry poses of exp1.dat, the ROS 1 bag and
   freiburg-079, written to ``benchmarks/results/odometry_map_<name>.png``.
 
@@ -78,7 +82,7 @@ from pathlib import Path
 import numpy as np
 
 from bioslam.evaluation import associate, ate, rpe_distance, rpe_distance_pairs, three_cornered_hat
-from bioslam.geometry import between, transform_points
+from bioslam.geometry import between, compose, transform_points
 from bioslam.io.logs import open_log
 from bioslam.occupancy_grid import OccupancyGrid
 from bioslam.odometry import LidarOdometry, OdometryConfig
@@ -97,19 +101,30 @@ from bioslam.sim import (
 from bioslam.thinning import thin_indices
 from bioslam.trajectory import Trajectory
 
+# where the odometry starts against the world's frame (the simulated worlds' walls lie on
+# whole centimetres): on it, half a coarsest cell (20 cm) and a finest cell (5 cm) off, off
+# by no whole cell, and turned
+START_OFFSETS = ((0.0, 0.0, 0.0), (0.1, 0.0, 0.0), (0.05, 0.1, 0.0), (0.037, 0.013, 0.0),
+                 (0.0, 0.0, 7.0), (0.0, 0.0, 33.0))  # fmt: skip
+
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data"
 RESULTS = REPO / "benchmarks" / "results"
 
 
-def run_odometry(scans, config: OdometryConfig | None = None, keep_scans: bool = False):
-    """Feed scans to a fresh LidarOdometry; returns (estimate, truth or None, cpu ms, extra)."""
+def run_odometry(scans, config: OdometryConfig | None = None, keep_scans: bool = False,
+                 start_offset=(0.0, 0.0, 0.0)):  # fmt: skip
+    """Feed scans to a fresh LidarOdometry; returns (estimate, truth or None, cpu ms, extra).
+    With ``start_offset`` (x, y, theta) the odometry starts that far off the first true pose
+    (where the world's walls fall in its map's cells changes with it), and the estimate is
+    returned moved back onto the true start."""
     odo = None
     stamps, est, truth, times, kept = [], [], [], [], []
     for item in scans:
         scan, true = item if isinstance(item, tuple) else (item, None)
         if odo is None:
-            odo = LidarOdometry(config, initial_pose=true if true is not None else (0, 0, 0))
+            start = np.zeros(3) if true is None else np.asarray(true, dtype=float)
+            odo = LidarOdometry(config, initial_pose=start + np.asarray(start_offset))
         t0 = time.thread_time()
         odo.update(scan)
         times.append(time.thread_time() - t0)
@@ -119,7 +134,10 @@ def run_odometry(scans, config: OdometryConfig | None = None, keep_scans: bool =
             truth.append(true)
         if keep_scans:
             kept.append(scan.endpoints())
-    est_t = Trajectory(np.array(stamps), np.array(est))
+    est = np.array(est)
+    if np.any(start_offset) and truth:
+        est = compose(truth[0], between(est[0], est))
+    est_t = Trajectory(np.array(stamps), est)
     gt_t = Trajectory(np.array(stamps), np.array(truth)) if truth else None
     extra = {**odo.summary(), "scans": kept}
     return est_t, gt_t, np.array(times[1:]) * 1e3, extra
@@ -156,12 +174,13 @@ def summary(name: str, est: Trajectory, gt: Trajectory, ms: np.ndarray, extra: d
 
 
 def sim_case(name, lidar, duration, config=None, fast_turns=False, obstacles=(), seed=0,
-             every=1, world="maze", thin=None, route="tour"):  # fmt: skip
+             every=1, world="maze", thin=None, route="tour",
+             start_offset=(0.0, 0.0, 0.0)):  # fmt: skip
     """One simulated run (the maze by default); ``every`` > 1 keeps one scan in ``every``
     (a thinned log); ``thin=(metres, radians)`` keeps a scan per distance or angle travelled
     along the true path, as the public "corrected" logs were thinned; ``route`` names one of
     :data:`bioslam.sim.ROUTES` (``adversarial``: weaving off the centre-lines, turning back,
-    spinning on the spot, then driving fast)."""
+    spinning on the spot, then driving fast); ``start_offset``: see :func:`run_odometry`."""
     world = load_world(world)
     if route == "tour":
         route = make_route(world, duration=duration, seed=seed, fast_turns=fast_turns)
@@ -174,7 +193,7 @@ def sim_case(name, lidar, duration, config=None, fast_turns=False, obstacles=(),
         keep = thin_indices(np.array([true for _, true in items]), *thin)
         scans = iter([items[k] for k in keep])
     scans = itertools.islice(scans, 0, None, every)
-    est, gt, ms, extra = run_odometry(scans, config)
+    est, gt, ms, extra = run_odometry(scans, config, start_offset=start_offset)
     return summary(name, est, gt, ms, extra)
 
 
@@ -597,6 +616,14 @@ def main() -> None:
               for route in ("adversarial", "tour")
               for world in ("hall", "maze", "warehouse", "rooms")
               for seed in (4, 5)),
+        ],
+        "alignment": lambda: [
+            sim_case(f"{world} adversarial utm30lx, {duration / 5:.0f} s, seed 15, started "
+                     f"({dx}, {dy}) m, {dth} deg off the world's frame", LIDAR_PRESETS["utm30lx"],
+                     duration / 5, world=world, seed=15, route="adversarial",
+                     start_offset=(dx, dy, math.radians(dth)))
+            for world in ("rooms", "hall", "maze", "warehouse")
+            for dx, dy, dth in START_OFFSETS
         ],
         "warehouse": lambda: [
             sim_case(f"warehouse {lidar}{label}", LIDAR_PRESETS[lidar], duration, config,
