@@ -146,3 +146,29 @@ def test_the_short_range_maze_route_is_never_turned_round_in_a_tenth_of_a_second
     change = np.hypot(*np.diff(np.array(errors), axis=0).T)
     assert change.max() < 0.5  # no jump (1.46 m before)
     assert np.hypot(*errors[-1]) < 0.3
+
+
+def test_a_scan_seeing_new_ground_through_a_door_does_not_slip_back_a_cell():
+    """Simulated URG-04LX (240 degrees, 5.6 m, 10 Hz), the rooms off a corridor, tour, seed 24,
+    the odometry started at the origin as ``bioslam run`` starts it. Each time the robot
+    passed the same door of the repeating rooms, the scan, half of it walls seen for the
+    first time, fitted the coarse levels and then the finest one better a coarsest cell (20
+    cm) back, where its new walls landed on walls seen before: 5 steps 20 cm short, ATE 30
+    cm. The slip puts endpoints where the map saw through (10 % of them), and the finest
+    level's descent from the prediction, which puts fewer there, now wins."""
+    from bioslam.geometry import between, compose
+    from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world, simulate_scans
+
+    world = load_world("rooms")
+    route = ROUTES["tour"](world, duration=240.0, seed=24)
+    items = list(simulate_scans(world, LIDAR_PRESETS["urg04lx"], route, seed=24))
+    truth = np.array([pose for _, pose in items])
+    odo = LidarOdometry(initial_pose=np.zeros(3))
+    estimate = []
+    for scan, _ in items:
+        odo.update(scan)
+        estimate.append(odo.pose.copy())
+    estimate = compose(truth[0], between(estimate[0], np.array(estimate)))
+    miss = between(between(truth[:-1], truth[1:]), between(estimate[:-1], estimate[1:]))
+    assert np.hypot(miss[:, 0], miss[:, 1]).max() < 0.05
+    assert np.hypot(*(estimate[:, :2] - truth[:, :2]).T).max() < 0.1
