@@ -585,8 +585,10 @@ class LidarOdometry:
             return option
         if not self._different_start(alt_pose, pose):
             return option
-        self._weigh_walls([option, alternative], level_pts[0])
-        if self._plausible_beside(report, alt):
+        # weighed on a copy: the match kept stays as the rest of the step would see it
+        weighed = (option[0], replace(report), option[2])
+        self._weigh_walls([weighed, alternative], level_pts[0])
+        if self._plausible_beside(weighed[1], alt):
             return option
         alt.restarted = True
         alt.iterations += report.iterations
@@ -612,8 +614,8 @@ class LidarOdometry:
         return free
 
     def _plausible_beside(self, report: MatchReport, other: MatchReport) -> bool:
-        """A match whose quality (:func:`_match_quality`) is at least ``plausible_ratio``
-        of ``other``'s."""
+        """A match whose quality (:func:`_match_quality`) falls short of ``other``'s by at
+        most ``1 - plausible_ratio`` of its size."""
         best = _match_quality(other)
         return _match_quality(report) >= best - (1.0 - self.config.plausible_ratio) * abs(best)
 
