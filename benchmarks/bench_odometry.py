@@ -60,6 +60,9 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
   of the run's duration, the odometry started on the world's frame and off it (half a
   coarsest cell, a finest cell, no whole cell, turned 7 and 33 degrees): where a log's walls
   fall in the map's cells is chance (``bioslam run`` starts the map at the first scan).
+- ``origin``: every world, route and LiDAR preset (4 x 3 x 5), 240 s, seed 31 (not tuned
+  on), the odometry started at the origin as ``bioslam run`` starts it: a sweep for
+  failures, not a tuning set.
 - ``maps``: occupancy maps built from the odometry poses of exp1.dat, the ROS 1 bag and
   freiburg-079, written to ``benchmarks/results/odometry_map_<name>.png``.
 
@@ -113,17 +116,18 @@ RESULTS = REPO / "benchmarks" / "results"
 
 
 def run_odometry(scans, config: OdometryConfig | None = None, keep_scans: bool = False,
-                 start_offset=(0.0, 0.0, 0.0)):  # fmt: skip
+                 start_offset=(0.0, 0.0, 0.0), from_origin: bool = False):  # fmt: skip
     """Feed scans to a fresh LidarOdometry; returns (estimate, truth or None, cpu ms, extra).
     With ``start_offset`` (x, y, theta) the odometry starts that far off the first true pose
-    (where the world's walls fall in its map's cells changes with it), and the estimate is
-    returned moved back onto the true start."""
+    (where the world's walls fall in its map's cells changes with it), with ``from_origin``
+    at the origin as ``bioslam run`` starts it; the estimate is then returned moved back
+    onto the true start."""
     odo = None
     stamps, est, truth, times, kept = [], [], [], [], []
     for item in scans:
         scan, true = item if isinstance(item, tuple) else (item, None)
         if odo is None:
-            start = np.zeros(3) if true is None else np.asarray(true, dtype=float)
+            start = np.zeros(3) if true is None or from_origin else np.asarray(true, dtype=float)
             odo = LidarOdometry(config, initial_pose=start + np.asarray(start_offset))
         t0 = time.thread_time()
         odo.update(scan)
@@ -135,7 +139,7 @@ def run_odometry(scans, config: OdometryConfig | None = None, keep_scans: bool =
         if keep_scans:
             kept.append(scan.endpoints())
     est = np.array(est)
-    if np.any(start_offset) and truth:
+    if (np.any(start_offset) or from_origin) and truth:
         est = compose(truth[0], between(est[0], est))
     est_t = Trajectory(np.array(stamps), est)
     gt_t = Trajectory(np.array(stamps), np.array(truth)) if truth else None
@@ -175,12 +179,13 @@ def summary(name: str, est: Trajectory, gt: Trajectory, ms: np.ndarray, extra: d
 
 def sim_case(name, lidar, duration, config=None, fast_turns=False, obstacles=(), seed=0,
              every=1, world="maze", thin=None, route="tour",
-             start_offset=(0.0, 0.0, 0.0)):  # fmt: skip
+             start_offset=(0.0, 0.0, 0.0), from_origin=False):  # fmt: skip
     """One simulated run (the maze by default); ``every`` > 1 keeps one scan in ``every``
     (a thinned log); ``thin=(metres, radians)`` keeps a scan per distance or angle travelled
     along the true path, as the public "corrected" logs were thinned; ``route`` names one of
     :data:`bioslam.sim.ROUTES` (``adversarial``: weaving off the centre-lines, turning back,
-    spinning on the spot, then driving fast); ``start_offset``: see :func:`run_odometry`."""
+    spinning on the spot, then driving fast); ``start_offset``, ``from_origin``: see
+    :func:`run_odometry`."""
     world = load_world(world)
     if route == "tour":
         route = make_route(world, duration=duration, seed=seed, fast_turns=fast_turns)
@@ -193,7 +198,8 @@ def sim_case(name, lidar, duration, config=None, fast_turns=False, obstacles=(),
         keep = thin_indices(np.array([true for _, true in items]), *thin)
         scans = iter([items[k] for k in keep])
     scans = itertools.islice(scans, 0, None, every)
-    est, gt, ms, extra = run_odometry(scans, config, start_offset=start_offset)
+    est, gt, ms, extra = run_odometry(scans, config, start_offset=start_offset,
+                                      from_origin=from_origin)
     return summary(name, est, gt, ms, extra)
 
 
@@ -624,6 +630,14 @@ def main() -> None:
                      start_offset=(dx, dy, math.radians(dth)))
             for world in ("rooms", "hall", "maze", "warehouse")
             for dx, dy, dth in START_OFFSETS
+        ],
+        "origin": lambda: [
+            sim_case(f"{world} {route} {lidar}, {duration * 0.4:.0f} s, seed 31, from the origin",
+                     LIDAR_PRESETS[lidar], duration * 0.4, world=world, seed=31, route=route,
+                     from_origin=True)
+            for world in ("rooms", "hall", "maze", "warehouse")
+            for route in ("tour", "adversarial", "reversing")
+            for lidar in ("utm30lx", "sick", "sick361", "urg04lx", "rplidar")
         ],
         "warehouse": lambda: [
             sim_case(f"warehouse {lidar}{label}", LIDAR_PRESETS[lidar], duration, config,
