@@ -488,7 +488,12 @@ class LidarOdometry:
         if weight > c.search_prior_weight:
             options[0] = self._unless_contradicted(options[0], level_pts, start, normals, gapless)
         motion: tuple[FloatArray, ...] = (start,)  # only compared when the search ran
-        searched = c.search_distance > 0 and self._untrusted(options[0][2], dt, previous, start)
+        # a trusted prediction's match that jumped is searched as an untrusted one is: in a
+        # spin its Gauss-Newton can slide into a look-alike basin tens of centimetres off
+        searched = c.search_distance > 0 and (
+            self._untrusted(options[0][2], dt, previous, start)
+            or self._is_jump(options[0][0], start, self._jump_limits())
+        )
         if len(self._searched) == self._searched.maxlen:
             self._num_searched -= self._searched[0]
         self._searched.append(searched)
