@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 from _scan_world import CORRIDOR, ROOM, box, make_scan, pose_error
+from _sim_runs import largest_error, largest_step_error, odometry_run
 
 from bioslam.geometry import between, compose
 from bioslam.matching.correlative import lattice_search
@@ -147,21 +148,9 @@ def test_a_well_conditioned_match_never_ends_worse_than_its_trusted_prediction()
     the next basin, on scans that constrain every direction: 5 steps off by more than 5 cm
     (a jump of 19 cm back, then forth) and 18 cm at worst before the descent was checked
     against its start on those scans too; started on the world's frame, 4.3 cm at worst."""
-    from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world, simulate_scans
-
-    world = load_world("rooms")
-    route = ROUTES["adversarial"](world, duration=120.0, seed=15)
-    items = list(simulate_scans(world, LIDAR_PRESETS["utm30lx"], route, seed=15))
-    truth = np.array([pose for _, pose in items])
-    odo = LidarOdometry(initial_pose=truth[0] + np.array([0.1, 0.0, 0.0]))
-    estimate = []
-    for scan, _ in items:
-        odo.update(scan)
-        estimate.append(odo.pose.copy())
-    estimate = compose(truth[0], between(estimate[0], np.array(estimate)))  # the true start
-    miss = between(between(truth[:-1], truth[1:]), between(estimate[:-1], estimate[1:]))
-    assert np.hypot(miss[:, 0], miss[:, 1]).max() < 0.05
-    assert np.hypot(*(estimate[:, :2] - truth[:, :2]).T).max() < 0.06
+    estimate, truth = odometry_run("rooms", "adversarial", "utm30lx", 15, 120.0, offset=(0.1, 0, 0))
+    assert largest_step_error(estimate, truth) < 0.05
+    assert largest_error(estimate, truth) < 0.06
 
 
 @pytest.mark.parametrize("recovery", [True, False])
@@ -575,17 +564,8 @@ def test_a_standstill_start_that_sees_through_walls_gives_way_to_the_prediction(
     where their beams fell), was the start Gauss-Newton stayed at: 15 % of the endpoints in
     known free space, the odometry stalled for good (4.6 m off at worst). The match from the
     constant-velocity prediction, which puts none there, now wins."""
-    from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world, simulate_scans
-
-    world = load_world("maze")
-    route = ROUTES["adversarial"](world, duration=240.0, seed=31)
-    items = list(simulate_scans(world, LIDAR_PRESETS["sick361"], route, seed=31))
-    odo = LidarOdometry(initial_pose=items[0][1])
-    errors = []
-    for scan, true in items:
-        odo.update(scan)
-        errors.append(np.hypot(*(odo.pose[:2] - true[:2])))
-    assert max(errors) < 0.3
+    estimate, truth = odometry_run("maze", "adversarial", "sick361", 31, 240.0)
+    assert largest_error(estimate, truth) < 0.3
 
 
 def test_a_match_that_jumps_from_a_trusted_prediction_is_searched():
@@ -594,17 +574,5 @@ def test_a_match_that_jumps_from_a_trusted_prediction_is_searched():
     into a basin that fitted (score 0.67, nothing in known free space), and the next scans
     built on it (1.1 m off). A match that far from a trusted prediction is now searched
     around as after a gap, and the plausible match nearest the prediction kept."""
-    from bioslam.geometry import between, compose
-    from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world, simulate_scans
-
-    world = load_world("maze")
-    route = ROUTES["adversarial"](world, duration=240.0, seed=31)
-    items = list(simulate_scans(world, LIDAR_PRESETS["sick361"], route, seed=31))
-    truth = np.array([pose for _, pose in items])
-    odo = LidarOdometry(initial_pose=np.zeros(3))
-    estimate = []
-    for scan, _ in items:
-        odo.update(scan)
-        estimate.append(odo.pose.copy())
-    estimate = compose(truth[0], between(estimate[0], np.array(estimate)))
-    assert np.hypot(*(estimate[:, :2] - truth[:, :2]).T).max() < 0.3
+    estimate, truth = odometry_run("maze", "adversarial", "sick361", 31, 240.0, start="origin")
+    assert largest_error(estimate, truth) < 0.3

@@ -4,6 +4,7 @@ pose along it, and it must carry it at the robot's speed, not stall."""
 import numpy as np
 import pytest
 from _scan_world import make_scan, pose_error
+from _sim_runs import largest_error, largest_step_error, odometry_run
 
 from bioslam.matching.gauss_newton import (
     geometric_conditioning,
@@ -156,19 +157,6 @@ def test_a_scan_seeing_new_ground_through_a_door_does_not_slip_back_a_cell():
     cm) back, where its new walls landed on walls seen before: 5 steps 20 cm short, ATE 30
     cm. The slip puts endpoints where the map saw through (10 % of them), and the finest
     level's descent from the prediction, which puts fewer there, now wins."""
-    from bioslam.geometry import between, compose
-    from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world, simulate_scans
-
-    world = load_world("rooms")
-    route = ROUTES["tour"](world, duration=240.0, seed=24)
-    items = list(simulate_scans(world, LIDAR_PRESETS["urg04lx"], route, seed=24))
-    truth = np.array([pose for _, pose in items])
-    odo = LidarOdometry(initial_pose=np.zeros(3))
-    estimate = []
-    for scan, _ in items:
-        odo.update(scan)
-        estimate.append(odo.pose.copy())
-    estimate = compose(truth[0], between(estimate[0], np.array(estimate)))
-    miss = between(between(truth[:-1], truth[1:]), between(estimate[:-1], estimate[1:]))
-    assert np.hypot(miss[:, 0], miss[:, 1]).max() < 0.05
-    assert np.hypot(*(estimate[:, :2] - truth[:, :2]).T).max() < 0.1
+    estimate, truth = odometry_run("rooms", "tour", "urg04lx", 24, 240.0, start="origin")
+    assert largest_step_error(estimate, truth) < 0.05
+    assert largest_error(estimate, truth) < 0.1
