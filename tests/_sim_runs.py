@@ -7,23 +7,33 @@ from bioslam.geometry import between, compose
 from bioslam.odometry import LidarOdometry
 
 
-def odometry_run(world_name, route_name, lidar, seed, duration, start=None, offset=(0, 0, 0)):
-    """(estimate, truth): the odometry's poses moved onto the true start, and the true poses.
-    ``start`` "origin" starts the odometry at the origin; otherwise at the true first pose
-    plus ``offset`` (x, y, theta)."""
+def odometry_run(
+    world_name, route_name, lidar, seed, duration, start=None, offset=(0, 0, 0), config=None,
+    thin=None,
+):
+    """(estimate, truth): the odometry's poses, moved onto the true start where it started
+    elsewhere, and the true poses. ``start`` "origin" starts the odometry at the origin;
+    otherwise at the true first pose plus ``offset`` (x, y, theta). ``thin`` (metres,
+    radians or None) keeps a scan per distance or angle along the true path
+    (:func:`bioslam.thinning.thin_indices`)."""
     from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world, simulate_scans
+    from bioslam.thinning import thin_indices
 
     world = load_world(world_name)
     route = ROUTES[route_name](world, duration=duration, seed=seed)
     items = list(simulate_scans(world, LIDAR_PRESETS[lidar], route, seed=seed))
+    if thin is not None:
+        items = [items[k] for k in thin_indices(np.array([t for _, t in items]), *thin)]
     truth = np.array([pose for _, pose in items])
+    moved = start == "origin" or np.any(offset)
     initial = np.zeros(3) if start == "origin" else truth[0] + np.asarray(offset, dtype=float)
-    odo = LidarOdometry(initial_pose=initial)
+    odo = LidarOdometry(config, initial_pose=initial)
     estimate = []
     for scan, _ in items:
         odo.update(scan)
         estimate.append(odo.pose.copy())
-    return compose(truth[0], between(estimate[0], np.array(estimate))), truth
+    estimate = np.array(estimate)
+    return (compose(truth[0], between(estimate[0], estimate)) if moved else estimate), truth
 
 
 def largest_error(estimate, truth):

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from _io_data import shared_log
 from _scan_world import ROOM, make_scan, pose_error
+from _sim_runs import odometry_run
 
 from bioslam.evaluation import rpe_distance
 from bioslam.geometry import between
@@ -223,19 +224,9 @@ def thinned_route_steps(
     a scan per ``distance`` metres / ``angle`` radians (None: by distance alone): the
     odometry's and the true steps (each in the frame of the pose before it), then the
     odometry's and the true poses."""
-    from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world, simulate_scans
-    from bioslam.thinning import thin_indices
-
-    world = load_world(world_name)
-    route = ROUTES[route_name](world, duration=200.0, seed=seed)
-    items = list(simulate_scans(world, LIDAR_PRESETS[lidar], route, seed=seed))
-    items = [items[k] for k in thin_indices(np.array([t for _, t in items]), distance, angle)]
-    odo = LidarOdometry(config, initial_pose=items[0][1])
-    est = []
-    for scan, _ in items:
-        odo.update(scan)
-        est.append(odo.pose.copy())
-    est, truth = np.array(est), np.array([t for _, t in items])
+    est, truth = odometry_run(
+        world_name, route_name, lidar, seed, 200.0, config=config, thin=(distance, angle)
+    )
     return between(est[:-1], est[1:]), between(truth[:-1], truth[1:]), est, truth
 
 

@@ -105,6 +105,13 @@ def _match_quality(report: MatchReport) -> float:
     return report.score - report.free_fraction - report.through_fraction
 
 
+def _contradicted_where_constrained(report: MatchReport) -> bool:
+    """A match on a scan that constrains every direction that puts endpoints in known free
+    space (along a direction the scan does not constrain, the motion prior's match is
+    judged by :meth:`LidarOdometry._unless_contradicted` instead)."""
+    return not report.degenerate and report.free_fraction > 0.0
+
+
 class LidarOdometry:
     """Pose change from consecutive LiDAR scans alone (paper Sec. III-A).
 
@@ -488,11 +495,12 @@ class LidarOdometry:
         if weight > c.search_prior_weight:
             options[0] = self._unless_contradicted(options[0], level_pts, start, normals, gapless)
         motion: tuple[FloatArray, ...] = (start,)  # only compared when the search ran
+        jump = self._jump_limits()
         # a trusted prediction's match that jumped is searched as an untrusted one is: in a
         # spin its Gauss-Newton can slide into a look-alike basin tens of centimetres off
         searched = c.search_distance > 0 and (
             self._untrusted(options[0][2], dt, previous, start)
-            or self._is_jump(options[0][0], start, self._jump_limits())
+            or self._is_jump(options[0][0], start, jump)
         )
         if len(self._searched) == self._searched.maxlen:
             self._num_searched -= self._searched[0]
@@ -531,7 +539,6 @@ class LidarOdometry:
                     seeds = self._search_seeds(points, turn, c.search_distance, c.search_angle)
                     options += [self._option(level_pts, seed, normals) for seed in seeds]
                 self._weigh_walls(options[weighed:], level_pts[0])
-        jump = self._jump_limits()
         reach = (jump[0] + c.max_speed * dt, jump[1] + c.max_turn_rate * dt)
         if as_sparse and len(options) > 1:
             pose, report = self._choose_sparse(options, previous, reach)
@@ -580,9 +587,7 @@ class LidarOdometry:
         decides (exp1, a corridor: a poor fit either way, and the finest level's descent
         there doubled the loop gap)."""
         pose, report, _ = option
-        if report.degenerate or report.free_fraction <= 0.0:
-            return option
-        if not self._different_start(start, pose):
+        if not _contradicted_where_constrained(report) or not self._different_start(start, pose):
             return option
         iterations = levels_up_to(self.config.max_iterations, 0)
         alt_pose, alt = self._match_from(
@@ -604,8 +609,7 @@ class LidarOdometry:
         level better than the true step 24 cm on (the map holds the last scans' walls where
         their beams fell), and the match from there stayed: 15 % of its endpoints in free
         space, and the odometry stalled for good."""
-        report = option[1]
-        if report.degenerate or report.free_fraction <= 0.0:
+        if not _contradicted_where_constrained(option[1]):
             return option
         alternative = self._option(level_pts, predicted, normals, weight, target, True, held)
         return self._less_contradicted(option, alternative, level_pts)

@@ -16,7 +16,7 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from bioslam.geometry import wrap_angle
+from bioslam.geometry import separation, wrap_angle
 from bioslam.occupancy_grid import (
     NORMAL_MAX_GAP,
     NORMAL_RADIUS,
@@ -596,14 +596,8 @@ def prior_share(H: FloatArray, direction: FloatArray, weight: float, length_scal
 
 
 def match_covariance(
-    H: FloatArray,
-    cost: float,
-    inside: int,
-    points: int,
-    outside: float,
-    length_scale: float,
-    degenerate: FloatArray | None = None,
-    condition: float = 1.0,
+    H: FloatArray, cost: float, inside: int, points: int, outside: float, length_scale: float,
+    degenerate: FloatArray | None = None, condition: float = 1.0,
 ) -> FloatArray:
     """Covariance of a match's pose (x, y, theta; map frame): ``σ² H⁻¹`` with ``H`` the
     Gauss-Newton normal matrix of Eq. 3 at the final pose from the scan alone (without the
@@ -648,12 +642,8 @@ def _scaled_inverse(H, variance, length, degenerate, condition):
 
 
 def _may_have_left_basin(
-    condition: float,
-    degeneracy_ratio: float,
-    start: FloatArray,
-    pose: FloatArray,
-    resolution: float,
-    length_scale: float,
+    condition: float, degeneracy_ratio: float, start: FloatArray, pose: FloatArray,
+    resolution: float, length_scale: float,
 ) -> bool:
     """Whether the pyramid's descent may have led the finest level out of the basin its
     start lay in, so that :func:`_worse_than_start` is worth its pass over the endpoints: the
@@ -668,8 +658,7 @@ def _may_have_left_basin(
     world's frame the run stayed within 4.3 cm)."""
     if condition < 10.0 * degeneracy_ratio:
         return True
-    turn = abs(math.remainder(float(pose[2] - start[2]), 2.0 * math.pi))
-    moved = math.hypot(float(pose[0] - start[0]), float(pose[1] - start[1]))
+    moved, turn = separation(start, pose)
     return moved > resolution or turn * length_scale > resolution
 
 
@@ -713,12 +702,8 @@ def geometric_information(
 
 
 def mapped_conditioning(
-    grid: OccupancyGrid,
-    points: FloatArray,
-    normals: FloatArray,
-    pose: ArrayLike,
-    level: float,
-    length_scale: float,
+    grid: OccupancyGrid, points: FloatArray, normals: FloatArray, pose: ArrayLike,
+    level: float, length_scale: float,
 ) -> tuple[float, FloatArray]:
     """:func:`geometric_conditioning` of the endpoints that ``pose`` puts on a wall the map
     already holds (a cell of ``grid``, or one of its 8 neighbours, with a log-odds above
