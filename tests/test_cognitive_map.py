@@ -14,7 +14,7 @@ from bioslam.cognitive_map import (
     CognitiveMapConfig,
     Measurement,
     _solve_fixed_point,
-    link_information,
+    link_terms,
     measured_information,
     registration_shape,
     relaxation_correction,
@@ -812,8 +812,8 @@ def corridor_with_undone_slide(bridge: bool) -> tuple[float, float]:
         made[k] = cm.update(k, True, PC, stamp=float(k)).experience
     if bridge:
         across = integrate(odometry_steps[8:14])[-1]  # from before step 8 to after step 13
-        info = link_information(1.2, 0.0, 0, cm.config)
-        assert cm.add_odometry_link(made[7], made[13], across, 14.0, info) is False
+        terms = link_terms(1.2, 0.0, 0, cm.config)
+        assert cm.add_odometry_link(made[7], made[13], across, 14.0, terms) is False
     odometry = cm.experience_poses
     cm.integrate_odometry(steps[-1])
     measured = compose(between(truth[0], truth[-1]), (0.3, 0.0, 0.0))

@@ -28,8 +28,12 @@ Relaxation (Eq. 14) — the choices the paper leaves open, written down:
   no weight) with a floor for what that covariance does not see. With equal weights a
   closure a few centimetres off is spread like an exact one and bends a loop whose odometry
   was better than the registration; weighted, a loop is corrected in proportion to how much
-  its odometry can have drifted. A robust kernel (dynamic covariance scaling,
-  :func:`robust_scale`) then demotes loop links that the solved map contradicts. With equal
+  its odometry can have drifted. How much the odometry drifts and how far a registration
+  errs is learned from the closures themselves (:mod:`bioslam.link_noise`,
+  :meth:`CognitiveMap.set_noise`): where the closures' residuals against the odometry do not
+  grow with the loop, the odometry gets no drift and the closures bend nothing. A robust
+  kernel (dynamic covariance scaling, :func:`robust_scale`) then demotes loop links that the
+  solved map contradicts. With equal
   weights (all links alike) this is Eq. 14 as printed.
 
 * Eq. 14 only names positions; headings are relaxed the same way (as OpenRatSLAM does), since a
@@ -68,6 +72,7 @@ from numpy.typing import ArrayLike, NDArray
 from bioslam.compiled import wrap_scalar
 from bioslam.geometry import between, compose, inverse, wrap_angle
 from bioslam.growing import GrowingArray, IdRows
+from bioslam.link_noise import LinkNoise
 from bioslam.pose_cells import PoseCellConfig, wrapped_cell_distance
 
 FloatArray = NDArray[np.float64]
@@ -100,7 +105,9 @@ class CognitiveMapConfig:
     #: 5,000 experiences on one core, see ``benchmarks/bench_pose_cells.py``) on long runs;
     #: ``None`` always frees the whole map.
     solve_window: int | None = 5000
-    #: Eq. 14's link weights are the links' information (1 / variance). An odometry link's
+    #: Eq. 14's link weights are the links' information (1 / variance). With ``learn_noise``
+    #: (the default) the settings below that set them are the prior of a model the closures
+    #: refine (:mod:`bioslam.link_noise`). An odometry link's
     #: position variance grows by this (m^2) per metre it spans, a random walk: 1e-4 is 1 cm
     #: after 1 m, 7 cm after 50 m. The LiDAR odometry registers each scan against a local
     #: map, so on the simulated worlds its error hardly grows with distance (2-10e-6 per
@@ -119,7 +126,10 @@ class CognitiveMapConfig:
     #: above, which then serve only scans without a match. False: the model alone.
     scan_heading_variance: bool = True
     #: Variance (m^2, rad^2) every link has at least, so that a zero-length link is finite.
-    link_var_floor: tuple[float, float] = (1e-6, 1e-8)
+    #: Far below any link's own: at 1e-6 m² (and 1e-8 rad²) per link the floor alone, over
+    #: the three links a metre of a simulated run makes, gave the odometry more variance
+    #: than its learned drift, and closures bent loops the odometry had within millimetres.
+    link_var_floor: tuple[float, float] = (1e-10, 1e-12)
     #: Standard deviation of a loop closure's measured relative pose beyond what its
     #: registration's covariance says (``registration_covariance``: the submap's own error;
     #: otherwise the whole of it): position (m; closures' errors measured on the simulated
@@ -157,6 +167,18 @@ class CognitiveMapConfig:
     robust_sigmas: float = 6.0
     #: Solves at most per relaxation while the kernel changes a loop link's weight.
     robust_iterations: int = 4
+    #: Refine the link noise model (``odometry_var_per_m``, ``closure_sigma_m``, the scale of
+    #: the odometry's heading variance and ``closure_sigma_rad``) from the accepted closures'
+    #: residuals against the odometry (:mod:`bioslam.link_noise`); the settings above are
+    #: then its prior. False: the settings as they are.
+    learn_noise: bool = True
+    #: The prior's standard deviation around the settings, in decades.
+    noise_prior_decades: float = 1.0
+    #: Accepted closures before the fitted model replaces the settings. The prior keeps a
+    #: single closure from setting the model: its residual against the odometry decides
+    #: only whether the odometry drifted more than a registration errs (a first closure
+    #: 30 cm off after a loop is drift; one 5 mm off is not).
+    noise_min_closures: int = 1
 
     def __post_init__(self) -> None:
         if self.match_threshold <= 0.0:
@@ -177,6 +199,8 @@ class CognitiveMapConfig:
             raise ValueError(f"closure_shape_ratio must be >= 1, got {self.closure_shape_ratio}")
         if self.robust_sigmas < 0.0 or self.robust_iterations < 1:
             raise ValueError("robust_sigmas must be >= 0 and robust_iterations >= 1")
+        if self.noise_prior_decades <= 0.0 or self.noise_min_closures < 1:
+            raise ValueError("noise_prior_decades must be > 0 and noise_min_closures >= 1")
 
 
 @dataclass
@@ -211,19 +235,23 @@ ISOTROPIC = np.array([1.0, 0.0, 1.0])
 @dataclass(frozen=True)
 class NewLink:
     """A link as it enters the map: from ``source`` to ``target``, ``dp`` in the source's
-    frame, made at ``stamp`` ``dt`` seconds after the source was entered, with its
-    (position, heading) information ``info`` (:func:`link_information`) and position
-    information ``shape`` (xx, xy, yy) in the source's frame; ``doubted``: its odometry
-    crossed a step the odometry doubted or broke (:meth:`CognitiveMap.integrate_odometry`)."""
+    frame, made at ``stamp`` ``dt`` seconds after the source was entered, with the terms of
+    its uncertainty ``terms`` (:func:`link_terms`, weighed by the map's noise model when it
+    enters) and position information ``shape`` (xx, xy, yy) in the source's frame;
+    ``doubted``: its odometry crossed a step the odometry doubted or broke
+    (:meth:`CognitiveMap.integrate_odometry`). ``info``: a (position, heading) information
+    fixed instead (a registration's own covariance, :func:`measured_information`), which the
+    noise model then leaves as it is."""
 
     source: int
     target: int
     dp: FloatArray
     stamp: float
     dt: float
-    info: tuple[float, float]
+    terms: FloatArray
     shape: FloatArray
     doubted: bool = False
+    info: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -426,6 +454,58 @@ def _link_chi2(
     return (r[:, 0] ** 2 + r[:, 1] ** 2) * info[:, 0] + wrap_angle(r[:, 2]) ** 2 * info[:, 1]
 
 
+#: the columns of a link's uncertainty terms (:func:`link_terms`)
+TERM_DISTANCE, TERM_REGISTRATIONS, TERM_EXTRA_XY, TERM_HEADING_VAR, TERM_EXTRA_TH = range(5)
+
+
+def link_terms(
+    distance: float,
+    turned: float,
+    registrations: int,
+    config: CognitiveMapConfig,
+    broken: ArrayLike = (0.0, 0.0),
+    heading_var: float | None = None,
+) -> FloatArray:
+    """What a link's uncertainty is made of, before the noise model weighs it
+    (:func:`information_of`): the metres of odometry it composes, its registrations, the
+    position variance its odometry's breaks add (m²), the odometry's heading variance over
+    it (rad²: ``heading_var`` as its matches measured it, or the model's for ``distance``
+    and ``turned``) and the heading variance the breaks add. Kept per link so that the
+    map's weights follow the noise model as the closures refine it
+    (:mod:`bioslam.link_noise`)."""
+    extra_xy, extra_th = (float(v) for v in np.asarray(broken, dtype=np.float64).reshape(2))
+    if heading_var is None:
+        heading_var = modelled_heading_var(distance, turned, config)
+    return np.array([distance, registrations, extra_xy, heading_var, extra_th], dtype=np.float64)
+
+
+def information_of(
+    terms: ArrayLike, noise: LinkNoise, floor: tuple[float, float]
+) -> FloatArray:
+    """Eq. 14's weights ((..., 2): position m⁻², heading rad⁻²) of links with uncertainty
+    ``terms`` (:func:`link_terms`, (..., 5)) under the link ``noise`` model, each variance
+    at least ``floor`` (m², rad²) above zero."""
+    t = np.asarray(terms, dtype=np.float64)
+    var_xy = (
+        noise.odometry_var_per_m * t[..., TERM_DISTANCE]
+        + noise.closure_var * t[..., TERM_REGISTRATIONS]
+        + t[..., TERM_EXTRA_XY]
+    )
+    var_th = (
+        noise.heading_scale * t[..., TERM_HEADING_VAR]
+        + noise.closure_heading_var * t[..., TERM_REGISTRATIONS]
+        + t[..., TERM_EXTRA_TH]
+    )
+    return np.stack([1.0 / (floor[0] + var_xy), 1.0 / (floor[1] + var_th)], axis=-1)
+
+
+def configured_noise(config: CognitiveMapConfig) -> LinkNoise:
+    """The link noise model the settings give, before any closure refines it."""
+    return LinkNoise(
+        config.odometry_var_per_m, config.closure_sigma_m**2, 1.0, config.closure_sigma_rad**2
+    )
+
+
 def link_information(
     distance: float,
     turned: float,
@@ -433,6 +513,7 @@ def link_information(
     config: CognitiveMapConfig,
     broken: ArrayLike = (0.0, 0.0),
     heading_var: float | None = None,
+    noise: LinkNoise | None = None,
 ) -> tuple[float, float]:
     """Eq. 14's weight of a link: the information (1 / variance) of its Δp, for the position
     (m⁻²) and the heading (rad⁻²).
@@ -449,23 +530,13 @@ def link_information(
     jump to a look-alike is no random walk (:meth:`CognitiveMap.integrate_odometry`).
     ``heading_var`` (rad²): the odometry's heading variance over the link as its matches
     measured it (:meth:`CognitiveMap.integrate_odometry`), instead of the model's
-    ``odometry_heading_var_per_m`` and ``odometry_heading_var_per_rad``.
+    ``odometry_heading_var_per_m`` and ``odometry_heading_var_per_rad``. ``noise``: the
+    link noise model (:mod:`bioslam.link_noise`; the settings' when None).
     """
-    floor_xy, floor_th = config.link_var_floor
-    extra_xy, extra_th = (float(v) for v in np.asarray(broken, dtype=np.float64).reshape(2))
-    var_xy = (
-        config.odometry_var_per_m * distance
-        + registrations * config.closure_sigma_m**2
-        + extra_xy
-    )
-    if heading_var is None:
-        heading_var = modelled_heading_var(distance, turned, config)
-    var_th = (
-        heading_var
-        + registrations * config.closure_sigma_rad**2
-        + extra_th
-    )
-    return 1.0 / (floor_xy + var_xy), 1.0 / (floor_th + var_th)
+    terms = link_terms(distance, turned, registrations, config, broken, heading_var)
+    model = noise if noise is not None else configured_noise(config)
+    info = information_of(terms, model, config.link_var_floor)
+    return float(info[0]), float(info[1])
 
 
 def modelled_heading_var(distance: float, turned: float, config: CognitiveMapConfig) -> float:
@@ -692,6 +763,11 @@ class CognitiveMap:
         # Eq. 14's weights: each link's (position, heading) information, and the robust
         # kernel's factor on it (loop links; 1 = fully trusted)
         self._link_info = GrowingArray(np.float64, 2, capacity=64)
+        # what each link's uncertainty is made of (link_terms; NaN for a fixed information),
+        # to re-weigh the links as the noise model changes (set_noise)
+        self._link_terms = GrowingArray(np.float64, 5, capacity=64)
+        #: the noise model that weighs the links (:mod:`bioslam.link_noise`)
+        self.noise = configured_noise(self.config)
         self._link_scale = GrowingArray(np.float64, capacity=64)
         # each link's position information shape in its source's frame (ISOTROPIC, or a
         # registration's: registration_shape)
@@ -1020,22 +1096,39 @@ class CognitiveMap:
     ) -> None:
         """Eq. 13: l_ij = <Δp^ij, Δt^ij>, weighted by the odometry and registrations it
         composes (:func:`link_information`)."""
-        info = self._information(registrations=int(kind == "loop"))
+        terms = self._terms(registrations=int(kind == "loop"))
         self._append_link(
             NewLink(source, target, np.asarray(dp, dtype=np.float64), stamp,
-                     stamp - self._entered, info, np.asarray(shape, dtype=np.float64),
+                     stamp - self._entered, terms, np.asarray(shape, dtype=np.float64),
                      self._doubted),
             kind,
         )  # fmt: skip
 
-    def _information(self, registrations: int) -> tuple[float, float]:
-        """The information of a link from the current experience to the robot's pose now:
-        the odometry and breaks since it was entered, ``registrations`` at the robot's end
-        and one more if the experience was entered by one (:func:`link_information`)."""
+    def _terms(self, registrations: int) -> FloatArray:
+        """The uncertainty terms of a link from the current experience to the robot's pose
+        now: the odometry and breaks since it was entered, ``registrations`` at the robot's
+        end and one more if the experience was entered by one (:func:`link_terms`)."""
         registrations += int(self._entered_measured)
-        return link_information(
+        return link_terms(
             *self._travel, registrations, self.config, self._broken_var, self._heading_var
         )
+
+    def set_noise(self, noise: LinkNoise) -> None:
+        """Weigh every link by the noise model ``noise`` from now on (:mod:`bioslam.link_noise`);
+        the next :meth:`relax` solves when the weights changed."""
+        if noise == self.noise:
+            return
+        self.noise = noise
+        if self.num_links == 0:
+            return
+        terms = self._link_terms.view()
+        modelled = np.isfinite(terms[:, 0])
+        info = self._link_info.view()
+        new = information_of(terms[modelled], noise, self.config.link_var_floor)
+        if np.allclose(new, info[modelled], rtol=1e-3, atol=0.0):
+            return
+        info[modelled] = new
+        self._dirty = self._needs_solve = True
 
     def _append_link(self, link: NewLink, kind: LinkKind) -> None:
         self._link_ends.append((link.source, link.target))
@@ -1043,7 +1136,13 @@ class CognitiveMap:
         self._link_dt.append(link.dt)
         self._link_stamp.append(link.stamp)
         self._link_kind.append(kind)
-        self._link_info.append(link.info)
+        if link.info is None:
+            self._link_terms.append(link.terms)
+            info = information_of(link.terms, self.noise, self.config.link_var_floor)
+            self._link_info.append(info)
+        else:
+            self._link_terms.append(np.full(5, np.nan))
+            self._link_info.append(link.info)
         self._link_scale.append(1.0)
         self._link_shape.append(link.shape)
         length = math.hypot(float(link.dp[0]), float(link.dp[1]))
@@ -1124,36 +1223,40 @@ class CognitiveMap:
         # error moves the robot's end of the link, in the robot's frame (offset from the base)
         arrival = np.asarray(measurement.pose, dtype=np.float64).reshape(3)
         dp = compose(self._offset, inverse(arrival))
-        info = self._information(registrations=1)
+        terms = self._terms(registrations=1)
+        info = None
         if (
             self.config.registration_covariance
             and measurement.covariance is not None
             and np.all(np.isfinite(measurement.covariance))
         ):
+            modelled = information_of(terms, self.noise, self.config.link_var_floor)
             info, shape = measured_information(
-                info, measurement.covariance, float(self._offset[2])
-            )
+                (float(modelled[0]), float(modelled[1])), measurement.covariance,
+                float(self._offset[2]),
+            )  # fmt: skip
         else:
             shape = np.asarray(measurement.shape, dtype=np.float64)
             shape = rotate_shape(shape, float(self._offset[2]))
         doubted = self._doubted or measurement.doubted
         return NewLink(
-            self._base, int(target), dp, stamp, stamp - self._entered, info, shape, doubted
-        )
+            self._base, int(target), dp, stamp, stamp - self._entered, terms, shape, doubted,
+            info,
+        )  # fmt: skip
 
     def add_odometry_link(
-        self, source: int, target: int, dp: ArrayLike, stamp: float, info: tuple[float, float]
+        self, source: int, target: int, dp: ArrayLike, stamp: float, terms: ArrayLike
     ) -> bool:
         """An odometry measurement ``dp`` (``target``'s pose in ``source``'s frame) between
-        two experiences of the robot's chain that are not neighbours, with its information
-        ``info`` (:func:`link_information`): the motion across a slide the odometry undid,
+        two experiences of the robot's chain that are not neighbours, with its uncertainty
+        ``terms`` (:func:`link_terms`): the motion across a slide the odometry undid,
         whose own links are weak (:meth:`integrate_odometry`'s ``broken``). Returns whether
         the map must be relaxed (it disagrees with the link)."""
         dp = np.asarray(dp, dtype=np.float64).reshape(3)
         stamps = self._stamps.view()
         link = NewLink(
-            int(source), int(target), dp, float(stamp), float(stamp - stamps[source]), info,
-            ISOTROPIC.copy(), doubted=True,
+            int(source), int(target), dp, float(stamp), float(stamp - stamps[source]),
+            np.asarray(terms, dtype=np.float64).reshape(5), ISOTROPIC.copy(), doubted=True,
         )  # fmt: skip
         self._append_link(link, "odometry")
         if self._agrees(link.source, link.target, dp):

@@ -52,13 +52,15 @@ from bioslam.cognitive_map import (
     CognitiveMap,
     Experience,
     Measurement,
-    link_information,
+    configured_noise,
+    link_terms,
     modelled_heading_var,
     registration_shape,
 )
 from bioslam.config import SLAMConfig
 from bioslam.geometry import Pose2D, between, compose, inverse
 from bioslam.growing import GrowingArray, RowsFactory
+from bioslam.link_noise import LinkNoiseEstimator
 from bioslam.occupancy_grid import NORMAL_MAX_GAP, NORMAL_RADIUS, scan_normals, subsample_by_spacing
 from bioslam.odometry import LidarOdometry, MatchReport
 from bioslam.pose_cells import PoseCellNetwork
@@ -315,6 +317,14 @@ class BioSLAM:
         self._odometry_at = np.empty((1024, 3))
         self._doubts_at = np.empty(1024, dtype=np.int64)
         self.consensus = ClosureConsensus(self.config.loop_closure)
+        # the odometry's summed heading variance when each experience was made, and the
+        # closures' residuals against the odometry that refine the links' noise model
+        self._heading_var_at = np.empty(1024)
+        map_config = self.config.cognitive_map
+        self.link_noise = LinkNoiseEstimator(
+            configured_noise(map_config), map_config.noise_prior_decades,
+            map_config.noise_min_closures,
+        )  # fmt: skip
         self._confirmed_earlier = False
         #: closures held back and entered later, when another confirmed them (each makes a
         #: loop link without a look of its own)
@@ -399,11 +409,11 @@ class BioSLAM:
             return  # (another slide began since: the robot's pose is displaced by it)
         across = between(odometry, motion.pose)
         dp = compose(compose(offset, across), inverse(now))
-        info = link_information(
+        terms = link_terms(
             motion.travelled - travelled, abs(float(across[2])), 0, cmap.config,
             heading_var=motion.heading_var - heading_var,
         )  # fmt: skip
-        if cmap.add_odometry_link(source, target, dp, self._stamp, info):
+        if cmap.add_odometry_link(source, target, dp, self._stamp, terms):
             self._relax_due = True
         self.bridges += 1
 
@@ -562,11 +572,15 @@ class BioSLAM:
 
     def _note_made(self, experience_id: int) -> None:
         if experience_id >= self._made_at.size:
-            for name in ("_made_at", "_breaks_at", "_extent_at", "_odometry_at", "_doubts_at"):
+            for name in (
+                "_made_at", "_breaks_at", "_extent_at", "_odometry_at", "_doubts_at",
+                "_heading_var_at",
+            ):  # fmt: skip
                 column = getattr(self, name)
                 setattr(self, name, np.concatenate([column, np.empty_like(column)]))
         self._made_at[experience_id] = self._travelled
         self._odometry_at[experience_id] = self.self_motion.pose
+        self._heading_var_at[experience_id] = self.self_motion.heading_var
         self._doubts_at[experience_id] = self.self_motion.doubts
         self._breaks_at[experience_id] = self.self_motion.breaks
         self._extent_at[experience_id] = self.self_motion.break_extent
@@ -671,6 +685,8 @@ class BioSLAM:
         scan_shape = functools.cache(
             lambda: registration_shape(pts, scan_normals(pts, NORMAL_RADIUS, NORMAL_MAX_GAP), ratio)
         )
+        # as registered, before a correction along what the scan barely pins is taken back
+        unsettled = compose(anchor_in_experience, verdict.pose)
         if verdict.accepted and cfg.weak_margin > 0.0:
             # a correction along what the scan barely pins must earn its score
             grids = submap.pyramid.grids
@@ -697,7 +713,34 @@ class BioSLAM:
                 else None  # (only that weighting reads it)
             )
             measured = Measurement(verdict.pose, shape, doubted=chained, covariance=covariance)
-        return measured if self._confirmed(experience, measured, submap.anchor) else None
+        if not self._confirmed(experience, measured, submap.anchor):
+            return None
+        self._learn_noise(experience.id, unsettled, weak_modes(scan_shape())[:2, 2])
+        return measured
+
+    def _learn_noise(self, experience_id: int, registered: FloatArray, pinned: FloatArray) -> None:
+        """Refine the map's link noise model (:mod:`bioslam.link_noise`) by an accepted
+        closure to a place the odometry relates to the robot without a break: where the
+        registration put the robot in the place's frame (``registered``, before any
+        correction was taken back to the map's prediction, which would measure the map, not
+        the registration) against where the odometry alone does, over the distance and the
+        heading variance between. The position is compared along the direction the scan
+        pins best (``pinned``, a unit vector in the robot's frame), the one the loop link's
+        ``closure_sigma_m`` stands for (:func:`bioslam.cognitive_map.registration_shape`):
+        along a corridor a registration slides, and its weaker directions are weighed
+        down from that one."""
+        if not self.config.cognitive_map.learn_noise:
+            return
+        if self.self_motion.breaks != self._breaks_at[experience_id]:
+            return  # a break is no random walk: its links carry it apart
+        odometry = between(self._odometry_at[experience_id], self.self_motion.pose)
+        residual = between(odometry, registered)
+        noise = self.link_noise.add(
+            self._travelled - float(self._made_at[experience_id]),
+            float(residual[:2] @ pinned), float(residual[2]),
+            self.self_motion.heading_var - float(self._heading_var_at[experience_id]),
+        )  # fmt: skip
+        self.cognitive_map.set_noise(noise)
 
     def _pinned_shape(
         self, shape: FloatArray, pose: FloatArray, points: FloatArray, submap: Submap
@@ -975,10 +1018,11 @@ class BioSLAM:
         self.view_cells = self.pose_cells = self.boundary_cells = None  # type: ignore[assignment]
         self.submaps = SubmapCache(size=0)
 
-    def summary(self) -> dict[str, int]:
+    def summary(self) -> dict[str, Any]:
         if self._released is not None:
             return dict(self._released)
         cmap = self.cognitive_map
+        noise = cmap.noise
         return {
             "views": self.view_cells.num_views,
             "experiences": len(cmap),
@@ -986,4 +1030,10 @@ class BioSLAM:
             "loop_closures_rejected": cmap.rejected_closures,
             **self._check_counts(),
             **self.odometry.summary(),
+            # the link noise model the closures refined (bioslam.link_noise)
+            "link_noise_closures": len(self.link_noise),
+            "link_noise_odometry_var_per_m": noise.odometry_var_per_m,
+            "link_noise_closure_sigma_m": math.sqrt(noise.closure_var),
+            "link_noise_heading_scale": noise.heading_scale,
+            "link_noise_closure_sigma_rad": math.sqrt(noise.closure_heading_var),
         }

@@ -1,0 +1,168 @@
+"""How uncertain the cognitive map's links are, learned from the loop closures themselves.
+
+Eq. 14 weighs each link by its information (:func:`bioslam.cognitive_map.link_information`):
+an odometry link's position variance grows by ``odometry_var_per_m`` per metre, its heading
+variance is what its scans' matches measured, and a registration adds its own variance.
+Those settings are guesses; the right ones differ by orders of magnitude between a dense
+scanner in a simulated world (the odometry's position variance grows by 2-10e-6 m² a metre,
+its closures are off by half a centimetre) and a hand-driven robot's log (3-5e-4 m² a metre
+on freiburg-079). A model looser than the odometry lets every closure's centimetre of error
+bend a loop the odometry had within millimetres; one tighter than it makes the robust kernel
+take true corrections for outliers.
+
+Each accepted closure measures both at once: the registered pose of the robot in the old
+place's frame against what the odometry alone says (no break between), over the distance
+travelled in between. Its residual's variance is the odometry's over that distance plus the
+registration's, ``rate * distance + floor`` (a random walk plus a constant); the heading's is
+``scale * (the matches' summed heading variance) + floor``. :class:`LinkNoiseEstimator` fits
+both by maximum likelihood under a Student-t (a false or slid closure among true ones does not
+inflate the fit), with a log-normal prior centred on the configured values, so that a few
+closures move the model little and many set it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+#: Student-t degrees of freedom of the residuals: heavy enough a tail that a closure several
+#: times off its model changes the fit little.
+T_DOF = 4.0
+#: The Student-t's squared scale that Gaussian residuals of unit variance fit (the root v of
+#: E[z / (1 + z)] = 1 / (T_DOF + 1), z = x² / (T_DOF v), x standard normal): the fitted
+#: scales are divided by it, so that the model's variances are the residuals' own.
+T_SCALE_OF_UNIT_VARIANCE = 0.690
+#: log10 steps of the coarse and the fine grid of the fit
+COARSE_STEP, FINE_STEP = 0.2, 0.02
+
+
+@dataclass(frozen=True)
+class LinkNoise:
+    """The noise model of the map's links: ``odometry_var_per_m`` (m² per metre travelled),
+    ``closure_var`` (m², one registration's position variance), ``heading_scale`` (times the
+    odometry's measured heading variance) and ``closure_heading_var`` (rad², one
+    registration's heading variance)."""
+
+    odometry_var_per_m: float
+    closure_var: float
+    heading_scale: float = 1.0
+    closure_heading_var: float = 2.5e-5
+
+
+def random_walk_nll(
+    rates: FloatArray, floors: FloatArray, spans: FloatArray, squared: FloatArray
+) -> FloatArray:
+    """Negative log-likelihood (up to a constant) of one-axis residuals (``squared``: each
+    one's square) whose squared scale is ``rate * span + floor``, for every (rate, floor) of
+    the broadcast grids; each residual Student-t distributed (:data:`T_DOF` degrees of
+    freedom)."""
+    var = rates[..., None] * spans + floors[..., None]
+    per = 0.5 * np.log(var) + 0.5 * (T_DOF + 1.0) * np.log1p(squared / (T_DOF * var))
+    return per.sum(axis=-1)
+
+
+def fit_random_walk(
+    spans: FloatArray,
+    squared: FloatArray,
+    prior: tuple[float, float],
+    prior_decades: float,
+) -> tuple[float, float]:
+    """The (rate, floor) of the variance ``rate * span + floor`` that best explains one-axis
+    residuals (``squared``, over ``spans``; :func:`random_walk_nll`, its scales taken to
+    variances by :data:`T_SCALE_OF_UNIT_VARIANCE`) with a
+    log-normal prior centred on ``prior`` (``prior_decades``: its standard deviation, in
+    decades), searched on a grid of log10 values from six decades below the prior to two
+    above, coarse then fine (no optimiser to fail on a flat or two-valleyed likelihood).
+
+    The rate is 0 unless the residuals grow with the span significantly (the Bayesian
+    information criterion: the rate's likelihood gain must exceed half the log of the
+    number of residuals): residuals that do not grow are the registrations' and the
+    odometry's own local errors, which no correction of the path between them removes, and
+    a rate the data cannot tell from none would still bend every loop by part of them."""
+    centre = np.log10(np.maximum(np.asarray(prior, dtype=np.float64), 1e-300))
+    spans = np.asarray(spans, dtype=np.float64)
+    squared = np.asarray(squared, dtype=np.float64)
+
+    def penalty(log_value: FloatArray, k: int) -> FloatArray:
+        return (log_value - centre[k]) ** 2 / (2.0 * prior_decades**2)
+
+    def best(lo: FloatArray, hi: FloatArray, step: float) -> tuple[FloatArray, float]:
+        axes = [np.arange(a, b + 0.5 * step, step) for a, b in zip(lo, hi, strict=True)]
+        grid_rate, grid_floor = np.meshgrid(*axes, indexing="ij")
+        cost = random_walk_nll(10.0**grid_rate, 10.0**grid_floor, spans, squared)
+        cost += penalty(grid_rate, 0) + penalty(grid_floor, 1)
+        k = np.unravel_index(int(np.argmin(cost)), cost.shape)
+        return np.array([grid_rate[k], grid_floor[k]]), float(cost[k])
+
+    coarse, _ = best(centre - 6.0, centre + 2.0, COARSE_STEP)
+    fine, drifting = best(coarse - COARSE_STEP, coarse + COARSE_STEP, FINE_STEP)
+    floors = np.arange(centre[1] - 6.0, centre[1] + 2.0 + 0.5 * FINE_STEP, FINE_STEP)
+    still = random_walk_nll(np.zeros(1), 10.0**floors, spans, squared) + penalty(floors, 1)
+    k = int(np.argmin(still))
+    if still[k] - drifting < 0.5 * math.log(max(spans.size, 2)):
+        return 0.0, float(10.0 ** floors[k]) / T_SCALE_OF_UNIT_VARIANCE
+    rate, floor = 10.0**fine / T_SCALE_OF_UNIT_VARIANCE
+    return float(rate), float(floor)
+
+
+class LinkNoiseEstimator:
+    """The loop closures' residuals against the odometry, and the link noise they imply.
+
+    ``prior``: the configured model; ``min_samples``: closures before the fit replaces it;
+    ``max_samples``: the most recent closures the fit reads (its cost is linear in them)."""
+
+    def __init__(
+        self, prior: LinkNoise, prior_decades: float = 1.0, min_samples: int = 1,
+        max_samples: int = 400,
+    ) -> None:  # fmt: skip
+        self.prior = prior
+        self.prior_decades = prior_decades
+        self.min_samples = min_samples
+        self.max_samples = max_samples
+        self._rows: list[tuple[float, float, float, float]] = []
+        self._fitted = prior
+
+    def __len__(self) -> int:
+        return len(self._rows)
+
+    def add(
+        self, distance: float, position: float, heading: float, heading_var: float
+    ) -> LinkNoise:
+        """One closure: the odometry travelled ``distance`` metres between the place and now
+        with its matches' summed ``heading_var`` (rad²), and the registration put the robot
+        ``position`` metres (along one direction) and ``heading`` radians off where the
+        odometry alone did. Returns the model refitted (the prior until ``min_samples``
+        closures)."""
+        row = (distance, position, heading, heading_var)
+        if not all(math.isfinite(v) for v in row):
+            return self._fitted
+        self._rows.append(
+            (max(distance, 0.0), position**2, max(heading_var, 0.0), heading**2)
+        )  # fmt: skip
+        if len(self._rows) > self.max_samples:
+            del self._rows[0]
+        if len(self._rows) >= self.min_samples:
+            self._fitted = self._fit()
+        return self._fitted
+
+    @property
+    def noise(self) -> LinkNoise:
+        """The current model: fitted once ``min_samples`` closures are in, else the prior."""
+        return self._fitted
+
+    def _fit(self) -> LinkNoise:
+        rows = np.asarray(self._rows)
+        p = self.prior
+        rate, floor = fit_random_walk(
+            rows[:, 0], rows[:, 1], (p.odometry_var_per_m, p.closure_var), self.prior_decades
+        )
+        scale, heading_floor = fit_random_walk(
+            rows[:, 2], rows[:, 3], (p.heading_scale, p.closure_heading_var),
+            self.prior_decades,
+        )  # fmt: skip
+        return LinkNoise(rate, floor, scale, heading_floor)

@@ -1,0 +1,56 @@
+"""The link noise model learned from the loop closures (bioslam.link_noise)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bioslam.link_noise import LinkNoise, LinkNoiseEstimator, fit_random_walk
+
+PRIOR = LinkNoise(odometry_var_per_m=1e-4, closure_var=4e-4)
+
+
+def residuals(rate: float, floor: float, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Spans of 1-100 m and one-axis residuals of variance rate * span + floor."""
+    rng = np.random.default_rng(seed)
+    spans = rng.uniform(1.0, 100.0, n)
+    return spans, rng.normal(0.0, np.sqrt(rate * spans + floor))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_fit_recovers_a_drift_and_a_registration_floor(seed):
+    # the drift's share equals the floor's at 25 m: both are measured
+    spans, r = residuals(rate=2e-6, floor=5e-5, n=2000, seed=seed)
+    rate, floor = fit_random_walk(spans, r**2, (1e-4, 4e-4), 1.0)
+    assert rate == pytest.approx(2e-6, rel=0.2)
+    assert floor == pytest.approx(5e-5, rel=0.3)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_residuals_that_do_not_grow_with_the_span_give_no_drift(seed):
+    # the registrations' and the odometry's own local errors: no correction of the path
+    # between two places removes them
+    spans, r = residuals(rate=0.0, floor=2e-5, n=40, seed=seed)
+    rate, floor = fit_random_walk(spans, r**2, (1e-4, 4e-4), 1.0)
+    assert rate == 0.0
+    assert floor == pytest.approx(2e-5, rel=0.6)
+
+
+def test_a_few_false_closures_do_not_inflate_the_fit():
+    spans, r = residuals(rate=2e-6, floor=5e-5, n=300, seed=4)
+    r[:6] = 1.0  # six closures a metre off
+    rate, floor = fit_random_walk(spans, r**2, (1e-4, 4e-4), 1.0)
+    assert rate == pytest.approx(2e-6, rel=0.35)
+    assert floor == pytest.approx(5e-5, rel=0.4)
+
+
+def test_the_estimator_keeps_the_prior_until_enough_closures_came_in():
+    estimator = LinkNoiseEstimator(PRIOR, min_samples=8)
+    spans, r = residuals(rate=0.0, floor=1e-6, n=8, seed=5)
+    heading = r / 10.0
+    for k in range(7):
+        assert estimator.add(spans[k], r[k], heading[k], 1e-4 * spans[k]) == PRIOR
+    assert estimator.add(float("nan"), 0.0, 0.0, 0.0) == PRIOR  # not counted
+    assert len(estimator) == 7
+    fitted = estimator.add(spans[7], r[7], heading[7], 1e-4 * spans[7])
+    assert fitted != PRIOR and fitted.closure_var < 1e-5 and fitted.odometry_var_per_m == 0.0
