@@ -37,8 +37,8 @@ T_DOF = 4.0
 #: E[z / (1 + z)] = 1 / (T_DOF + 1), z = x² / (T_DOF v), x standard normal): the fitted
 #: scales are divided by it, so that the model's variances are the residuals' own.
 T_SCALE_OF_UNIT_VARIANCE = 0.690
-#: log10 steps of the coarse and the fine grid of the fit
-COARSE_STEP, FINE_STEP = 0.2, 0.02
+#: log10 step of the grid the fit starts from
+COARSE_STEP = 1.0
 
 
 @dataclass(frozen=True)
@@ -61,9 +61,32 @@ def random_walk_nll(
     one's square) whose squared scale is ``rate * span + floor``, for every (rate, floor) of
     the broadcast grids; each residual Student-t distributed (:data:`T_DOF` degrees of
     freedom)."""
-    var = rates[..., None] * spans + floors[..., None]
+    var = np.asarray(rates)[..., None] * spans + np.asarray(floors)[..., None]
     per = 0.5 * np.log(var) + 0.5 * (T_DOF + 1.0) * np.log1p(squared / (T_DOF * var))
     return per.sum(axis=-1)
+
+
+def _nll_and_gradient(
+    log_params: FloatArray, spans: FloatArray, squared: FloatArray, centre: FloatArray,
+    prior_decades: float, drifting: bool,
+) -> tuple[float, FloatArray]:
+    """:func:`random_walk_nll` plus the prior's penalty at log10 (rate, floor) — or at log10
+    floor alone, the rate 0, when not ``drifting`` — and its gradient."""
+    rate = 10.0 ** log_params[0] if drifting else 0.0
+    floor = 10.0 ** log_params[-1]
+    var = rate * spans + floor
+    ratio = squared / (T_DOF * var)
+    cost = float(np.sum(0.5 * np.log(var) + 0.5 * (T_DOF + 1.0) * np.log1p(ratio)))
+    # d cost / d var, then through var = rate * span + floor in log10 parameters
+    d_var = 0.5 / var - 0.5 * (T_DOF + 1.0) * ratio / (var * (1.0 + ratio))
+    centres = centre if drifting else centre[1:]
+    cost += float(np.sum((log_params - centres) ** 2)) / (2.0 * prior_decades**2)
+    grad = (log_params - centres) / prior_decades**2
+    ln10 = math.log(10.0)
+    grad[-1] += float(np.sum(d_var)) * floor * ln10
+    if drifting:
+        grad[0] += float(np.sum(d_var * spans)) * rate * ln10
+    return cost, grad
 
 
 def fit_random_walk(
@@ -74,39 +97,49 @@ def fit_random_walk(
 ) -> tuple[float, float]:
     """The (rate, floor) of the variance ``rate * span + floor`` that best explains one-axis
     residuals (``squared``, over ``spans``; :func:`random_walk_nll`, its scales taken to
-    variances by :data:`T_SCALE_OF_UNIT_VARIANCE`) with a
-    log-normal prior centred on ``prior`` (``prior_decades``: its standard deviation, in
-    decades), searched on a grid of log10 values from six decades below the prior to two
-    above, coarse then fine (no optimiser to fail on a flat or two-valleyed likelihood).
+    variances by :data:`T_SCALE_OF_UNIT_VARIANCE`) with a log-normal prior centred on
+    ``prior`` (``prior_decades``: its standard deviation, in decades), from six decades
+    below the prior to two above: the best of a coarse grid of log10 values (a flat or
+    two-valleyed likelihood does not trap it), refined by a bounded quasi-Newton descent.
 
     The rate is 0 unless the residuals grow with the span significantly (the Bayesian
     information criterion: the rate's likelihood gain must exceed half the log of the
     number of residuals): residuals that do not grow are the registrations' and the
     odometry's own local errors, which no correction of the path between them removes, and
     a rate the data cannot tell from none would still bend every loop by part of them."""
+    from scipy.optimize import minimize
+
     centre = np.log10(np.maximum(np.asarray(prior, dtype=np.float64), 1e-300))
     spans = np.asarray(spans, dtype=np.float64)
     squared = np.asarray(squared, dtype=np.float64)
+    lo, hi = centre - 6.0, centre + 2.0
+    axes = [np.arange(a, b + 0.5 * COARSE_STEP, COARSE_STEP) for a, b in zip(lo, hi, strict=True)]
+    grid_rate, grid_floor = np.meshgrid(*axes, indexing="ij")
+    prior_cost = ((grid_rate - centre[0]) ** 2 + (grid_floor - centre[1]) ** 2) / (
+        2.0 * prior_decades**2
+    )
 
-    def penalty(log_value: FloatArray, k: int) -> FloatArray:
-        return (log_value - centre[k]) ** 2 / (2.0 * prior_decades**2)
+    def refine(start: FloatArray, drifting: bool) -> tuple[FloatArray, float]:
+        bounds = list(zip(lo, hi, strict=True)) if drifting else [(lo[1], hi[1])]
+        found = minimize(
+            _nll_and_gradient, start, jac=True, method="L-BFGS-B", bounds=bounds,
+            args=(spans, squared, centre, prior_decades, drifting),
+        )  # fmt: skip
+        return np.asarray(found.x, dtype=np.float64), float(found.fun)
 
-    def best(lo: FloatArray, hi: FloatArray, step: float) -> tuple[FloatArray, float]:
-        axes = [np.arange(a, b + 0.5 * step, step) for a, b in zip(lo, hi, strict=True)]
-        grid_rate, grid_floor = np.meshgrid(*axes, indexing="ij")
-        cost = random_walk_nll(10.0**grid_rate, 10.0**grid_floor, spans, squared)
-        cost += penalty(grid_rate, 0) + penalty(grid_floor, 1)
-        k = np.unravel_index(int(np.argmin(cost)), cost.shape)
-        return np.array([grid_rate[k], grid_floor[k]]), float(cost[k])
-
-    coarse, _ = best(centre - 6.0, centre + 2.0, COARSE_STEP)
-    fine, drifting = best(coarse - COARSE_STEP, coarse + COARSE_STEP, FINE_STEP)
-    floors = np.arange(centre[1] - 6.0, centre[1] + 2.0 + 0.5 * FINE_STEP, FINE_STEP)
-    still = random_walk_nll(np.zeros(1), 10.0**floors, spans, squared) + penalty(floors, 1)
-    k = int(np.argmin(still))
-    if still[k] - drifting < 0.5 * math.log(max(spans.size, 2)):
-        return 0.0, float(10.0 ** floors[k]) / T_SCALE_OF_UNIT_VARIANCE
-    rate, floor = 10.0**fine / T_SCALE_OF_UNIT_VARIANCE
+    costs = random_walk_nll(10.0**grid_rate, 10.0**grid_floor, spans, squared) + prior_cost
+    k = np.unravel_index(int(np.argmin(costs)), costs.shape)
+    drift, _ = refine(np.array([grid_rate[k], grid_floor[k]]), True)
+    still_costs = random_walk_nll(np.zeros(1), 10.0 ** axes[1], spans, squared)
+    still_costs += (axes[1] - centre[1]) ** 2 / (2.0 * prior_decades**2)
+    still, _ = refine(np.array([axes[1][int(np.argmin(still_costs))]]), False)
+    # the models compared on the residuals alone: the prior only steadies each one's fit
+    gain = float(random_walk_nll(np.zeros(1), 10.0**still, spans, squared)[0]) - float(
+        random_walk_nll(10.0 ** drift[:1], 10.0 ** drift[1:], spans, squared)[0]
+    )
+    if gain < 0.5 * math.log(max(spans.size, 2)):
+        return 0.0, float(10.0 ** still[0]) / T_SCALE_OF_UNIT_VARIANCE
+    rate, floor = 10.0**drift / T_SCALE_OF_UNIT_VARIANCE
     return float(rate), float(floor)
 
 
@@ -114,18 +147,24 @@ class LinkNoiseEstimator:
     """The loop closures' residuals against the odometry, and the link noise they imply.
 
     ``prior``: the configured model; ``min_samples``: closures before the fit replaces it;
-    ``max_samples``: the most recent closures the fit reads (its cost is linear in them)."""
+    ``max_samples``: the most recent closures the fit reads (its cost is linear in them).
+    Past ``refit_every_share`` x ``max_samples`` closures the model is refitted only once
+    their number grew by that share since the last fit (a fit of 200 residuals costs a few
+    milliseconds, a closure's registration about as much)."""
 
     def __init__(
         self, prior: LinkNoise, prior_decades: float = 1.0, min_samples: int = 1,
-        max_samples: int = 400,
+        max_samples: int = 200, refit_every_share: float = 0.1,
     ) -> None:  # fmt: skip
         self.prior = prior
         self.prior_decades = prior_decades
         self.min_samples = min_samples
         self.max_samples = max_samples
+        self.refit_every_share = refit_every_share
         self._rows: list[tuple[float, float, float, float]] = []
         self._fitted = prior
+        self._added = 0
+        self._fitted_at = 0
 
     def __len__(self) -> int:
         return len(self._rows)
@@ -146,9 +185,17 @@ class LinkNoiseEstimator:
         )  # fmt: skip
         if len(self._rows) > self.max_samples:
             del self._rows[0]
-        if len(self._rows) >= self.min_samples:
-            self._fitted = self._fit()
+        self._added += 1
+        if len(self._rows) >= self.min_samples and self._due():
+            self._fitted, self._fitted_at = self._fit(), self._added
         return self._fitted
+
+    def _due(self) -> bool:
+        """Whether enough closures came in since the last fit to refit."""
+        share = self.refit_every_share
+        if self._added <= share * self.max_samples:
+            return True
+        return self._added - self._fitted_at >= share * self._fitted_at
 
     @property
     def noise(self) -> LinkNoise:
