@@ -219,6 +219,22 @@ def test_a_break_widens_the_closure_window_by_how_far_it_may_have_put_the_robot(
     assert guessed[1] == pytest.approx(cfg.break_angle + cfg.break_angular_acceleration * slack)
 
 
+def test_a_break_after_a_gap_weakens_its_map_link_by_no_more_than_a_closure_measures():
+    from bioslam.closure import break_extent, link_extent
+
+    cfg = SLAMConfig().loop_closure
+    walking = np.array([0.05, 0.0, 0.0])
+    # after 10 s without a scan the robot could be anywhere: the window a closure's
+    # verification searches is still all a closure can correct, and a link weaker than that
+    # would be a free hinge for the closures across it
+    after_gap = break_extent(walking, walking, 10.0, cfg)
+    assert after_gap[0] > 10.0 and after_gap[1] > 2.0 * np.pi
+    assert np.allclose(link_extent(after_gap, cfg), [cfg.search_distance, cfg.search_angle])
+    jumped = walking + np.array([0.5, 0.0, np.radians(40.0)])
+    within_window = break_extent(jumped, walking, 0.1, cfg)
+    assert np.allclose(link_extent(within_window, cfg), within_window)
+
+
 def test_closure_window_follows_the_shortest_chain_of_links_not_the_travel_since():
     """A place made 60 m of travel ago but joined to the robot by 10 m of links through an
     earlier closure is related by those 10 m of odometry: the verification's window is

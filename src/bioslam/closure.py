@@ -172,6 +172,17 @@ def break_extent(
     return np.maximum(np.array(_departure(step, expected)), np.array(_break_thresholds(dt, config)))
 
 
+def link_extent(extent: FloatArray, config: LoopClosureConfig) -> FloatArray:
+    """A break's ``extent`` (m, rad; :func:`break_extent`) as the map's link that carries it
+    is weakened by: at most the window a loop closure's verification searches
+    (``search_distance``, ``search_angle``), the largest error a closure can measure. After
+    a gap of seconds the break thresholds grow to anything (10 s: 500 rad), and a link that
+    uncertain is a free hinge: the closures across it turn the stretches between hinges at
+    will (intel, with the odometry's stretches held by the learned link noise: ATE 9.6 ->
+    12.2 cm, capped 9.6 as with the configured noise)."""
+    return np.minimum(extent, (config.search_distance, config.search_angle))
+
+
 def odometry_doubted(report: MatchReport) -> bool:
     """Whether the odometry's matcher itself doubted a step: no match was made, the scan
     left some direction unconstrained (blind along a corridor, where it may slide), or a

@@ -33,6 +33,7 @@ from bioslam.closure import (
     break_extent,
     implausible,
     jumped,
+    link_extent,
     nearest_experience,
     odometry_broke,
     odometry_doubted,
@@ -196,7 +197,9 @@ class SelfMotion:
         self.break_extent = np.zeros(2)
         #: the same summed over the breaks and every other step no robot can make
         #: (:func:`bioslam.closure.jumped`: a slide, and the return to the robot's motion
-        #: after it): how far the odometry may be off along each of the map's links
+        #: after it), each at most what a closure can measure
+        #: (:func:`bioslam.closure.link_extent`): how far the odometry may be off along each
+        #: of the map's links
         self.jump_extent = np.zeros(2)
         #: the heading variance (rad²) of every step so far, summed, as the odometry's matches
         #: measured it (:attr:`MatchReport.covariance`; the model's, from
@@ -233,11 +236,12 @@ class SelfMotion:
                     self.breaks += 1
                     extent = break_extent(dp, expected, dt, self.closure)
                     self.break_extent += extent
-                    self.jump_extent += extent
+                    self.jump_extent += link_extent(extent, self.closure)
                 elif self.closure.weigh_jumps and jumped(
                     dp, self._last_step, expected, dt, self.closure
                 ):
-                    self.jump_extent += break_extent(dp, expected, dt, self.closure)
+                    extent = break_extent(dp, expected, dt, self.closure)
+                    self.jump_extent += link_extent(extent, self.closure)
                 self._track_slide(dp, dt)
             self._last_step, self._last_dt = dp.copy(), dt
             if self.heading_bias:
