@@ -167,7 +167,8 @@ class LinkNoiseEstimator:
         self._fitted_at = 0
 
     def __len__(self) -> int:
-        return len(self._rows)
+        """The closures taken in so far (the fit reads the last ``max_samples``)."""
+        return self._added
 
     def add(
         self, distance: float, position: float, heading: float, heading_var: float
