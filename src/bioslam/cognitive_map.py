@@ -359,7 +359,10 @@ def _laplacian_lu(
     cols = np.concatenate([src, dst, dst, src])
     vals = np.concatenate([weights, weights, -weights, -weights])
     lap = sp.csc_matrix((vals, (rows, cols)), shape=(n, n))[:-1, :-1]
-    return splu(lap.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
+    return splu(
+        lap.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+        options={"SymmetricMode": True},
+    )  # fmt: skip
 
 
 def _incidence_t(src: NDArray[np.int64], dst: NDArray[np.int64], v: FloatArray, n: int):
@@ -442,7 +445,10 @@ def _block_laplacian_lu(
     lap = sp.csc_matrix(
         (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(2 * n, 2 * n)
     )[:-2, :-2]
-    return splu(lap.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
+    return splu(
+        lap.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+        options={"SymmetricMode": True},
+    )  # fmt: skip
 
 
 def _link_chi2(

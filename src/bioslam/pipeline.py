@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
 from bioslam import signals
-from bioslam.cognitive_map import CognitiveMap
+from bioslam.cognitive_map import CognitiveMap, configured_noise
 from bioslam.config import SLAMConfig
 from bioslam.evaluation import evaluate, position_errors
 from bioslam.geometry import Pose2D, compose, inverse
@@ -33,6 +33,7 @@ from bioslam.io.outdir import OutputDir
 from bioslam.io.spill import SpilledRows, SpilledScans
 from bioslam.io.tum import write_tum
 from bioslam.io.uncertainty import write_uncertainty
+from bioslam.link_noise import LinkNoiseEstimator
 from bioslam.memory import drop_file_pages, release_free_memory
 from bioslam.occupancy_grid import OccupancyGrid
 from bioslam.odometry import LidarOdometry, register_scans
@@ -381,6 +382,8 @@ def _close_a_square(config: SLAMConfig) -> None:
     cmap.relax()
     cmap.mark_dirty()
     cmap.relax(iterations=2)
+    # and what refits the links' noise model after it (SciPy's optimiser, loaded once)
+    LinkNoiseEstimator(configured_noise(config.cognitive_map)).add(10.0, 0.01, 0.001, 1e-4)
 
 
 def run_slam(
