@@ -6,9 +6,10 @@ variance is what its scans' matches measured, and a registration adds its own va
 Those settings are guesses; the right ones differ by orders of magnitude between a dense
 scanner in a simulated world (the odometry's position variance grows by 2-10e-6 m² a metre,
 its closures are off by half a centimetre) and a hand-driven robot's log (3-5e-4 m² a metre
-on freiburg-079). A model looser than the odometry lets every closure's centimetre of error
-bend a loop the odometry had within millimetres; one tighter than it makes the robust kernel
-take true corrections for outliers.
+on freiburg-079 against its corrected poses, their own error included). A model looser than
+the odometry lets every closure's centimetre of error bend a loop the odometry had within
+millimetres; one tighter than it makes the robust kernel take true corrections for
+outliers.
 
 Each accepted closure measures both at once: the registered pose of the robot in the old
 place's frame against what the odometry alone says (no break between), over the distance
@@ -17,7 +18,9 @@ registration's, ``rate * distance + floor`` (a random walk plus a constant); the
 ``scale * (the matches' summed heading variance) + floor``. :class:`LinkNoiseEstimator` fits
 both by maximum likelihood under a Student-t (a false or slid closure among true ones does not
 inflate the fit), with a log-normal prior centred on the configured values, so that a few
-closures move the model little and many set it.
+closures move the model little and many set it; the drift stays 0 unless the residuals grow
+with the distance significantly (:func:`fit_random_walk`), and the map's odometry then bends
+only where it broke.
 """
 
 from __future__ import annotations
