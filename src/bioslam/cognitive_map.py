@@ -20,7 +20,7 @@ OpenRatSLAM's ``PosecellNetwork::get_action`` and ``ExperienceMap`` (Ball et al.
 Relaxation (Eq. 14) — the choices the paper leaves open, written down:
 
 * Eq. 14 sums every link's residual with the same weight. Here each residual is weighted by its
-  link's information, the inverse of its covariance (:func:`link_information`): an odometry
+  link's information, the inverse of its covariance (:func:`information_of`): an odometry
   link's position variance grows with the distance it spans and its heading's is what its
   scans' matches measured; a loop link's is one registration's, shaped by its scan's
   geometry, or (``registration_covariance``) its registration's own covariance
@@ -475,10 +475,21 @@ def link_terms(
     """What a link's uncertainty is made of, before the noise model weighs it
     (:func:`information_of`): the metres of odometry it composes, its registrations, the
     position variance its odometry's breaks add (m²), the odometry's heading variance over
-    it (rad²: ``heading_var`` as its matches measured it, or the model's for ``distance``
-    and ``turned``) and the heading variance the breaks add. Kept per link so that the
-    map's weights follow the noise model as the closures refine it
-    (:mod:`bioslam.link_noise`)."""
+    it (rad²) and the heading variance the breaks add. Kept per link so that the map's
+    weights follow the noise model as the closures refine it (:mod:`bioslam.link_noise`).
+
+    A link's Δp composes the odometry since its source was entered (``distance`` metres
+    travelled, ``turned`` radians turned) and ``registrations`` loop-closure registrations
+    (one for a loop link, one more when the robot entered the source by a registration).
+    The odometry's uncertainty grows with the distance travelled and the angle turned (a
+    random walk), so a long link counts for less than a short one; a registration is as
+    uncertain however far apart its experiences were made. With equal weights a closure's
+    error would be spread like an exact one's over a loop of odometry that is often more
+    precise than a single registration. ``broken`` (m², rad²): the variance of the
+    odometry's breaks within the link: a jump to a look-alike is no random walk
+    (:meth:`CognitiveMap.integrate_odometry`). ``heading_var`` (rad²): the odometry's
+    heading variance over the link as its matches measured it, instead of the model's
+    ``odometry_heading_var_per_m`` and ``odometry_heading_var_per_rad``."""
     extra_xy, extra_th = (float(v) for v in np.asarray(broken, dtype=np.float64).reshape(2))
     if heading_var is None:
         heading_var = modelled_heading_var(distance, turned, config)
@@ -488,9 +499,10 @@ def link_terms(
 def information_of(
     terms: ArrayLike, noise: LinkNoise, floor: tuple[float, float]
 ) -> FloatArray:
-    """Eq. 14's weights ((..., 2): position m⁻², heading rad⁻²) of links with uncertainty
-    ``terms`` (:func:`link_terms`, (..., 5)) under the link ``noise`` model, each variance
-    at least ``floor`` (m², rad²) above zero."""
+    """Eq. 14's weights, the information (1 / variance) of each link's Δp ((..., 2):
+    position m⁻², heading rad⁻²), of links with uncertainty ``terms`` (:func:`link_terms`,
+    (..., 5)) under the link ``noise`` model (:func:`configured_noise` before the closures
+    refine it), each variance at least ``floor`` (m², rad²) above zero."""
     t = np.asarray(terms, dtype=np.float64)
     var_xy = (
         noise.odometry_var_per_m * t[..., TERM_DISTANCE]
@@ -512,39 +524,6 @@ def configured_noise(config: CognitiveMapConfig) -> LinkNoise:
     )
 
 
-def link_information(
-    distance: float,
-    turned: float,
-    registrations: int,
-    config: CognitiveMapConfig,
-    broken: ArrayLike = (0.0, 0.0),
-    heading_var: float | None = None,
-    noise: LinkNoise | None = None,
-) -> tuple[float, float]:
-    """Eq. 14's weight of a link: the information (1 / variance) of its Δp, for the position
-    (m⁻²) and the heading (rad⁻²).
-
-    A link's Δp composes the odometry since its source was entered (``distance`` metres
-    travelled, ``turned`` radians turned) and
-    ``registrations`` loop-closure registrations (one for a loop link, one more when the
-    robot entered the source by a registration). The odometry's uncertainty grows with the
-    distance travelled and the angle turned (a random walk), so a long link counts for less
-    than a short one; a registration is as uncertain however far apart its experiences were
-    made. With equal weights a closure's error would be spread like an exact one's over a
-    loop of odometry that is often more precise than a single registration.
-    ``broken`` (m², rad²) adds the variance of the odometry's breaks within the link: a
-    jump to a look-alike is no random walk (:meth:`CognitiveMap.integrate_odometry`).
-    ``heading_var`` (rad²): the odometry's heading variance over the link as its matches
-    measured it (:meth:`CognitiveMap.integrate_odometry`), instead of the model's
-    ``odometry_heading_var_per_m`` and ``odometry_heading_var_per_rad``. ``noise``: the
-    link noise model (:mod:`bioslam.link_noise`; the settings' when None).
-    """
-    terms = link_terms(distance, turned, registrations, config, broken, heading_var)
-    model = noise if noise is not None else configured_noise(config)
-    info = information_of(terms, model, config.link_var_floor)
-    return float(info[0]), float(info[1])
-
-
 def modelled_heading_var(distance: float, turned: float, config: CognitiveMapConfig) -> float:
     """The heading variance (rad²) the odometry model gives ``distance`` metres travelled
     and ``turned`` radians turned: where no match measured it (a scan without one, or
@@ -560,7 +539,7 @@ def measured_information(
 ) -> tuple[tuple[float, float], FloatArray]:
     """Eq. 14's weight of a loop link whose registration reports its own ``covariance``
     (3x3, x, y, θ of the recognised place in the robot's frame; the robot's frame is turned
-    by ``heading`` from the link's source): ``info`` (:func:`link_information`: the odometry
+    by ``heading`` from the link's source): ``info`` (:func:`information_of`: the odometry
     since the source and the floor of each registration) as variances, plus the
     registration's, inverted. Returns the (position, heading) information, the position's
     being its best direction's, and the position information's shape (xx, xy, yy; largest
@@ -963,7 +942,7 @@ class CognitiveMap:
 
         ``broken`` (m, rad): how far a break of the odometry's chain within ``dp`` may have
         put it off (:func:`bioslam.closure.break_extent`), beyond its model's drift. The
-        link that carries the step is weighted by that much less (:func:`link_information`),
+        link that carries the step is weighted by that much less (:func:`link_terms`),
         so that a loop closure bends the map at the break rather than spreading its
         correction along a loop whose odometry is good but for one jump. ``doubted``: the
         odometry doubted a step within ``dp`` (:func:`bioslam.closure.odometry_doubted`); the
@@ -971,7 +950,7 @@ class CognitiveMap:
         :meth:`link_distance` finds with ``undoubted``. ``heading_var`` (rad²): the heading
         variance the odometry's matches measured over ``dp`` (each scan's
         :attr:`MatchReport.covariance`, summed); None (or NaN) takes the model's
-        (:func:`link_information`). A scan-to-map odometry's heading is as good as its
+        (:func:`modelled_heading_var`). A scan-to-map odometry's heading is as good as its
         scans' fit: on the simulated worlds the summed per-scan variances came within a
         factor of two of the steps' true heading errors, 4e-6 to 3e-4 rad² per metre from
         one world and scanner to another, where the model assumes 1e-5 everywhere."""
@@ -1101,7 +1080,7 @@ class CognitiveMap:
         shape: FloatArray = ISOTROPIC,
     ) -> None:
         """Eq. 13: l_ij = <Δp^ij, Δt^ij>, weighted by the odometry and registrations it
-        composes (:func:`link_information`)."""
+        composes (:func:`information_of`)."""
         terms = self._terms(registrations=int(kind == "loop"))
         self._append_link(
             NewLink(source, target, np.asarray(dp, dtype=np.float64), stamp,
@@ -1119,6 +1098,10 @@ class CognitiveMap:
             *self._travel, registrations, self.config, self._broken_var, self._heading_var
         )
 
+    def _weigh(self, terms: FloatArray) -> FloatArray:
+        """:func:`information_of` ``terms`` under the map's noise model."""
+        return information_of(terms, self.noise, self.config.link_var_floor)
+
     def set_noise(self, noise: LinkNoise) -> None:
         """Weigh every link by the noise model ``noise`` from now on (:mod:`bioslam.link_noise`);
         the next :meth:`relax` solves when the weights changed."""
@@ -1130,7 +1113,7 @@ class CognitiveMap:
         terms = self._link_terms.view()
         modelled = np.isfinite(terms[:, 0])
         info = self._link_info.view()
-        new = information_of(terms[modelled], noise, self.config.link_var_floor)
+        new = self._weigh(terms[modelled])
         if np.allclose(new, info[modelled], rtol=1e-3, atol=0.0):
             return
         info[modelled] = new
@@ -1144,8 +1127,7 @@ class CognitiveMap:
         self._link_kind.append(kind)
         if link.info is None:
             self._link_terms.append(link.terms)
-            info = information_of(link.terms, self.noise, self.config.link_var_floor)
-            self._link_info.append(info)
+            self._link_info.append(self._weigh(link.terms))
         else:
             self._link_terms.append(np.full(5, np.nan))
             self._link_info.append(link.info)
@@ -1189,7 +1171,7 @@ class CognitiveMap:
         its own chain (``here``: its view id, packet centre and payload), linked by the
         odometry, and the measurement a new loop link from it to ``target`` (also along an
         existing link: a new measurement of it), weighted as one registration
-        (:func:`link_information`); the robot's pose hangs off that experience, so that the
+        (:func:`information_of`); the robot's pose hangs off that experience, so that the
         relaxation corrects it. (Entering ``target`` at the measured pose instead would put
         the measurement into every link made afterwards too, where the robust kernel could
         not demote it.)"""
@@ -1236,7 +1218,7 @@ class CognitiveMap:
             and measurement.covariance is not None
             and np.all(np.isfinite(measurement.covariance))
         ):
-            modelled = information_of(terms, self.noise, self.config.link_var_floor)
+            modelled = self._weigh(terms)
             info, shape = measured_information(
                 (float(modelled[0]), float(modelled[1])), measurement.covariance,
                 float(self._offset[2]),
@@ -1310,7 +1292,7 @@ class CognitiveMap:
 
     def link_weights(self) -> FloatArray:
         """(E, 2) Eq. 14's weight of every link, position and heading: its information
-        (:func:`link_information`) times the robust kernel's factor (:func:`robust_scale`)."""
+        (:func:`information_of`) times the robust kernel's factor (:func:`robust_scale`)."""
         return self._link_info.view() * self._link_scale.view()[:, None]
 
     def relax(self, iterations: int | None = None) -> int:

@@ -1,6 +1,6 @@
 """How uncertain the cognitive map's links are, learned from the loop closures themselves.
 
-Eq. 14 weighs each link by its information (:func:`bioslam.cognitive_map.link_information`):
+Eq. 14 weighs each link by its information (:func:`bioslam.cognitive_map.information_of`):
 an odometry link's position variance grows by ``odometry_var_per_m`` per metre, its heading
 variance is what its scans' matches measured, and a registration adds its own variance.
 Those settings are guesses; the right ones differ by orders of magnitude between a dense
@@ -65,8 +65,13 @@ def random_walk_nll(
     the broadcast grids; each residual Student-t distributed (:data:`T_DOF` degrees of
     freedom)."""
     var = np.asarray(rates)[..., None] * spans + np.asarray(floors)[..., None]
-    per = 0.5 * np.log(var) + 0.5 * (T_DOF + 1.0) * np.log1p(squared / (T_DOF * var))
-    return per.sum(axis=-1)
+    return _t_nll(var, squared / (T_DOF * var)).sum(axis=-1)
+
+
+def _t_nll(var: FloatArray, ratio: FloatArray) -> FloatArray:
+    """Each residual's Student-t negative log-likelihood (up to a constant) at squared
+    scale ``var``, ``ratio`` being its square over ``T_DOF * var``."""
+    return 0.5 * np.log(var) + 0.5 * (T_DOF + 1.0) * np.log1p(ratio)
 
 
 def _nll_and_gradient(
@@ -79,7 +84,7 @@ def _nll_and_gradient(
     floor = 10.0 ** log_params[-1]
     var = rate * spans + floor
     ratio = squared / (T_DOF * var)
-    cost = float(np.sum(0.5 * np.log(var) + 0.5 * (T_DOF + 1.0) * np.log1p(ratio)))
+    cost = float(np.sum(_t_nll(var, ratio)))
     # d cost / d var, then through var = rate * span + floor in log10 parameters
     d_var = 0.5 / var - 0.5 * (T_DOF + 1.0) * ratio / (var * (1.0 + ratio))
     centres = centre if drifting else centre[1:]

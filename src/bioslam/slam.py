@@ -690,7 +690,7 @@ class BioSLAM:
             lambda: registration_shape(pts, scan_normals(pts, NORMAL_RADIUS, NORMAL_MAX_GAP), ratio)
         )
         # as registered, before a correction along what the scan barely pins is taken back
-        unsettled = compose(anchor_in_experience, verdict.pose)
+        unsettled = verdict.pose
         if verdict.accepted and cfg.weak_margin > 0.0:
             # a correction along what the scan barely pins must earn its score
             grids = submap.pyramid.grids
@@ -719,7 +719,11 @@ class BioSLAM:
             measured = Measurement(verdict.pose, shape, doubted=chained, covariance=covariance)
         if not self._confirmed(experience, measured, submap.anchor):
             return None
-        self._learn_noise(experience.id, unsettled, weak_modes(scan_shape())[:2, 2])
+        if self.config.cognitive_map.learn_noise:
+            self._learn_noise(
+                experience.id, compose(anchor_in_experience, unsettled),
+                weak_modes(scan_shape())[:2, 2],
+            )  # fmt: skip
         return measured
 
     def _learn_noise(self, experience_id: int, registered: FloatArray, pinned: FloatArray) -> None:
@@ -733,8 +737,6 @@ class BioSLAM:
         ``closure_sigma_m`` stands for (:func:`bioslam.cognitive_map.registration_shape`):
         along a corridor a registration slides, and its weaker directions are weighed
         down from that one."""
-        if not self.config.cognitive_map.learn_noise:
-            return
         if self.self_motion.breaks != self._breaks_at[experience_id]:
             return  # a break is no random walk: its links carry it apart
         odometry = between(self._odometry_at[experience_id], self.self_motion.pose)
