@@ -118,3 +118,17 @@ def test_a_sparse_scanner_follows_the_robot_driving_off_along_an_aisle(x0, lengt
     error = np.array(errors)
     assert np.hypot(*error.T).max() < 0.3
     assert np.hypot(*np.diff(error, axis=0).T).max() < 0.2  # no jump either
+
+
+def test_a_robot_backing_up_along_an_aisle_is_followed_back():
+    """The simulated warehouse's ``reversing`` route backs up along an aisle 45 s in (SICK,
+    181 beams): the motion prior carries the speed forward, the scan hardly pins the pose
+    along the aisle, and only the endpoints the prior puts where the map saw through tell
+    that the robot went back. Carried on, the error grew by 10 cm a scan to 2.8 m; followed,
+    it peaks at 0.26 m a few scans in, and 15 s on it is 5 cm."""
+    from _sim_runs import odometry_run
+
+    estimate, truth = odometry_run("warehouse", "reversing", "sick", 33, 60.0, start="origin")
+    error = np.hypot(*(estimate[:, :2] - truth[:, :2]).T)
+    assert error.max() < 0.3
+    assert error[-1] < 0.1

@@ -159,6 +159,12 @@ class OdometryConfig:
             the prediction is kept: where the scan cannot tell places apart (identical
             aisles, a corridor along its axis) the motion prior decides, never a look-alike.
             A plausible match elsewhere is reported (``MatchReport.ambiguous``).
+        contradiction_factor: along a direction the scan does not constrain, a match
+            that leaves no more than the run's typical share of endpoints in known free
+            space and fits better also wins where the prior's is plausible beside it but put
+            this many times the typical share there: the weak prior's match, or the match
+            from the pose along that direction the free space favours within a scan's
+            reach (``LidarOdometry._contradiction_explained``); 0 never.
         rival_ratio: the search's rival is matched only if it scores at least this fraction
             of the winner on the search's grid.
         jump_distance, jump_angle, overwhelming_ratio: a match farther than this from the
@@ -381,6 +387,7 @@ class OdometryConfig:
     large_step: float = 0.3
     large_turn: float = 0.3
     plausible_ratio: float = 0.9
+    contradiction_factor: float = 1.8
     rival_ratio: float = 0.8
     jump_distance: float = 0.5
     jump_angle: float = 0.35
