@@ -206,11 +206,6 @@ class LinkNoiseEstimator:
             return True
         return self._added - self._fitted_at >= share * self._fitted_at
 
-    @property
-    def noise(self) -> LinkNoise:
-        """The current model: fitted once ``min_samples`` closures are in, else the prior."""
-        return self._fitted
-
     def _fit(self) -> LinkNoise:
         rows = np.asarray(self._rows)
         p = self.prior

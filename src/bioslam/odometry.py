@@ -660,10 +660,9 @@ class LidarOdometry:
         if self._plausible_beside(report, free[1]) and not self._contradiction_explained(
             option, free
         ):
-            slid = self._slid_out_of_free_space(option, level_pts, normals, dt)
-            if slid is None or not self._contradiction_explained(option, slid):
+            free = self._slid_out_of_free_space(option, level_pts, normals, dt)
+            if free is None or not self._contradiction_explained(option, free):
                 return option
-            free = slid
         free[1].overruled = True
         free[1].iterations += report.iterations
         return free
@@ -697,12 +696,10 @@ class LidarOdometry:
         poses = pose + offsets[:, None] * along
         points = level_pts[0]
         grid = self.pyramid.finest
-        args = grid_args(grid, c.subcell_sigma)
-        quality = np.empty(len(poses))
-        for k, p in enumerate(poses):
-            fit = summed_map(args, points, math.cos(p[2]), math.sin(p[2]), p[0], p[1], False)
-            free = grid.fraction_not_above_near(p, points, c.free_logodds)
-            quality[k] = fit / max(len(points), 1) - free
+        quality = np.array([
+            self._score_at(p, points) - grid.fraction_not_above_near(p, points, c.free_logodds)
+            for p in poses
+        ])  # fmt: skip
         # among equals the offset nearest the prior's match
         best = int(np.argmax(quality - 1e-9 * np.abs(offsets)))
         if offsets[best] == 0.0:

@@ -685,19 +685,20 @@ class BioSLAM:
         )  # fmt: skip
         pts = np.ascontiguousarray(points, dtype=np.float64)
         ratio = self.config.cognitive_map.closure_shape_ratio
-        # the scan's own constraint shape, computed at most once and only where it is read
+        # the scan's own constraint shape and its weak modes, computed at most once and only
+        # where they are read
         scan_shape = functools.cache(
             lambda: registration_shape(pts, scan_normals(pts, NORMAL_RADIUS, NORMAL_MAX_GAP), ratio)
         )
+        modes = functools.cache(lambda: weak_modes(scan_shape()))
         # as registered, before a correction along what the scan barely pins is taken back
         unsettled = verdict.pose
         if verdict.accepted and cfg.weak_margin > 0.0:
             # a correction along what the scan barely pins must earn its score
             grids = submap.pyramid.grids
-            modes = weak_modes(scan_shape())
             settled = settle_weak_direction(
                 grids[min(cfg.registration.score_level, len(grids) - 1)], verdict.pose,
-                mapped, pts, modes, cfg, submap.seen,
+                mapped, pts, modes(), cfg, submap.seen,
             )  # fmt: skip
             verdict = dataclasses.replace(verdict, pose=settled)
         registered = verdict.pose  # in the submap anchor's frame
@@ -720,10 +721,8 @@ class BioSLAM:
         if not self._confirmed(experience, measured, submap.anchor):
             return None
         if self.config.cognitive_map.learn_noise:
-            self._learn_noise(
-                experience.id, compose(anchor_in_experience, unsettled),
-                weak_modes(scan_shape())[:2, 2],
-            )  # fmt: skip
+            unsettled_in_place = compose(anchor_in_experience, unsettled)
+            self._learn_noise(experience.id, unsettled_in_place, modes()[:2, 2])
         return measured
 
     def _learn_noise(self, experience_id: int, registered: FloatArray, pinned: FloatArray) -> None:
