@@ -38,6 +38,8 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
   default was tuned on), a third of the run's duration, thinned to a scan per 1 m / 0.6 rad,
   with and without the search around the typical step
   (``OdometryConfig.typical_search_distance``).
+- ``typicalstepurg``: the same with the URG-04LX (240°, 5.6 m): a scanner that looks back
+  through the doors it passes, at the far faces of walls the map saw from the other side.
 - ``typicalstep15``: the same thinned coarser, to a scan per 1.5 m / 0.6 rad, on the
   warehouse, the maze and the rooms, seeds 2-4.
 - ``typicalsteprplidar``: the RPLIDAR preset (360°, 12 m, sweeping at 7 Hz) on the four
@@ -586,6 +588,14 @@ def main() -> None:
             for route in ("tour", "adversarial")
             for seed in range(2, 8)
             for label, config in (("", None), (", no typical search", NO_TYPICAL))
+        ],
+        "typicalstepurg": lambda: [
+            sim_case(f"{world} {route} urg04lx, a scan per 1 m / 0.6 rad, seed {seed}",
+                     LIDAR_PRESETS["urg04lx"], duration / 3, world=world, seed=seed,
+                     thin=(1.0, 0.6), route=route)
+            for world in ("rooms", "warehouse", "maze", "hall")
+            for route in ("tour", "adversarial")
+            for seed in range(2, 8)
         ],
         "typicalstep15": lambda: [
             sim_case(f"{world} {route} sick, a scan per 1.5 m / 0.6 rad, seed {seed}",

@@ -5,7 +5,13 @@ from _sim_runs import largest_error, largest_step_error, odometry_run
 
 from bioslam.geometry import between, compose
 from bioslam.matching.correlative import lattice_search
-from bioslam.matching.gauss_newton import _guarded_step, _newton_step, grid_args, summed_map
+from bioslam.matching.gauss_newton import (
+    NO_FACING,
+    _guarded_step,
+    _newton_step,
+    grid_args,
+    summed_map,
+)
 from bioslam.matching.registration import densify_with_mask
 from bioslam.occupancy_grid import LogOddsConfig, MapPyramid
 from bioslam.odometry import (
@@ -240,7 +246,7 @@ def test_the_lattice_search_returns_distinct_peaks_best_first():
     assert np.all(np.abs(seeds[0, :2] - true[:2]) <= top.resolution)
     assert abs(seeds[0, 2] - true[2]) <= top.resolution / 5.0
     grid = grid_args(top, 1.0)
-    scores = [summed_map(grid, moved, np.cos(p[2]), np.sin(p[2]), p[0], p[1], False)
+    scores = [summed_map(grid, moved, NO_FACING, np.cos(p[2]), np.sin(p[2]), p[0], p[1], False)
               for p in seeds]  # fmt: skip
     assert scores[0] >= scores[1] >= scores[2]
     assert len({tuple(np.round(p, 6)) for p in seeds}) == 3

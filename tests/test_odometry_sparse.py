@@ -396,3 +396,19 @@ def test_the_turned_windows_cover_every_heading(degrees):
     for heading in np.linspace(-math.pi, math.pi, 721):
         assert any(abs(math.remainder(heading - c, 2 * math.pi)) <= half + 1e-9 for c in centres)
     assert len(centres) == math.ceil(math.pi / half - 1e-9)  # none more than needed
+
+
+def test_a_short_range_scanner_looking_back_through_doors_keeps_its_steps():
+    """The rooms along a corridor on their tour, a 240° URG-04LX (5.6 m) thinned to a scan
+    per metre, seed 3 (not tuned on): passing each door, the scan sees the near face of the
+    room's wall that the map saw only from inside the room, 0.2 m away. Drawn on that face,
+    every fifth step came out 0.12-0.22 m short and the route drifted (ATE 0.79 m, 8 steps
+    off by more than 0.1 m); with the endpoints drawn only on surfaces facing their way,
+    none."""
+    est, truth, poses, true_poses = thinned_route_steps(
+        "rooms", "tour", 3, OdometryConfig(), lidar="urg04lx"
+    )
+    miss = between(truth, est)
+    wrong = int(np.sum(np.hypot(miss[:, 0], miss[:, 1]) > 0.1))
+    ate = float(np.sqrt(np.mean(np.sum((poses[:, :2] - true_poses[:, :2]) ** 2, axis=1))))
+    assert len(est) > 100 and wrong == 0 and ate < 0.1, (wrong, ate)

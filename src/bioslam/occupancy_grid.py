@@ -234,6 +234,7 @@ def _insert_scan_kernel(
 # Surface normals average the endpoints within this radius, enough to turn 1-3 cm range
 # noise into a few degrees of normal error, along runs without gaps above NORMAL_MAX_GAP.
 NORMAL_RADIUS = 0.15
+FACE_GATE = 2.0
 NORMAL_MAX_GAP = 0.3
 
 
@@ -407,7 +408,7 @@ def _map_many(kind, logodds, means, weights, ox, oy, res, sigma, pts):
 
 
 @numba.njit(cache=True)
-def subcell_point(means, weights, ox, oy, res, sigma, x, y):
+def subcell_point(means, weights, ox, oy, res, sigma, x, y, fx, fy):
     """A sub-cell accurate map function and its gradient (our variant of Eq. 3's M*).
 
     The bilinear M* peaks at cell centres, so a wall between two centres pulls the scan by up
@@ -446,6 +447,11 @@ def subcell_point(means, weights, ox, oy, res, sigma, x, y):
             ey = oy + r * res + means[r, c, 1] - y
             nx = means[r, c, 2]
             ny = means[r, c, 3]
+            facing = 1.0 + FACE_GATE * (fx * nx + fy * ny)
+            if facing <= 0.0:
+                continue
+            if facing < 1.0:
+                w *= facing
             # distance across the surface where the cell's normals agree (|n| -> 1), plain
             # distance where they do not (|n| -> 0): no ripple along a wall's cells
             spread = 1.0 - (nx * nx + ny * ny)
@@ -469,7 +475,7 @@ def map_point(kind, logodds, means, weights, ox, oy, res, sigma, x, y):
     """The map function selected by ``kind`` (0 = Hector's bilinear M*, 1 = sub-cell)."""
     if kind == 0:
         return interpolate_point(logodds, ox, oy, res, x, y)
-    return subcell_point(means, weights, ox, oy, res, sigma, x, y)
+    return subcell_point(means, weights, ox, oy, res, sigma, x, y, 0.0, 0.0)
 
 
 # --------------------------------------------------------------------------------------------

@@ -29,8 +29,10 @@ from bioslam.geometry import between, compose, separation, transform_points
 from bioslam.matching.branch_and_bound import WideBasinConfig, WideBasinMatcher
 from bioslam.matching.deskew import deskew_points, se2_exp, se2_log, usable_endpoints
 from bioslam.matching.gauss_newton import (
+    NO_FACING,
     FloatArray,
     MatchReport,
+    facing_normals,
     geometric_conditioning,
     geometric_information,
     grid_args,
@@ -172,7 +174,7 @@ class LidarOdometry:
         self._travel = [0.0, 0.0]
         self._doubts = 0
         self._conflict = False  # and the maps disagreed since (:meth:`_maps_disagree`)
-        self._matched_levels: tuple[list[FloatArray], FloatArray] | None = None
+        self._matched_levels: tuple[list[FloatArray], FloatArray, list[FloatArray]] | None = None
         self.num_submaps = 0
 
     # -- steps of one update ------------------------------------------------------------------
@@ -324,10 +326,11 @@ class LidarOdometry:
             return True
         if self._young is None or self._matched_levels is None:
             return False
-        level_pts, normals = self._matched_levels
+        level_pts, normals, facing = self._matched_levels
         pose, _ = match_scan_to_map(
             self._young, level_pts, self.pose, c.max_iterations, c.step_tolerance,
             c.length_scale, c.degeneracy_ratio, c.subcell_sigma, normals, c.search_prior_weight,
+            facing=facing,
         )  # fmt: skip
         d = between(self.pose, pose)
         return bool(
@@ -405,7 +408,7 @@ class LidarOdometry:
                 self._densify_first(dt)
             start = self._best_start(level_pts[-1], previous, predicted)
             normals = matched_normals(level_pts)
-            self._matched_levels = (level_pts, normals)
+            self._matched_levels = (level_pts, normals, facing_normals(level_pts, normals))
             self.pose, self.last_report = self._match(
                 level_pts, start, previous, normals, dt, predicted
             )
@@ -546,7 +549,7 @@ class LidarOdometry:
                 self._weigh_walls(options[weighed:], level_pts[0])
         reach = (jump[0] + c.max_speed * dt, jump[1] + c.max_turn_rate * dt)
         if as_sparse and len(options) > 1:
-            pose, report = self._choose_sparse(options, previous, reach)
+            pose, report = self._choose_sparse(options, previous, reach, gapless)
         else:
             pose, report = self._choose(options, motion, previous, reach, jump, gapless)
         step = between(previous, pose)
@@ -819,7 +822,7 @@ class LidarOdometry:
 
     def _choose_sparse(
         self, options: list[tuple[FloatArray, MatchReport, bool]],
-        previous: FloatArray, reach: tuple[float, float],
+        previous: FloatArray, reach: tuple[float, float], gapless: bool = False,
     ) -> tuple[FloatArray, MatchReport]:
         """On sparse scans: the match not rejected by the map with the best quality less
         ``step_prior_weight`` times the step prior's cost of its step. Where the scan cannot
@@ -829,7 +832,14 @@ class LidarOdometry:
         match that slid off the map meets no evidence against it, but none for it either
         (intel from its 5th scan: a 19.8 m step was so kept). A match farther than the robot
         can have moved since the last scan (``reach``) falls back on the first, as in
-        :meth:`_choose`, unless the first is rejected and it is clean and did not fail.
+        :meth:`_choose`, unless the first is rejected and it is clean and did not fail, and
+        it turned no farther than the robot can have since the last scan or the scan came
+        after a gap (not ``gapless``). A pose lost along a corridor is so found again, but
+        a look-alike turned round is no recovery: scans at the scanner's rate match as
+        sparse ones where the search ran for most of them, as on a revisit of a map a
+        drift put a decimetre off, whose free space then rejects the true step, and a
+        look-alike turned 180° in a tenth of a second was kept there (simulated warehouse,
+        SICK, from the origin, seed 31).
         Flags the report ambiguous when a distinct match is plausible (``plausible_ratio``
         of the quality), recovered when it is not the first match."""
         c = self.config
@@ -847,8 +857,10 @@ class LidarOdometry:
             return merits[key]
 
         chosen = max(pool, key=merit)
-        if chosen is not first and self._beyond(chosen[0], previous, reach) and not (
-            self._rejected(first[1]) and self._clean(chosen[1]) and not chosen[2]
+        turned_beyond = gapless and abs(between(previous, chosen[0])[2]) > reach[1]
+        if chosen is not first and self._beyond(chosen[0], previous, reach) and (
+            turned_beyond
+            or not (self._rejected(first[1]) and self._clean(chosen[1]) and not chosen[2])
         ):
             chosen = first
         q = quality[id(chosen)]
@@ -1205,7 +1217,24 @@ class LidarOdometry:
         the map made from it is the reference until matches have been made)."""
         grid = grid_args(self.pyramid.finest, self.config.subcell_sigma)
         c, s = math.cos(pose[2]), math.sin(pose[2])
-        return summed_map(grid, points, c, s, pose[0], pose[1], False) / max(len(points), 1)
+        total = summed_map(grid, points, self._facing_of(points), c, s, pose[0], pose[1], False)
+        return total / max(len(points), 1)
+
+    def _facing(self, level_pts: list[FloatArray]) -> list[FloatArray] | None:
+        """The scan's :func:`~bioslam.matching.gauss_newton.facing_normals` per level, for
+        ``level_pts`` the scan's own endpoints (none for others)."""
+        held = self._matched_levels
+        return held[2] if held is not None and held[0] is level_pts else None
+
+    def _facing_of(self, points: FloatArray) -> FloatArray:
+        """The surface normals of ``points`` when they are one level of the scan's
+        endpoints, else none (:data:`~bioslam.matching.gauss_newton.NO_FACING`)."""
+        held = self._matched_levels
+        if held is not None:
+            for level, facing in zip(held[0], held[2], strict=True):
+                if level is points:
+                    return facing
+        return NO_FACING
 
     def _match_from(
         self, level_pts: list[FloatArray], start: FloatArray, normals: FloatArray,
@@ -1217,6 +1246,7 @@ class LidarOdometry:
             self.pyramid, level_pts, start, iterations or c.max_iterations, c.step_tolerance,
             c.length_scale, c.degeneracy_ratio, c.subcell_sigma, normals, prior_weight,
             prior_pose, restart, prior_information, self._scan_geometry(level_pts[0], normals),
+            self._facing(level_pts),
         )  # fmt: skip
         report.free_fraction = self.pyramid.finest.fraction_not_above_near(
             pose, level_pts[0], c.free_logodds
@@ -1244,7 +1274,8 @@ class LidarOdometry:
         candidates apart (a featureless corridor) the prediction is kept."""
         candidates = np.array([predicted, compose(previous, self._last_delta), previous])
         grid = grid_args(self.pyramid.grids[-1], self.config.subcell_sigma)
-        costs = pose_costs(grid, coarse_pts, candidates)
+        facing = self._facing_of(coarse_pts)
+        costs = pose_costs(grid, coarse_pts, facing, candidates)
         best = int(np.argmin(costs))
         if costs[best] < (1.0 - self.config.start_margin) * costs[0]:
             return candidates[best]

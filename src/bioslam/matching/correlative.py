@@ -12,7 +12,7 @@ import math
 import numba
 import numpy as np
 
-from bioslam.matching.gauss_newton import FloatArray, grid_args, summed_map
+from bioslam.matching.gauss_newton import NO_FACING, FloatArray, grid_args, summed_map
 from bioslam.occupancy_grid import OccupancyGrid
 
 
@@ -45,7 +45,8 @@ def _correlative_scores(g, pts, pose, nt, nx, step_xy, step_th):
             for iy in range(-nx, nx + 1):
                 tx = pose[0] + ix * step_xy
                 ty = pose[1] + iy * step_xy
-                out[it + nt, ix + nx, iy + nx] = summed_map(g, pts, c, s, tx, ty, np.bool_(False))
+                score = summed_map(g, pts, NO_FACING, c, s, tx, ty, np.bool_(False))
+                out[it + nt, ix + nx, iy + nx] = score
     return out
 
 
