@@ -56,15 +56,17 @@ def _cell_of(x: float, y: float, ox: float, oy: float, res: float) -> tuple[int,
 
 @numba.njit(cache=True)
 def above_near_point(logodds, x, y, ox, oy, res, level):
-    """Whether the cell of world point (x, y) or one of its 8 neighbours (clamped to the
-    grid) has a log-odds above ``level`` (a Numba helper for kernels over scan points)."""
+    """Whether the cell of world point (x, y) or one of its 8 neighbours has a log-odds above
+    ``level`` (a Numba helper for kernels over scan points). Cells beyond the grid are
+    unknown (log-odds 0): clamped to its border instead, the far endpoints of a long-range
+    scanner, past a local map's edge, counted as landing where the map saw free space
+    (simulated hall, SICK: a fifth of every scan's endpoints, and its matches failed)."""
     rows, cols = logodds.shape
     r0, c0 = _cell_of(x, y, ox, oy, res)
-    for dr in range(-1, 2):
-        r = min(max(r0 + dr, 0), rows - 1)
-        for dc in range(-1, 2):
-            c = min(max(c0 + dc, 0), cols - 1)
-            if logodds[r, c] > level:
+    for r in range(r0 - 1, r0 + 2):
+        for c in range(c0 - 1, c0 + 2):
+            inside = 0 <= r < rows and 0 <= c < cols
+            if (logodds[r, c] if inside else 0.0) > level:
                 return True
     return False
 

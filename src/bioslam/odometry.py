@@ -25,7 +25,7 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from bioslam.geometry import between, compose, separation, transform_points
+from bioslam.geometry import between, compose, inverse, separation, transform_points
 from bioslam.matching.branch_and_bound import WideBasinConfig, WideBasinMatcher
 from bioslam.matching.deskew import deskew_points, se2_exp, se2_log, usable_endpoints
 from bioslam.matching.gauss_newton import (
@@ -498,6 +498,7 @@ class LidarOdometry:
             if not np.array_equal(start, predicted):
                 options[0] = self._unless_astray(options[0], level_pts, predicted, normals,
                                                  weight, target, held)  # fmt: skip
+            options[0] = self._unless_reversed(options[0], level_pts, previous, normals)
         if weight > c.search_prior_weight:
             options[0] = self._unless_contradicted(
                 options[0], level_pts, start, normals, gapless, dt
@@ -620,6 +621,22 @@ class LidarOdometry:
         if not _contradicted_where_constrained(option[1]):
             return option
         alternative = self._option(level_pts, predicted, normals, weight, target, True, held)
+        return self._less_contradicted(option, alternative, level_pts)
+
+    def _unless_reversed(
+        self, option: tuple[FloatArray, MatchReport, bool], level_pts: list[FloatArray],
+        previous: FloatArray, normals: FloatArray,
+    ) -> tuple[FloatArray, MatchReport, bool]:
+        """The match from a trusted prediction on a scan that constrains every direction,
+        unless it is contradicted (:meth:`_contradicted`): then the match from the last step
+        undone where it is less contradicted (:meth:`_less_contradicted`). A robot that
+        backs up is predicted on at its speed while it drives back, two steps from the
+        truth, and Gauss-Newton's basin can be narrower than that (simulated hall of
+        pillars, SICK 361 beams at 5 Hz, reversing at 0.5 m/s: the match stayed 0.2 m on,
+        and the run was lost)."""
+        if option[1].degenerate or not self._contradicted(option[1]):
+            return option
+        alternative = self._option(level_pts, compose(previous, inverse(self._last_delta)), normals)
         return self._less_contradicted(option, alternative, level_pts)
 
     def _less_contradicted(
