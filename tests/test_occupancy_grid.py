@@ -179,9 +179,21 @@ def test_above_near_looks_at_the_cell_and_its_eight_neighbours():
     grid = OccupancyGrid(0.1, 2.0)
     grid.logodds[10, 10] = 2.0  # the cell around (0.05, 0.05)
     pts = np.array([[0.05, 0.05], [0.15, -0.05], [0.25, 0.05], [-5.0, -5.0]])
-    # the cell itself, a diagonal neighbour, two cells away, far outside (clamped corner)
+    # the cell itself, a diagonal neighbour, two cells away, far outside (unknown there)
     assert grid.above_near(pts, 1.0).tolist() == [True, True, False, False]
     assert not grid.above_near(pts, 2.0).any()
+
+
+def test_beyond_the_grid_is_unknown_not_its_border():
+    """A long-range scanner's far endpoints fall past a local map's edge; the map saw free
+    space up to there, but not beyond: they are no evidence of a wall seen through."""
+    grid = OccupancyGrid(0.1, 2.0)
+    grid.logodds[:] = -3.0  # all seen free
+    pts = np.array([[0.5, 0.5], [0.95, 0.0], [1.5, 0.0], [-8.0, 3.0]])
+    # inside, beside the edge (its outer neighbours unknown), beyond, far beyond
+    assert grid.above_near(pts, -1.5).tolist() == [False, True, True, True]
+    assert not grid.above_near(pts, 0.0).any()  # unknown is not above an occupied level
+    assert grid.fraction_not_above_near((0.0, 0.0, 0.0), pts, -1.5) == 0.25
 
 
 def test_fraction_not_above_near_places_sensor_points_by_the_pose():
