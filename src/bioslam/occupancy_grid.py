@@ -236,7 +236,9 @@ def _insert_scan_kernel(
 # Surface normals average the endpoints within this radius, enough to turn 1-3 cm range
 # noise into a few degrees of normal error, along runs without gaps above NORMAL_MAX_GAP.
 NORMAL_RADIUS = 0.15
-FACE_GATE = 2.0
+# An endpoint draws on a cell scaled by min(1, FACE_SLOPE * (1 + n_endpoint . n_cell)): fully
+# until their normals are 120° apart, not at all when they face each other (subcell_point).
+FACE_SLOPE = 2.0
 NORMAL_MAX_GAP = 0.3
 
 
@@ -424,6 +426,8 @@ def subcell_point(means, weights, ox, oy, res, sigma, x, y, fx, fy):
     of the bumps avoids that but measured worse on the simulated maze.) Returns ``(value,
     d/dx, d/dy, inside)``; 0 where no cell nearby was ever hit. ``weights`` holds each
     cell's occupancy probability, 0 for cells never hit (:attr:`OccupancyGrid.weights`).
+    ``fx, fy``: the endpoint's surface normal (world frame, towards its sensor; zeros for
+    none): a cell whose mean normal faces against it contributes less (``FACE_SLOPE``).
     """
     rows, cols = weights.shape
     u = (x - ox) / res - 0.5
@@ -449,7 +453,9 @@ def subcell_point(means, weights, ox, oy, res, sigma, x, y, fx, fy):
             ey = oy + r * res + means[r, c, 1] - y
             nx = means[r, c, 2]
             ny = means[r, c, 3]
-            facing = 1.0 + FACE_GATE * (fx * nx + fy * ny)
+            # a surface facing against the endpoint's own counts less, nothing at 180°:
+            # the far face of a thin wall is not the face the map saw
+            facing = FACE_SLOPE * (1.0 + fx * nx + fy * ny)
             if facing <= 0.0:
                 continue
             if facing < 1.0:
