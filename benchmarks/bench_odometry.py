@@ -514,6 +514,18 @@ def main() -> None:
     duration = 120.0 if args.quick else 600.0
     utm = LIDAR_PRESETS["utm30lx"]
     utm10 = dataclasses.replace(utm, rate_hz=10.0)
+    def thinned_worlds(lidar: str, seeds) -> list[dict]:
+        """``lidar`` on the four worlds' tour and adversarial route, a third of the run's
+        duration, thinned to a scan per 1 m / 0.6 rad."""
+        return [
+            sim_case(f"{world} {route} {lidar}, a scan per 1 m / 0.6 rad, seed {seed}",
+                     LIDAR_PRESETS[lidar], duration / 3, world=world, seed=seed,
+                     thin=(1.0, 0.6), route=route)
+            for world in ("rooms", "warehouse", "maze", "hall")
+            for route in ("tour", "adversarial")
+            for seed in seeds
+        ]
+
     cases = {
         "maze": lambda: sim_case("maze utm30lx", utm, duration),
         "lowcost": lambda: sim_case(
@@ -589,14 +601,7 @@ def main() -> None:
             for seed in range(2, 8)
             for label, config in (("", None), (", no typical search", NO_TYPICAL))
         ],
-        "typicalstepurg": lambda: [
-            sim_case(f"{world} {route} urg04lx, a scan per 1 m / 0.6 rad, seed {seed}",
-                     LIDAR_PRESETS["urg04lx"], duration / 3, world=world, seed=seed,
-                     thin=(1.0, 0.6), route=route)
-            for world in ("rooms", "warehouse", "maze", "hall")
-            for route in ("tour", "adversarial")
-            for seed in range(2, 8)
-        ],
+        "typicalstepurg": lambda: thinned_worlds("urg04lx", range(2, 8)),
         "typicalstep15": lambda: [
             sim_case(f"{world} {route} sick, a scan per 1.5 m / 0.6 rad, seed {seed}",
                      LIDAR_PRESETS["sick"], duration / 3, world=world, seed=seed,
@@ -605,14 +610,7 @@ def main() -> None:
             for route in ("tour", "adversarial")
             for seed in range(2, 5)
         ],
-        "typicalsteprplidar": lambda: [
-            sim_case(f"{world} {route} rplidar, a scan per 1 m / 0.6 rad, seed {seed}",
-                     LIDAR_PRESETS["rplidar"], duration / 3, world=world, seed=seed,
-                     thin=(1.0, 0.6), route=route)
-            for world in ("rooms", "warehouse", "maze", "hall")
-            for route in ("tour", "adversarial")
-            for seed in (2, 3)
-        ],
+        "typicalsteprplidar": lambda: thinned_worlds("rplidar", (2, 3)),
         "typicalstepreversing": lambda: [
             sim_case(f"{world} reversing {lidar}, a scan per 1 m / 0.6 rad, seed {seed}",
                      LIDAR_PRESETS[lidar], duration / 3, world=world, seed=seed,

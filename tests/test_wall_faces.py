@@ -65,7 +65,7 @@ def test_a_scan_of_a_walls_unseen_face_is_not_drawn_onto_the_face_the_map_saw():
         pyramid.insert_scan(pose, pts, normals=thinned_normals(pts))
     true = np.array([-0.7, 0.1, 0.05])
     points = make_scan(PARTITIONED, true, sigma=0.01, rng=rng).endpoints()
-    starts = [true + [dx, dy, 0.0] for dx in (0.06, 0.1, 0.14) for dy in (-0.05, 0.05)]
+    starts = [true + np.array([dx, dy, 0.0]) for dx in (0.06, 0.1, 0.14) for dy in (-0.05, 0.05)]
     misses = {
         facing: [np.hypot(*between(true, _match(facing, s, pyramid, points))[:2]) for s in starts]
         for facing in (False, True)
