@@ -874,9 +874,8 @@ class LidarOdometry:
             return merits[key]
 
         chosen = max(pool, key=merit)
-        turned_beyond = gapless and abs(between(previous, chosen[0])[2]) > reach[1]
         if chosen is not first and self._beyond(chosen[0], previous, reach) and (
-            turned_beyond
+            (gapless and abs(between(previous, chosen[0])[2]) > reach[1])  # turned beyond
             or not (self._rejected(first[1]) and self._clean(chosen[1]) and not chosen[2])
         ):
             chosen = first

@@ -162,13 +162,13 @@ def _normal_equations(g, pts, facing, pose, H, b):
         py = pts[k, 1]
         wx = c * px - s * py + pose[0]
         wy = s * px + c * py + pose[1]
-        fx, fy = _facing(facing, k, c, s)
         # (the arrays go to the map function directly: a helper taking the tuple ``g``
         # costs a third of the loop in reference counting, and even occupancy_grid.map_point,
         # which takes the arrays, measured 42 against 28 µs per call on 211 points)
         if kind == 0:
             m, gx, gy, ok = interpolate_point(logodds, ox, oy, res, wx, wy)
         else:
+            fx, fy = _facing(facing, k, c, s)
             m, gx, gy, ok = subcell_point(means, weights, ox, oy, res, sigma, wx, wy, fx, fy)
         cost += (1.0 - m) * (1.0 - m)
         if ok:
@@ -469,12 +469,11 @@ def facing_normals(level_points: list[FloatArray], finest: FloatArray) -> list[F
     faces of such walls and of pillars, and its pull from afar is what brings a distant
     start into the right basin (with faces there too, a thinned maze route backing up took
     a look-alike 0.4 m on that a motion hypothesis turned 16° had led into)."""
-    return [
-        finest if k == 0 else
+    coarser = [
         scan_normals(points, NORMAL_RADIUS * 2**k, NORMAL_MAX_GAP * 2**k)
-        if k < FACING_LEVELS else NO_FACING
-        for k, points in enumerate(level_points)
+        for k, points in enumerate(level_points[1:FACING_LEVELS], start=1)
     ]
+    return [finest, *coarser] + [NO_FACING] * (len(level_points) - 1 - len(coarser))
 
 
 @numba.njit(cache=True)
