@@ -7,7 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from bioslam.step_prior import StepPrior, StepPriorConfig, heading_cone_offset
+from bioslam.step_prior import (
+    StepPrior,
+    StepPriorConfig,
+    driven_backwards,
+    heading_cone_offset,
+)
 
 
 def thinned_log_steps(n: int = 100, seed: int = 0) -> np.ndarray:
@@ -37,11 +42,14 @@ def test_a_thinned_logs_own_steps_are_cheap_and_look_alikes_are_not():
     spin = prior.cost((0.05, 0.0, math.radians(-30.0)))
     assert forward < 1.0 and spin < 2.0
     # The poses a corridor or a scan's own beam pattern cannot tell from the true one: standing
-    # still, a metre back, a metre sideways, a turn of 90 degrees.
-    for wrong in ((0.0, 0.0, 0.0), (-0.8, 0.0, 0.0), (0.5, -1.0, 0.0), (1.0, 0.0, math.pi / 2)):
+    # still, a metre sideways, a turn of 90 degrees.
+    for wrong in ((0.0, 0.0, 0.0), (0.5, -1.0, 0.0), (1.0, 0.0, math.pi / 2)):
         cost = prior.cost(wrong)
         assert cost > forward + 1.5, wrong
         assert cost <= cap + 1e-12
+    # a metre back: what the robot does backing up, at ``cone_reverse`` of a metre on
+    back = prior.cost((-0.8, 0.0, 0.0))
+    assert forward + 1.0 < back < prior.cost((0.5, -1.0, 0.0))
 
 
 def test_a_dense_scanners_steps_make_any_long_step_cost_the_most():
@@ -62,8 +70,9 @@ def test_a_few_wrong_steps_among_many_do_not_make_their_kind_typical():
 
 
 def test_few_steps_give_a_weak_prior_and_none_a_flat_one():
-    """Without the kinematic density (``cone_sigma`` None) the young prior is flat."""
-    prior = StepPrior(StepPriorConfig(cone_sigma=None))
+    """Without the kinematic density (``cone_sigma`` None) the young prior is flat; the
+    floor raised to ``floor_steps / n`` (uncapped here)."""
+    prior = StepPrior(StepPriorConfig(cone_sigma=None, max_young_floor=1.0))
     assert prior.cost((5.0, 5.0, 3.0)) == 0.0 and prior.density((5.0, 5.0, 3.0)) == 1.0
     for _ in range(3):
         prior.add((1.0, 0.0, 0.0))
@@ -76,6 +85,43 @@ def test_few_steps_give_a_weak_prior_and_none_a_flat_one():
     # five steps alike: the floor is 4/5, so even the most unlike step costs little
     assert 0.0 < prior.cost((-1.0, 0.0, 0.0)) <= -math.log(4.0 / 5.0) + 1e-12
     assert len(prior) == 5
+
+
+def test_a_robot_that_drove_on_may_back_up_the_same_steps():
+    """Steps of a metre on along an arc: the same steps driven backwards (speed and turn rate
+    negated) have ``cone_reverse`` of their density, a step sideways or a step back turning
+    the other way none."""
+    config = StepPriorConfig()
+    prior = StepPrior(config)
+    arc = (0.95, 0.15, 0.3)
+    for _ in range(20):
+        prior.add(arc)
+    on = prior.density(arc)
+    assert on == pytest.approx(1.0)
+    assert prior.density(driven_backwards(np.array(arc))) == pytest.approx(config.cone_reverse)
+    assert prior.density((-0.95, -0.15, 0.3)) < 0.01  # backing up, turning the other way
+    assert prior.density((0.0, 1.0, 0.0)) < 1e-3
+    assert prior.cost(driven_backwards(np.array(arc))) < prior.cost((0.0, 1.0, 0.0)) - 1.0
+
+
+def test_from_min_steps_on_the_learned_density_weighs_at_least_half():
+    """The raised floor is capped (``max_young_floor``): three steps of a metre on known, a
+    standstill costs what a step unlike all known does under a floor of one half, and more
+    steps lower the floor as ``floor_steps / n`` once that is below the cap."""
+    config = StepPriorConfig(cone_sigma=None)
+    prior = StepPrior(config)
+    for _ in range(config.min_steps - 1):
+        prior.add((1.0, 0.0, 0.0))
+    assert prior.flat and prior.cost((0.0, 0.0, 0.0)) == 0.0
+    prior.add((1.0, 0.0, 0.0))
+    assert not prior.flat
+    assert prior.cost((1.0, 0.0, 0.0)) < 0.01
+    still = prior.cost((0.0, 0.0, 0.0))
+    assert still == pytest.approx(-math.log(config.max_young_floor), abs=1e-3)
+    for _ in range(7):
+        prior.add((1.0, 0.0, 0.0))
+    still = prior.cost((0.0, 0.0, 0.0))
+    assert still == pytest.approx(-math.log(config.floor_steps / 10), abs=1e-3)
 
 
 @pytest.mark.parametrize(
@@ -133,6 +179,7 @@ def test_angles_wrap():
 BAD_CONFIGS = [
     {"window": 0}, {"min_steps": 0}, {"sigma_distance": 0.0}, {"sigma_angle": -1.0},
     {"floor": 0.0}, {"floor": 1.5}, {"floor_steps": -1.0}, {"cone_sigma": 0.0},
+    {"max_young_floor": 0.0}, {"max_young_floor": 1.5},
     {"cone_floor": 0.0}, {"cone_floor": 1.5}, {"cone_reverse": -0.1}, {"cone_reverse": 1.5},
 ]  # fmt: skip
 

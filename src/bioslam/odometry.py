@@ -534,7 +534,10 @@ class LidarOdometry:
                 options += self._finer_basins(level_pts, normals, seeds, options)
             self._weigh_walls(options, level_pts[0])
             if as_sparse:
-                slid = [self._option(level_pts, s, normals) for s in self._slid(options, forward)]
+                slid = [
+                    self._option(level_pts, s, normals)
+                    for s in self._slid(options, forward, level_pts[0], normals)
+                ]
                 self._weigh_walls(slid, level_pts[0])
                 options += slid
             for k, ring in enumerate(turned_windows(c.search_angle)):
@@ -1061,22 +1064,29 @@ class LidarOdometry:
         return found
 
     def _slid(
-        self, options: list[tuple[FloatArray, MatchReport, bool]], forward: FloatArray
+        self, options: list[tuple[FloatArray, MatchReport, bool]], forward: FloatArray,
+        points: FloatArray, normals: FloatArray,
     ) -> list[FloatArray]:
-        """Seeds: each sound match that its scan leaves free along a direction (a corridor
-        whose ends are out of sight), slid along it to the point nearest the typical step
-        forward. On such a plateau the search's lattice winner is any of its points, and
-        Gauss-Newton from there stays where it starts; the step prior, which can tell the
-        plateau's points apart, weighs only the matches it is shown (simulated maze, SICK,
-        thinned to a scan per metre, seed 4: a turn of 36° into a corridor placed 1.8 m
-        along it, the plateau's point 0.15 m from the truth fitting better and never a
-        candidate)."""
+        """Seeds: each sound match that its scan, or the walls of it the map holds, leave
+        free along a direction (a corridor whose ends are out of sight, or not yet mapped),
+        slid along it to the point nearest the typical step forward. On such a plateau the
+        search's lattice winner is any of its points, and Gauss-Newton from there stays
+        where it starts; the step prior, which can tell the plateau's points apart, weighs
+        only the matches it is shown (simulated maze, SICK, thinned to a scan per metre,
+        seed 4: a turn of 36° into a corridor placed 1.8 m along it, the plateau's point
+        0.15 m from the truth fitting better and never a candidate). A 180° scanner that
+        turns into a corridor sees its far end, which the map does not hold yet: the scan's
+        geometry is sound, the map's pins nothing along the corridor
+        (:func:`~bioslam.matching.gauss_newton.mapped_conditioning` below
+        ``degeneracy_ratio``; seed 6: matches 0.5-2 m along it, the route lost, 6.4 m ATE).
+        The Gauss-Newton normal matrix does not show it: the walls' texture, mapped from
+        ranges with a centimetre of noise, curves the fit along them as much as across."""
         known = [option[0] for option in options]
         seeds: list[FloatArray] = []
         for pose, report, failed in options:
-            if failed or not report.degenerate or self._rejected(report):
+            if failed or self._rejected(report):
                 continue
-            free = translation_part(report.degenerate_direction)
+            free = translation_part(self._free_direction(pose, report, points, normals))
             if free is None:
                 continue
             along = float(free[0] * (forward[0] - pose[0]) + free[1] * (forward[1] - pose[1]))
@@ -1085,6 +1095,25 @@ class LidarOdometry:
                 seeds.append(seed)
                 known.append(seed)
         return seeds
+
+    def _free_direction(
+        self, pose: FloatArray, report: MatchReport, points: FloatArray, normals: FloatArray
+    ) -> FloatArray | None:
+        """The direction (unit, (x, y, theta * length_scale), map frame) the scan leaves
+        free (its degenerate one), or else the one the walls the map holds leave free at
+        ``pose`` (:meth:`_slid`); None where both are constrained."""
+        c = self.config
+        if report.degenerate:
+            return report.degenerate_direction
+        level = 0.0 if c.mapped_logodds is None else c.mapped_logodds
+        condition, weakest = mapped_conditioning(
+            self.pyramid.finest, points, normals, pose, level, c.length_scale
+        )
+        if condition >= c.degeneracy_ratio:
+            return None
+        cos, sin = math.cos(pose[2]), math.sin(pose[2])
+        return np.array([cos * weakest[0] - sin * weakest[1], sin * weakest[0] + cos * weakest[1],
+                         weakest[2]])  # fmt: skip
 
     def _choose(
         self, options: list[tuple[FloatArray, MatchReport, bool]],
