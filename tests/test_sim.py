@@ -20,6 +20,7 @@ from bioslam.sim import (
     true_ranges,
 )
 from bioslam.sim.raycast import build_segment_grid, cast_rays
+from bioslam.sim.route import U_TURN, CoverageWalker, turn_angle
 from bioslam.sim.world import box_segments, segments_from_occupancy
 
 BOX = (0.0, 0.0, 4.0, 3.0)
@@ -268,6 +269,22 @@ def test_route_needs_a_roadmap():
     assert world.distance_to_walls(route.pose_at(np.linspace(0, 30, 500))[:, :2]).min() >= 0.3
     with pytest.raises(ValueError, match="from a wall"):
         make_route(world, duration=30.0, clearance=0.6)
+
+
+def test_a_walk_never_doubles_back_while_another_exit_is_left():
+    """On a map's roadmap two neighbours of a node can lie in nearly the same direction; from
+    one, the way on to the other is a U-turn no arc can round (``make_route`` raised "cannot
+    round a U-turn" for 2 of 36 routes on a floor plan). Where every exit turns sharper than
+    ``max_turn`` the least driven one is taken, but a U-turn only when nothing else is left."""
+    nodes = np.array([[0.0, 0.0], [0.5, 0.5], [0.45, 0.5], [0.0, 0.5]])
+    roadmap = Roadmap(nodes, np.array([[0, 1], [0, 2], [0, 3]]), np.full(4, 0.5))
+    walker = CoverageWalker(roadmap, np.random.default_rng(0), max_turn=1.75)
+    for _ in range(5):
+        walker.drive(0, 3)  # the 135° exit is the more driven one
+    assert turn_angle(nodes, 1, 0, 2) > U_TURN > turn_angle(nodes, 1, 0, 3) > 1.75
+    assert walker.choose(1, 0) == 3
+    dead_end = Roadmap(nodes[:3], np.array([[0, 1], [0, 2]]), np.full(3, 0.5))
+    assert CoverageWalker(dead_end, np.random.default_rng(0), 1.75).choose(1, 0) == 2
 
 
 def test_scans_stream_at_the_sensor_rate_with_ground_truth():

@@ -10,6 +10,7 @@ acceleration limits. Deterministic for a given world, duration and seed.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -151,6 +152,10 @@ def turn_angle(nodes: NDArray, a: int, b: int, c: int) -> float:
     return abs(float(np.arctan2(u[0] * v[1] - u[1] * v[0], u @ v)))
 
 
+#: A turn sharper than this (radians) doubles back: :func:`rounded_polyline` cannot round it.
+U_TURN = math.radians(170.0)
+
+
 class CoverageWalker:
     """Chooses exits on a roadmap the way a coverage walk does: the exit driven least often in
     that direction (ties broken at random), avoiding turns sharper than ``max_turn`` radians
@@ -169,8 +174,17 @@ class CoverageWalker:
         return int(self.rng.choice([i for i, a in enumerate(self.adj) if a]))
 
     def choose(self, prev: int, cur: int) -> int:
-        """The next node after driving ``prev -> cur`` (``prev`` < 0 at the start)."""
+        """The next node after driving ``prev -> cur`` (``prev`` < 0 at the start). A node
+        whose exits all turn sharper than ``max_turn`` takes the least driven of them, but
+        never one that doubles back (:data:`U_TURN`) while another is left: on a map's
+        roadmap two neighbours can lie in nearly the same direction (nodes sit where the
+        free space of their block is), and the way on to the second from the first is then a
+        U-turn that no arc can round (a floor plan's route raised at seed 3)."""
         options = [n for n in self.adj[cur] if n != prev] or self.adj[cur]
+        if prev >= 0:
+            options = [
+                n for n in options if turn_angle(self.nodes, prev, cur, n) <= U_TURN
+            ] or options
         keys = [
             (
                 prev >= 0 and turn_angle(self.nodes, prev, cur, n) > self.max_turn,
