@@ -1080,7 +1080,8 @@ class LidarOdometry:
         (:func:`~bioslam.matching.gauss_newton.mapped_conditioning` below
         ``degeneracy_ratio``; seed 6: matches 0.5-2 m along it, the route lost, 6.4 m ATE).
         The Gauss-Newton normal matrix does not show it: the walls' texture, mapped from
-        ranges with a centimetre of noise, curves the fit along them as much as across."""
+        ranges with a centimetre of noise, curves the fit along them at 40-70 % of across
+        them (measured on the corridor of ``tests/test_map_held_direction.py``)."""
         known = [option[0] for option in options]
         seeds: list[FloatArray] = []
         for pose, report, failed in options:

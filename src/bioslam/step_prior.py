@@ -223,7 +223,7 @@ class StepPrior:
     def _history(self, backwards: bool = False) -> np.ndarray:
         """The recent steps as an (n, 3) array (or :func:`driven_backwards`), made once per
         new step."""
-        if self._array is None:
+        if self._array is None or self._backwards is None:
             self._array = np.array(self._steps)
             self._backwards = driven_backwards(self._array)
         return self._backwards if backwards else self._array
