@@ -47,6 +47,10 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
 - ``typicalstepreversing``: the ``reversing`` route (the tour, backing up 12 s along its
   own path every 45 s) on the four worlds, SICK and URG-04LX, seeds 2-7, thinned to a
   scan per 1 m / 0.6 rad: steps a metre behind the robot.
+- ``office``: an office floor plan no default was tuned on (``office_floor_plan.py``: a
+  lobby of pillars, a corridor with doors into ten rooms of desks, a cross corridor), SICK
+  and URG-04LX, the tour, adversarial and reversing routes, seeds 2-5, a third of the run's
+  duration, thinned to a scan per 1 m / 0.6 rad.
 - ``turnonspot``: logs thinned by distance alone, which keep no scan while the robot turns
   on the spot (up to 180° between two scans): freiburg-079 at a scan per metre of
   displacement and of path (as ``bioslam thin`` does), and the SICK preset on the four
@@ -203,6 +207,22 @@ def sim_case(name, lidar, duration, config=None, fast_turns=False, obstacles=(),
     est, gt, ms, extra = run_odometry(scans, config, start_offset=start_offset,
                                       from_origin=from_origin)
     return summary(name, est, gt, ms, extra)
+
+
+def office_world() -> str:
+    """The office floor plan (``office_floor_plan.py``), written once into a temporary
+    folder: its map YAML's path, which :func:`bioslam.sim.load_world` reads."""
+    global _OFFICE
+    if _OFFICE is None:
+        import tempfile
+
+        from office_floor_plan import write_office
+
+        _OFFICE = str(write_office(Path(tempfile.mkdtemp(prefix="bioslam-office-"))))
+    return _OFFICE
+
+
+_OFFICE: str | None = None
 
 
 def people_on_route(route) -> list[MovingObstacle]:
@@ -618,6 +638,14 @@ def main() -> None:
             for world in ("rooms", "warehouse", "maze", "hall")
             for lidar in ("sick", "urg04lx")
             for seed in range(2, 8)
+        ],
+        "office": lambda: [
+            sim_case(f"office {route} {lidar}, a scan per 1 m / 0.6 rad, seed {seed}",
+                     LIDAR_PRESETS[lidar], duration / 3, world=office_world(), seed=seed,
+                     thin=(1.0, 0.6), route=route)
+            for lidar in ("sick", "urg04lx")
+            for route in ("tour", "adversarial", "reversing")
+            for seed in range(2, 6)
         ],
         "turnonspot": lambda: [
             log_case("freiburg-079 thinned to a scan per 1 m by distance alone",
