@@ -374,7 +374,8 @@ def overrides(items: list[str]) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cases", default=",".join(c.name for c in DEFAULT_CASES),
-                    help="world-lidar-route names, comma-separated")
+                    help="world-lidar-route names, comma-separated (the world a built-in "
+                    "one's name or a map YAML's path, e.g. from office_floor_plan.py)")
     ap.add_argument("--duration", type=float, default=600.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--gap", type=float, default=10.0, help="metres of travel before a revisit")
@@ -396,7 +397,7 @@ def main() -> None:
     for path in args.log:
         print(report_log(path, config), flush=True)
     for name in args.cases.split(",") if args.cases else ():
-        world, lidar, route = name.split("-")
+        world, lidar, route = name.rsplit("-", 2)  # the world may be a map YAML's path
         case = SimCase(world, lidar, route)
         print(report(case, args.duration, args.seed, args.gap, config, args.thin), flush=True)
 
