@@ -211,14 +211,19 @@ def sim_case(name, lidar, duration, config=None, fast_turns=False, obstacles=(),
 
 def office_world() -> str:
     """The office floor plan (``office_floor_plan.py``), written once into a temporary
-    folder: its map YAML's path, which :func:`bioslam.sim.load_world` reads."""
+    folder (removed at exit): its map YAML's path, which :func:`bioslam.sim.load_world`
+    reads."""
     global _OFFICE
     if _OFFICE is None:
+        import atexit
+        import shutil
         import tempfile
 
         from office_floor_plan import write_office
 
-        _OFFICE = str(write_office(Path(tempfile.mkdtemp(prefix="bioslam-office-"))))
+        folder = Path(tempfile.mkdtemp(prefix="bioslam-office-"))
+        atexit.register(shutil.rmtree, folder, ignore_errors=True)
+        _OFFICE = str(write_office(folder))
     return _OFFICE
 
 
