@@ -83,6 +83,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import itertools
 import math
 import time
@@ -209,25 +210,20 @@ def sim_case(name, lidar, duration, config=None, fast_turns=False, obstacles=(),
     return summary(name, est, gt, ms, extra)
 
 
+@functools.cache
 def office_world() -> str:
     """The office floor plan (``office_floor_plan.py``), written once into a temporary
     folder (removed at exit): its map YAML's path, which :func:`bioslam.sim.load_world`
     reads."""
-    global _OFFICE
-    if _OFFICE is None:
-        import atexit
-        import shutil
-        import tempfile
+    import atexit
+    import shutil
+    import tempfile
 
-        from office_floor_plan import write_office
+    from office_floor_plan import write_office
 
-        folder = Path(tempfile.mkdtemp(prefix="bioslam-office-"))
-        atexit.register(shutil.rmtree, folder, ignore_errors=True)
-        _OFFICE = str(write_office(folder))
-    return _OFFICE
-
-
-_OFFICE: str | None = None
+    folder = Path(tempfile.mkdtemp(prefix="bioslam-office-"))
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    return str(write_office(folder))
 
 
 def people_on_route(route) -> list[MovingObstacle]:

@@ -14,12 +14,13 @@ from bioslam.matching.gauss_newton import (
     points_per_level,
 )
 from bioslam.occupancy_grid import MapPyramid, subsample_by_spacing, thinned_normals
+from bioslam.odometry_config import OdometryConfig
 
 # a corridor 1.4 m wide along x, closed at x = 6
 CORRIDOR_END = np.array(
     [((-20, -0.7), (6, -0.7)), ((-20, 0.7), (6, 0.7)), ((6, -0.7), (6, 0.7))], dtype=float
 )
-DEGENERACY_RATIO = 0.01  # OdometryConfig's
+DEGENERACY_RATIO = OdometryConfig().degeneracy_ratio
 
 
 def _matched_corridor(map_range: float):

@@ -36,6 +36,7 @@ from bioslam.matching.gauss_newton import (
     geometric_conditioning,
     geometric_information,
     grid_args,
+    in_map_frame,
     kept_rows,
     levels_up_to,
     mapped_conditioning,
@@ -1110,11 +1111,7 @@ class LidarOdometry:
         condition, weakest = mapped_conditioning(
             self.pyramid.finest, points, normals, pose, level, c.length_scale
         )
-        if condition >= c.degeneracy_ratio:
-            return None
-        cos, sin = math.cos(pose[2]), math.sin(pose[2])
-        return np.array([cos * weakest[0] - sin * weakest[1], sin * weakest[0] + cos * weakest[1],
-                         weakest[2]])  # fmt: skip
+        return None if condition >= c.degeneracy_ratio else in_map_frame(weakest, pose[2])
 
     def _choose(
         self, options: list[tuple[FloatArray, MatchReport, bool]],

@@ -169,8 +169,8 @@ class StepPrior:
     def __init__(self, config: StepPriorConfig | None = None) -> None:
         self.config = config or StepPriorConfig()
         self._steps: deque[tuple[float, float, float]] = deque(maxlen=self.config.window)
+        # the recent steps and the same driven backwards, (2, n, 3), made once per new step
         self._array: np.ndarray | None = None
-        self._backwards: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self._steps)
@@ -188,8 +188,7 @@ class StepPrior:
         raised to ``floor_steps / n`` while few are known, but at most ``max_young_floor``
         (or ``floor`` if that is higher)."""
         c = self.config
-        raised = min(c.floor_steps / n, c.max_young_floor) if n else 1.0
-        return min(max(c.floor, raised), 1.0)
+        return max(c.floor, min(c.floor_steps / n, c.max_young_floor))
 
     def add(self, step: ArrayLike) -> None:
         """Remember an accepted step (metres, metres, radians)."""
@@ -216,17 +215,19 @@ class StepPrior:
         simulated routes backing up every 45 s, thinned to a scan per metre: 8 lost, 2
         with the steps driven backwards)."""
         s = np.asarray(step, dtype=np.float64).reshape(3)
-        ahead = float(np.mean(self._kernel(self._history(), s)))
-        back = float(np.mean(self._kernel(self._history(backwards=True), s)))
+        ahead, back = np.mean(self._kernel(self._histories(), s), axis=-1).tolist()
         return max(ahead, self.config.cone_reverse * back)
 
-    def _history(self, backwards: bool = False) -> np.ndarray:
-        """The recent steps as an (n, 3) array (or :func:`driven_backwards`), made once per
-        new step."""
-        if self._array is None or self._backwards is None:
-            self._array = np.array(self._steps)
-            self._backwards = driven_backwards(self._array)
-        return self._backwards if backwards else self._array
+    def _histories(self) -> np.ndarray:
+        """The recent steps and the same :func:`driven_backwards`, (2, n, 3)."""
+        if self._array is None:
+            steps = np.array(self._steps)
+            self._array = np.stack([steps, driven_backwards(steps)])
+        return self._array
+
+    def _history(self) -> np.ndarray:
+        """The recent steps as an (n, 3) array."""
+        return self._histories()[0]
 
     def _kernel(self, steps: np.ndarray, step: np.ndarray) -> np.ndarray:
         """The Gaussian kernel between ``steps`` and ``step`` (broadcast over their

@@ -496,6 +496,14 @@ def levels_up_to(iterations: tuple[int, ...], level: int) -> tuple[int, ...]:
     return tuple(n if k <= level else 0 for k, n in enumerate(iterations))
 
 
+def in_map_frame(direction: ArrayLike, heading: float) -> FloatArray:
+    """A direction (x, y, theta * length_scale) of the sensor frame, e.g. a scan's weakest
+    (:func:`geometric_information`), in the map frame of a pose of ``heading``."""
+    x, y, t = (float(v) for v in np.asarray(direction, dtype=np.float64).reshape(3))
+    c, s = math.cos(heading), math.sin(heading)
+    return np.array([c * x - s * y, s * x + c * y, t])
+
+
 def match_scan_to_map(
     pyramid: MapPyramid,
     level_points: list[FloatArray],
@@ -564,9 +572,7 @@ def match_scan_to_map(
         report.information = float(top)
         report.weakest_direction = np.asarray(weakest, dtype=np.float64)
         if cond < degeneracy_ratio:
-            c, s = math.cos(pose[2]), math.sin(pose[2])
-            hold = np.array([c * weakest[0] - s * weakest[1], s * weakest[0] + c * weakest[1],
-                             weakest[2]])  # fmt: skip
+            hold = in_map_frame(weakest, pose[2])
             report.degenerate = True
             report.degenerate_direction = hold
             if prior_information is not None and top > 0.0:

@@ -181,17 +181,15 @@ class CoverageWalker:
         free space of their block is), and the way on to the second from the first is then a
         U-turn that no arc can round (a floor plan's route raised at seed 3)."""
         options = [n for n in self.adj[cur] if n != prev] or self.adj[cur]
-        if prev >= 0:
-            options = [
-                n for n in options if turn_angle(self.nodes, prev, cur, n) <= U_TURN
-            ] or options
+        turns = {n: turn_angle(self.nodes, prev, cur, n) if prev >= 0 else 0.0 for n in options}
+        options = [n for n in options if turns[n] <= U_TURN] or options
         keys = [
             (
-                prev >= 0 and turn_angle(self.nodes, prev, cur, n) > self.max_turn,
+                turns[n] > self.max_turn,
                 self.driven.get((cur, n), 0),
                 self.driven.get((n, cur), 0),
                 # Straight on first among equals: a driver does not zig-zag down a corridor.
-                prev >= 0 and turn_angle(self.nodes, prev, cur, n) > 0.2,
+                turns[n] > 0.2,
                 self.rng.random(),
             )
             for n in options
