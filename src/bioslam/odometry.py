@@ -475,7 +475,8 @@ class LidarOdometry:
         a log thinned to a scan per metre the first two say "turning", the last "a metre
         on"; on sparse scans also the step prior's typical steps, the searches' seeds and the
         hypotheses on the finer levels alone, :meth:`_finer_basins`, and each match its
-        scan leaves free along a corridor slid there, :meth:`_slid`), keeping the plausible
+        scan leaves free along a corridor slid there, :meth:`_slid`; the motion hypotheses not
+        where the search's lone winner settles the step, :meth:`_settles`), keeping the plausible
         match nearest ``start`` (:meth:`_choose`), or on sparse scans and while every scan
         so far came after a gap (:meth:`_sparse_so_far`: standing still is then no motion
         prior) the best one (:meth:`_choose_sparse`). When
@@ -527,10 +528,18 @@ class LidarOdometry:
             points = level_pts[min(c.search_level + 1, c.levels - 1)]
             centre, distance, angle = self._search_window(start, (previous, *motion[1:]))
             seeds = self._search_seeds(points, centre, distance, angle, options[0][0])
+            lone = len(seeds) == 1
             if as_sparse:
                 seeds += self._typical_seeds(points, forward, seeds)
-            seeds += self._distinct_hypotheses(motion)
-            options += [self._option(level_pts, seed, normals) for seed in seeds]
+            found = [self._option(level_pts, seed, normals) for seed in seeds]
+            settled = as_sparse and lone and self._settles(
+                found[0], previous, level_pts[0], normals
+            )
+            if not settled:
+                hypotheses = self._distinct_hypotheses(motion)
+                seeds += hypotheses
+                found += [self._option(level_pts, seed, normals) for seed in hypotheses]
+            options += found
             if as_sparse:
                 options += self._finer_basins(level_pts, normals, seeds, options)
             self._weigh_walls(options, level_pts[0])
@@ -1032,6 +1041,34 @@ class LidarOdometry:
         found = self._searcher.search(points, forward).pose
         self._searcher.config = wide
         return [found] if all(self._distinct(found, s) for s in seeds) else []
+
+    def _settles(
+        self, option: tuple[FloatArray, MatchReport, bool], previous: FloatArray,
+        points: FloatArray, normals: FloatArray,
+    ) -> bool:
+        """The wide search's winner, found without a rival, settles the step on its own: it
+        fits as well as the recent matches (its score at least ``plausible_ratio`` of their
+        median), contradicts the map little (:meth:`_clean`), neither its scan nor the walls
+        the map holds leave a direction free (:meth:`_free_direction`), and the step prior,
+        once it has learnt something, finds its step like the recent ones (the learned
+        density at least ``implausible_density``). The motion hypotheses and their finer
+        basins are for the scans where the winner may be a look-alike, one point of a
+        plateau, or a basin next to the true one; matched from every sparse scan, they were
+        most of the odometry's time on a thinned log (intel: 7 hypotheses a scan, 18
+        Gauss-Newton runs in all). A winner that merely was not rejected settled too often:
+        a match 0.17 m ahead fitting 0.42 where a hypothesis's fitted 0.79 (the rooms'
+        tour, SICK, thinned to a scan per metre, seed 2)."""
+        c = self.config
+        pose, report, failed = option
+        typical = c.plausible_ratio * self._typical_score
+        if failed or self._step_prior.flat or report.score < typical:
+            return False
+        self._weigh_walls([option], points)
+        return (
+            self._clean(report)
+            and self._step_prior.density(between(previous, pose)) >= c.implausible_density
+            and self._free_direction(pose, report, points, normals) is None
+        )
 
     def _finer_basins(
         self, level_pts: list[FloatArray], normals: FloatArray, seeds: list[FloatArray],
