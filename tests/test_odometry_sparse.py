@@ -453,7 +453,7 @@ def test_a_lone_sound_typical_winner_settles_the_step(monkeypatch):
     """The rooms on their tour, thinned to a scan per metre, seed 2: where the wide search's
     winner has no rival, fits without contradicting the map, is pinned in every direction
     and steps as the robot has been stepping, the motion hypotheses are not matched from
-    (they and their finer basins were half the odometry's time on the thinned intel log);
+    (on the thinned intel log they made most of its 18 Gauss-Newton runs a scan);
     where one of these fails (a turn unlike the recent steps, a rival) they are. The poses
     stay within 0.1 m, as with every hypothesis matched on every scan."""
     searched, hypothesised = [], []
