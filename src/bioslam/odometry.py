@@ -531,36 +531,29 @@ class LidarOdometry:
             lone = len(seeds) == 1
             if as_sparse:
                 seeds += self._typical_seeds(points, forward, seeds)
-            found = [self._option(level_pts, seed, normals) for seed in seeds]
+            options += self._weighed(level_pts, seeds, normals)
             settled = as_sparse and lone and self._settles(
-                found[0], previous, level_pts[0], normals
+                options[1], previous, level_pts[0], normals
             )
             if not settled:
                 hypotheses = self._distinct_hypotheses(motion)
                 seeds += hypotheses
-                found += [self._option(level_pts, seed, normals) for seed in hypotheses]
-            options += found
+                options += self._weighed(level_pts, hypotheses, normals)
+            finer = self._finer_basins(level_pts, normals, seeds, options) if as_sparse else []
+            self._weigh_walls([options[0], *finer], level_pts[0])
+            options += finer
             if as_sparse:
-                options += self._finer_basins(level_pts, normals, seeds, options)
-            self._weigh_walls(options, level_pts[0])
-            if as_sparse:
-                slid = [
-                    self._option(level_pts, s, normals)
-                    for s in self._slid(options, forward, level_pts[0], normals)
-                ]
-                self._weigh_walls(slid, level_pts[0])
-                options += slid
+                slid = self._slid(options, forward, level_pts[0], normals)
+                options += self._weighed(level_pts, slid, normals)
             for k, ring in enumerate(turned_windows(c.search_angle)):
                 if (k > 0 or not all(self._hopeless(o, previous) for o in options)) and any(
                     self._credible(o, previous) for o in options
                 ):
                     break  # a match that only failed its score: a room turned round fits better
-                weighed = len(options)
                 for angle in ring:
                     turn = compose(previous, np.array([0.0, 0.0, angle]))
                     seeds = self._search_seeds(points, turn, c.search_distance, c.search_angle)
-                    options += [self._option(level_pts, seed, normals) for seed in seeds]
-                self._weigh_walls(options[weighed:], level_pts[0])
+                    options += self._weighed(level_pts, seeds, normals)
         reach = (jump[0] + c.max_speed * dt, jump[1] + c.max_turn_rate * dt)
         if as_sparse and len(options) > 1:
             pose, report = self._choose_sparse(options, previous, reach, gapless)
@@ -1042,11 +1035,21 @@ class LidarOdometry:
         self._searcher.config = wide
         return [found] if all(self._distinct(found, s) for s in seeds) else []
 
+    def _weighed(
+        self, level_pts: list[FloatArray], seeds: list[FloatArray], normals: FloatArray
+    ) -> list[tuple[FloatArray, MatchReport, bool]]:
+        """Gauss-Newton from each of ``seeds`` (:meth:`_option`), each match's beams through
+        known walls counted (:meth:`_weigh_walls`)."""
+        found = [self._option(level_pts, seed, normals) for seed in seeds]
+        self._weigh_walls(found, level_pts[0])
+        return found
+
     def _settles(
         self, option: tuple[FloatArray, MatchReport, bool], previous: FloatArray,
         points: FloatArray, normals: FloatArray,
     ) -> bool:
-        """The wide search's winner, found without a rival, settles the step on its own: it
+        """The wide search's winner (weighed, :meth:`_weighed`), found without a rival,
+        settles the step on its own: it
         fits as well as the recent matches (its score at least ``plausible_ratio`` of their
         median), contradicts the map little (:meth:`_clean`), neither its scan nor the walls
         the map holds leave a direction free (:meth:`_free_direction`), and the step prior,
@@ -1064,7 +1067,6 @@ class LidarOdometry:
         typical = c.plausible_ratio * self._typical_score
         if failed or self._step_prior.flat or report.score < typical:
             return False
-        self._weigh_walls([option], points)
         return (
             self._clean(report)
             and self._step_prior.density(between(previous, pose)) >= c.implausible_density
