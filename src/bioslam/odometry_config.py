@@ -342,6 +342,15 @@ class OdometryConfig:
             2 / 3: ATE 81.8 / 125.6 -> 0.91 / 3.14 cm; freiburg-079 thinned to 1 m, RPE
             over 1 m 4.88 -> 4.19 cm). 0: off. ``benchmarks/README.md``, "The typical
             step searched".
+        plateau_slope: on sparse scans, where the scan of the match chosen leaves a
+            direction free, a match along it that fits less by at most this much quality
+            per metre between them is a point of the same plateau, and the step prior
+            picks among them (:meth:`LidarOdometry._typical_on_plateau`; the seeds slid
+            along it to the typical step are matched held there). Measured slopes: 0.05-0.2
+            per metre for a URG-04LX's steps down corridors longer than its range, 0.6 for a
+            SICK's that sees corners down them. 0: only a match fitting as well is (the
+            choice is then the merit's). ``benchmarks/README.md``, "Down a corridor the scan
+            cannot pin".
         log_odds: hit/miss increments of the map cells.
     """
 
@@ -419,6 +428,7 @@ class OdometryConfig:
     echo_prior_weight: float | None = 0.2
     echo_scans: int = 8
     typical_search_distance: float = 0.5
+    plateau_slope: float = 0.3
     log_odds: LogOddsConfig = field(default_factory=LogOddsConfig)
 
     def __post_init__(self) -> None:
@@ -436,10 +446,10 @@ class OdometryConfig:
                 f"sparse_share and implausible_density must be in (0, 1], got "
                 f"{self.sparse_share}, {self.implausible_density}"
             )
-        if self.step_prior_weight < 0 or self.step_modes < 0:
+        if self.step_prior_weight < 0 or self.step_modes < 0 or self.plateau_slope < 0:
             raise ValueError(
-                f"step_prior_weight and step_modes must be non-negative, got "
-                f"{self.step_prior_weight}, {self.step_modes}"
+                f"step_prior_weight, step_modes and plateau_slope must be non-negative, got "
+                f"{self.step_prior_weight}, {self.step_modes}, {self.plateau_slope}"
             )
         if (self.echo_prior_weight is not None and self.echo_prior_weight < 0) or (
             self.echo_scans < 1
