@@ -58,7 +58,29 @@ def test_a_dense_scanners_steps_make_any_long_step_cost_the_most():
                              rng.normal(0, 0.01, 100)])  # fmt: skip
     prior = prior_of(steps)
     assert prior.cost((0.02, 0.0, 0.0)) < 0.05
-    assert prior.cost((1.0, 0.0, 0.0)) == pytest.approx(-math.log(prior.config.floor), abs=0.01)
+    # a metre is unlike every step and far beyond the longest: the floor's and the cones'
+    # least density together
+    cap = -math.log(prior.config.floor * prior.config.cone_floor)
+    assert prior.cost((1.0, 0.0, 0.0)) == pytest.approx(cap, abs=0.1)
+
+
+def test_a_step_beyond_the_reach_of_the_recent_ones_costs_as_one_off_the_cones():
+    """Once the prior is no longer young, a step longer than the longest recent one (a
+    look-alike a rack period down an aisle) costs more the farther it reaches, up to what a
+    step off the heading cones costs; young, the longest step known says nothing yet (a log
+    that starts with turns on the spot)."""
+    steps = thinned_log_steps()
+    prior = prior_of(steps)
+    longest = float(np.max(np.hypot(steps[:, 0], steps[:, 1])))
+    within = prior.cost((longest, 0.0, 0.0))
+    assert prior.kinematic((longest, 0.0, 0.0)) == pytest.approx(1.0)
+    assert 0.3 < prior.kinematic((longest + 0.25, 0.0, 0.0)) < 0.7
+    assert prior.kinematic((longest + 2.0, 0.0, 0.0)) == pytest.approx(prior.config.cone_floor)
+    sideways = prior.cost((0.0, 2.0, 0.0))
+    assert prior.cost((longest + 2.0, 0.0, 0.0)) == pytest.approx(sideways, abs=0.01)
+    assert prior.cost((longest + 2.0, 0.0, 0.0)) > within + 2.0
+    young = prior_of(steps[:40])
+    assert young.kinematic((longest + 2.0, 0.0, 0.0)) == 1.0
 
 
 def test_a_few_wrong_steps_among_many_do_not_make_their_kind_typical():

@@ -32,6 +32,11 @@ that charged backing up as much as stepping sideways lost routes that back up
 (``bioslam.sim.reversing``); one that did not charge it at all lost the warehouse routes again.
 ``cone_sigma`` None turns it off for a robot that moves sideways (omnidirectional bases).
 
+What enough steps tell: how far the robot gets between two scans (its speed times their
+interval, or a log's thinning distance). Once the prior is no longer young, a step longer than
+the longest of the recent ones costs more the farther it reaches, as one off the cones does: a
+look-alike a rack period down an aisle is then no cheaper than any other unlikely step.
+
 No file or terminal I/O here.
 """
 
@@ -83,8 +88,9 @@ class StepPriorConfig:
             start and end headings, or its opposite (:func:`heading_cone_offset`), before the
             kinematic density falls (a Gaussian of the offset); the width of the learned
             kernel, so that a step off the cone by what tells two options apart costs as much
-            as one unlike the recent steps by as much. None: no kinematic density (uniform
-            floor).
+            as one unlike the recent steps by as much; also how far a step may reach beyond
+            the longest recent one before it falls (:meth:`StepPrior._within_reach`). None: no
+            kinematic density (uniform floor).
         cone_reverse: the kinematic density inside the opposite cone (backing up),
             relative to the forward cone's: a robot does back up, but a metre back along an
             aisle is also where a repetitive place's look-alike lies. The learned density
@@ -171,6 +177,7 @@ class StepPrior:
         self._steps: deque[tuple[float, float, float]] = deque(maxlen=self.config.window)
         # the recent steps and the same driven backwards, (2, n, 3), made once per new step
         self._array: np.ndarray | None = None
+        self._longest_step: float | None = None
 
     def __len__(self) -> int:
         return len(self._steps)
@@ -195,6 +202,7 @@ class StepPrior:
         dx, dy, dth = (float(v) for v in np.asarray(step, dtype=np.float64).reshape(3))
         self._steps.append((dx, dy, dth))
         self._array = None
+        self._longest_step = None
 
     def density(self, step: ArrayLike) -> float:
         """The mean Gaussian kernel of ``step`` against the recent steps, or ``cone_reverse``
@@ -261,8 +269,8 @@ class StepPrior:
     def kinematic(self, step: ArrayLike) -> float:
         """The kinematic density of ``step``, in [``cone_floor``, 1]: 1 inside its heading
         cone (:func:`heading_cone_offset`), ``cone_reverse`` of that inside the opposite
-        one, each falling as a Gaussian of ``cone_sigma`` outside; 1 for every step without
-        ``cone_sigma``."""
+        one, each falling as a Gaussian of ``cone_sigma`` outside, and beyond the reach of
+        the recent steps (:meth:`_within_reach`); 1 for every step without ``cone_sigma``."""
         c = self.config
         if c.cone_sigma is None:
             return 1.0
@@ -272,7 +280,32 @@ class StepPrior:
         inside = max(
             math.exp(-0.5 * forward * forward), c.cone_reverse * math.exp(-0.5 * reverse * reverse)
         )
-        return c.cone_floor + (1.0 - c.cone_floor) * inside
+        return c.cone_floor + (1.0 - c.cone_floor) * inside * self._within_reach(dx, dy)
+
+    def _within_reach(self, dx: float, dy: float) -> float:
+        """1 for a displacement no longer than the longest of the recent steps, falling as a
+        Gaussian of ``cone_sigma`` beyond it, once the prior is no longer young (``floor``
+        no longer raised, :meth:`_young_floor`); 1 before. Between two scans a robot moves
+        at most its speed times their interval, or a log's thinning distance, and the
+        longest of its last steps is what that has been: a match 3.4 m on down an aisle,
+        where no step in 95 had been longer than 1.1 m, fitted 0.87 against the true
+        step's 0.78 and cost only the floor's 0.02 more than it (simulated warehouse,
+        URG-04LX, thinned to a scan per metre, adversarial route, seed 5: ATE 1.58 m ->
+        5.8 cm). Young, the bound learnt standstills: intel starts with ten turns on the
+        spot, and its first metre on lost (RPE over 1 m from scans 0-9, median 4.8 ->
+        15 cm)."""
+        n = len(self._steps)
+        if n == 0 or self._young_floor(n) > self.config.floor:
+            return 1.0
+        beyond = max(0.0, math.hypot(dx, dy) - self._longest()) / self.config.cone_sigma
+        return math.exp(-0.5 * beyond * beyond)
+
+    def _longest(self) -> float:
+        """The longest displacement among the recent steps (metres)."""
+        if self._longest_step is None:
+            steps = self._history()
+            self._longest_step = float(np.max(np.hypot(steps[:, 0], steps[:, 1])))
+        return self._longest_step
 
     def modes(self, count: int) -> list[np.ndarray]:
         """Up to ``count`` typical steps: the recent steps of highest density, each more
