@@ -881,6 +881,8 @@ class LidarOdometry:
         drift put a decimetre off, whose free space then rejects the true step, and a
         look-alike turned 180° in a tenth of a second was kept there (simulated warehouse,
         SICK, from the origin, seed 31).
+        Where the scan leaves a direction free, the step prior picks among the matches along
+        it that fit nearly as well (:meth:`_typical_on_plateau`).
         Flags the report ambiguous when a distinct match is plausible (``plausible_ratio``
         of the quality), recovered when it is not the first match."""
         c = self.config
@@ -1097,8 +1099,9 @@ class LidarOdometry:
         held: bool = False,
     ) -> list[tuple[FloatArray, MatchReport, bool]]:
         """Gauss-Newton from each of ``seeds`` (:meth:`_option`), each match's beams through
-        known walls counted (:meth:`_weigh_walls`). ``held``: along a direction its scan
-        leaves free each match stays where its seed put it (the seeds :meth:`_slid` there)."""
+        known walls counted (:meth:`_weigh_walls`). ``held``: each is held where its seed
+        put it along a direction its scan leaves free (:meth:`_held`, for the seeds
+        :meth:`_slid` along such a direction)."""
         if held:
             found = [self._held(level_pts, seed, normals) for seed in seeds]
         else:
