@@ -440,13 +440,22 @@ def test_a_short_range_scanner_looking_back_through_doors_keeps_its_steps():
     every fifth step came out 0.12-0.22 m short and the route drifted (ATE 0.79 m, 8 steps
     off by more than 0.1 m); with the endpoints drawn only on surfaces facing their way,
     none."""
+    steps, wrong, _, ate = urg04lx_route_errors("rooms", "tour", 3, 0.1)
+    assert steps > 100 and wrong == 0 and ate < 0.1, (wrong, ate)
+
+
+def urg04lx_route_errors(
+    world_name: str, route_name: str, seed: int, threshold: float
+) -> tuple[int, int, float, float]:
+    """A URG-04LX on a thinned route (:func:`thinned_route_steps`, default odometry): its
+    number of steps, how many are off by more than ``threshold`` metres, the largest step
+    error and the ATE (metres)."""
     est, truth, poses, true_poses = thinned_route_steps(
-        "rooms", "tour", 3, OdometryConfig(), lidar="urg04lx"
+        world_name, route_name, seed, OdometryConfig(), lidar="urg04lx"
     )
-    miss = between(truth, est)
-    wrong = int(np.sum(np.hypot(miss[:, 0], miss[:, 1]) > 0.1))
+    miss = np.hypot(*between(truth, est)[:, :2].T)
     ate = float(np.sqrt(np.mean(np.sum((poses[:, :2] - true_poses[:, :2]) ** 2, axis=1))))
-    assert len(est) > 100 and wrong == 0 and ate < 0.1, (wrong, ate)
+    return len(est), int(np.sum(miss > threshold)), float(np.max(miss)), ate
 
 
 def test_a_lone_sound_typical_winner_settles_the_step(monkeypatch):
@@ -533,13 +542,8 @@ def test_a_short_range_scanner_down_corridors_longer_than_its_range_keeps_its_st
     walls twice and a look-alike turned 90° was taken (ATE 5.8 m). With the seeds slid to
     the typical step held there and the step prior picking along the plateau, no step is
     off by 0.3 m and the route holds."""
-    est, truth, poses, true_poses = thinned_route_steps(
-        "maze", "tour", 6, OdometryConfig(), lidar="urg04lx"
-    )
-    miss = between(truth, est)
-    wrong = int(np.sum(np.hypot(miss[:, 0], miss[:, 1]) > 0.3))
-    ate = float(np.sqrt(np.mean(np.sum((poses[:, :2] - true_poses[:, :2]) ** 2, axis=1))))
-    assert len(est) > 100 and wrong == 0 and ate < 0.15, (wrong, ate)
+    steps, wrong, _, ate = urg04lx_route_errors("maze", "tour", 6, 0.3)
+    assert steps > 100 and wrong == 0 and ate < 0.15, (wrong, ate)
 
 
 def test_a_look_alike_a_rack_period_down_an_aisle_is_beyond_the_steps_reach():
@@ -548,10 +552,5 @@ def test_a_look_alike_a_rack_period_down_an_aisle_is_beyond_the_steps_reach():
     aisle fitted 0.87 against the true step's 0.78, and the step prior charged it only the
     floor's 0.02 more; taken, the route was lost (ATE 1.58 m). Beyond the reach of the recent
     steps it costs as a step off the heading cones does, and no step is off by a metre."""
-    est, truth, poses, true_poses = thinned_route_steps(
-        "warehouse", "adversarial", 5, OdometryConfig(), lidar="urg04lx"
-    )
-    miss = between(truth, est)
-    worst = float(np.max(np.hypot(miss[:, 0], miss[:, 1])))
-    ate = float(np.sqrt(np.mean(np.sum((poses[:, :2] - true_poses[:, :2]) ** 2, axis=1))))
-    assert len(est) > 100 and worst < 1.0 and ate < 0.15, (worst, ate)
+    steps, _, worst, ate = urg04lx_route_errors("warehouse", "adversarial", 5, 1.0)
+    assert steps > 100 and worst < 1.0 and ate < 0.15, (worst, ate)
