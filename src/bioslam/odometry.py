@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
@@ -782,8 +783,12 @@ class LidarOdometry:
     def _plausible_beside(self, report: MatchReport, other: MatchReport) -> bool:
         """A match whose quality (:func:`_match_quality`) falls short of ``other``'s by at
         most ``1 - plausible_ratio`` of its size."""
-        best = _match_quality(other)
-        return _match_quality(report) >= best - (1.0 - self.config.plausible_ratio) * abs(best)
+        return _match_quality(report) >= self._plausible_floor(_match_quality(other))
+
+    def _plausible_floor(self, quality: float) -> float:
+        """The least quality plausible beside ``quality``: short of it by at most
+        ``1 - plausible_ratio`` of its size (a quality can be negative)."""
+        return quality - (1.0 - self.config.plausible_ratio) * abs(quality)
 
     def _prior_target(
         self, start: FloatArray, previous: FloatArray, predicted: FloatArray, gapless: bool
@@ -891,22 +896,24 @@ class LidarOdometry:
         if all(o[2] for o in pool):  # no match both fits and is consistent with the map
             pool = options
         quality = {id(o): _match_quality(o[1]) for o in options}
-        merits: dict[int, float] = {}  # the broken-turn check asks again for the same ones
+        costs: dict[int, float] = {}  # the plateau and the broken-turn check ask again
+
+        def cost(option: tuple[FloatArray, MatchReport, bool]) -> float:
+            key = id(option)
+            if key not in costs:
+                costs[key] = self._step_cost(previous, option[0])
+            return costs[key]
 
         def merit(option: tuple[FloatArray, MatchReport, bool]) -> float:
-            key = id(option)
-            if key not in merits:
-                merits[key] = quality[key] - self._step_cost(previous, option[0])
-            return merits[key]
+            return quality[id(option)] - cost(option)
 
-        chosen = self._typical_on_plateau(max(pool, key=merit), pool, previous, quality)
+        chosen = self._typical_on_plateau(max(pool, key=merit), pool, quality, cost)
         if chosen is not first and self._beyond(chosen[0], previous, reach) and (
             (gapless and abs(between(previous, chosen[0])[2]) > reach[1])  # turned beyond
             or not (self._rejected(first[1]) and self._clean(chosen[1]) and not chosen[2])
         ):
             chosen = first
-        q = quality[id(chosen)]
-        floor = q - (1.0 - c.plausible_ratio) * abs(q)
+        floor = self._plausible_floor(quality[id(chosen)])
         report = chosen[1]
         report.recovered = chosen is not first
         report.ambiguous = any(
@@ -922,13 +929,13 @@ class LidarOdometry:
 
     def _typical_on_plateau(
         self, chosen: tuple[FloatArray, MatchReport, bool],
-        pool: list[tuple[FloatArray, MatchReport, bool]], previous: FloatArray,
-        quality: dict[int, float],
+        pool: list[tuple[FloatArray, MatchReport, bool]], quality: dict[int, float],
+        cost: Callable[[tuple[FloatArray, MatchReport, bool]], float],
     ) -> tuple[FloatArray, MatchReport, bool]:
         """Where the scan of the ``chosen`` match leaves a direction free (degenerate: a
         corridor whose ends are out of range), the match of ``pool`` along that direction
-        from it whose step the step prior finds most typical, among those within two
-        finest cells of the line, not distinct from ``chosen`` (one place, not a
+        from it whose step the step prior finds most typical (least ``cost``), among those
+        within two finest cells of the line, not distinct from ``chosen`` (one place, not a
         look-alike a rack further on), neither failed nor rejected, and fitting nearly as
         well: a quality at least ``plausible_ratio`` of its, and less by at most
         ``plateau_slope`` per metre between them. Along such a plateau the fit varies by
@@ -943,7 +950,7 @@ class LidarOdometry:
             return chosen
         c = self.config
         q = quality[id(chosen)]
-        floor = q - (1.0 - c.plausible_ratio) * abs(q)
+        floor = self._plausible_floor(q)
 
         def on_plateau(option: tuple[FloatArray, MatchReport, bool]) -> bool:
             pose, found, failed = option
@@ -957,7 +964,7 @@ class LidarOdometry:
             ) <= 2.0 * c.resolution
 
         plateau = [chosen, *(o for o in pool if o is not chosen and on_plateau(o))]
-        return min(plateau, key=lambda o: self._step_cost(previous, o[0]))
+        return min(plateau, key=cost)
 
     def _step_cost(self, previous: FloatArray, pose: FloatArray) -> float:
         """The step prior's cost of the step from ``previous`` to ``pose``, weighed by
@@ -1102,10 +1109,8 @@ class LidarOdometry:
         known walls counted (:meth:`_weigh_walls`). ``held``: each is held where its seed
         put it along a direction its scan leaves free (:meth:`_held`, for the seeds
         :meth:`_slid` along such a direction)."""
-        if held:
-            found = [self._held(level_pts, seed, normals) for seed in seeds]
-        else:
-            found = [self._option(level_pts, seed, normals) for seed in seeds]
+        match = self._held if held else self._option
+        found = [match(level_pts, seed, normals) for seed in seeds]
         self._weigh_walls(found, level_pts[0])
         return found
 
@@ -1257,8 +1262,7 @@ class LidarOdometry:
             or [o for o in options if not self._rejected(o[1])]
             or options
         )
-        best = max(quality[id(o)] for o in pool)
-        floor = best - (1.0 - c.plausible_ratio) * abs(best)  # quality can be negative
+        floor = self._plausible_floor(max(quality[id(o)] for o in pool))
         plausible = [o for o in pool if quality[id(o)] >= floor]
         nearest = min(plausible, key=lambda o: self._pose_distance(o[0], motion[0]))
         basin = [o for o in plausible if not self._distinct(o[0], nearest[0])]
