@@ -74,6 +74,54 @@ def test_branch_and_bound_equals_brute_force_on_random_maps_and_windows():
         assert hinted.rival_score == found.rival_score
 
 
+def test_a_map_pooled_over_the_reach_box_alone_gives_the_whole_maps_answers():
+    """Searches of the windows a reach box was made for find, against the map pooled over
+    that box, the best pose, rival and scores they find against the whole map pooled: no
+    lattice pose (nor its neighbour past the window's edge) puts an endpoint outside it.
+    Scans of every field of view, windows turned up to a whole turn, one window or two."""
+    rng = np.random.default_rng(11)
+    for _ in range(24):
+        res = rng.choice([0.05, 0.1])
+        grid = OccupancyGrid(res, 16.0)
+        mask = rng.random(grid.shape) < rng.uniform(0.01, 0.1)
+        grid.weights[mask] = rng.random(int(mask.sum())).astype(np.float32)
+        fov = rng.uniform(0.3, 2 * math.pi)
+        bearing = rng.uniform(-fov / 2, fov / 2, int(rng.integers(5, 120)))
+        ranges = rng.uniform(0.3, 6.0, bearing.size)
+        points = np.column_stack([ranges * np.cos(bearing), ranges * np.sin(bearing)])
+        windows = [
+            (np.array([*rng.uniform(-1, 1, 2), rng.uniform(-math.pi, math.pi)]),
+             rng.uniform(0.1, 1.0), rng.uniform(0.02, 3.2))
+            for _ in range(int(rng.integers(1, 3)))
+        ]  # fmt: skip
+        cfg = WideBasinConfig(min_rival_ratio=rng.uniform(0.0, 0.9), depth=4)
+        whole, boxed = WideBasinMatcher(cfg), WideBasinMatcher(cfg)
+        whole.set_map(grid)
+        box = boxed.reach_box(points, windows, res)
+        for centre, distance, angle in windows:  # the lattice's edge, and a step past it
+            step = boxed._angular_step(points, res)
+            nt, nx = int(angle / step) + 1, int(distance / res) + 1
+            for j in range(-nt, nt + 1):
+                for ix, iy in ((-nx, -nx), (-nx, nx), (nx, -nx), (nx, nx), (0, 0)):
+                    pose = centre + np.array([ix * res, iy * res, j * step])
+                    placed = compose(pose, np.column_stack([points, np.zeros(len(points))]))
+                    assert np.all(placed[:, 0] >= box[0]) and np.all(placed[:, 0] <= box[2])
+                    assert np.all(placed[:, 1] >= box[1]) and np.all(placed[:, 1] <= box[3])
+        boxed.set_map(grid, box)
+        assert boxed._shape[0] * boxed._shape[1] < whole._shape[0] * whole._shape[1]
+        for centre, distance, angle in windows:
+            window = WideBasinConfig(
+                distance=distance, angle=angle, min_rival_ratio=cfg.min_rival_ratio, depth=4
+            )
+            whole.config = boxed.config = window
+            a, b = whole.search(points, centre), boxed.search(points, centre)
+            assert a.score == b.score and np.array_equal(a.pose, b.pose)
+            assert a.rival_score == b.rival_score
+            assert (a.rival_pose is None) == (b.rival_pose is None)
+            if a.rival_pose is not None:
+                assert np.array_equal(a.rival_pose, b.rival_pose)
+
+
 @pytest.mark.parametrize(("beams", "fov"), [(1081, 1.5 * np.pi), (181, np.pi)])
 def test_branch_and_bound_equals_brute_force_in_a_repetitive_warehouse(beams, fov):
     # Identical aisles whose view repeats every 2.8 m: many near-equal maxima, little to

@@ -91,9 +91,9 @@ def test_intel_thinned_log_from_ten_starts_has_few_wrong_steps():
 
 
 def test_the_search_pools_the_map_again_only_when_it_changed():
-    """The two windows turned either way from the last pose share their box: the map is
-    pooled once for both, and again whenever the map took a scan, scrolled, or the box moved;
-    every search then finds what a searcher pooled afresh finds."""
+    """Two windows searched for one scan (turned either way from the last pose) share their
+    box: the map is pooled once for both, and again whenever the map took a scan, scrolled,
+    or the box moved; every search then finds what a searcher of the whole map finds."""
     from bioslam.matching.branch_and_bound import WideBasinMatcher
 
     rng = np.random.default_rng(3)
@@ -106,15 +106,17 @@ def test_the_search_pools_the_map_again_only_when_it_changed():
     points = make_scan(ROOM, (0.5, 0.2, 0.3), sigma=0.01, rng=rng).endpoints()
     grid = odo.pyramid.grids[odo.config.search_level]
 
-    def search_matches_a_fresh_pooling(centre):
-        found = odo._search_seeds(points, centre, 1.0, 0.6)[0]
+    def search_matches_a_fresh_pooling(centre, also=()):
+        found = odo._search_seeds(points, centre, 1.0, 0.6, also=also)[0]
         fresh = WideBasinMatcher(odo._searcher.config)
-        fresh.set_map(grid, pooled[-1])
+        fresh.set_map(grid)
         np.testing.assert_array_equal(found, fresh.search(points, centre).pose)
 
     start = odo.pose.copy()
-    search_matches_a_fresh_pooling(start)
-    search_matches_a_fresh_pooling(start + np.array([0.0, 0.0, 1.5]))  # same box
+    turned = start + np.array([0.0, 0.0, 1.5])
+    both = ((start, 1.0, 0.6), (turned, 1.0, 0.6))
+    search_matches_a_fresh_pooling(start, both)
+    search_matches_a_fresh_pooling(turned, both)  # the same box
     assert len(pooled) == 1
     grid.insert_scan(start, points[:20])
     search_matches_a_fresh_pooling(start)

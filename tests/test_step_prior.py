@@ -267,6 +267,34 @@ def test_modes_follow_their_definition(seed):
         np.testing.assert_allclose(g, w, atol=1e-12)
 
 
+def test_modes_follow_their_definition_once_the_window_is_full():
+    """Past ``window`` steps the modes are those of the last ``window`` alone (the pairwise
+    kernels the prior keeps drop the oldest step's row and column)."""
+    steps = thinned_log_steps(70, seed=3)
+    steps[40:, 0] *= 1.6  # the later steps longer: the dropped ones would show
+    prior = prior_of(steps, window=30)
+    c = prior.config
+    got = prior.modes(6)
+    want = reference_modes(steps[-30:], 6, c.sigma_distance, c.sigma_angle)
+    assert len(got) == len(want) >= 2
+    for g, w in zip(got, want, strict=True):
+        np.testing.assert_allclose(g, w, atol=1e-12)
+
+
+def test_a_cost_asked_again_after_a_new_step_is_the_new_priors():
+    """Costs are remembered between two steps only: a step asked about before and after
+    the prior learns a new kind of step costs what the new prior says."""
+    prior = prior_of(np.tile([1.0, 0.0, 0.0], (20, 1)))
+    turn = (0.0, 0.0, math.radians(30.0))
+    before = prior.cost(turn)
+    assert prior.cost(turn) == before
+    for _ in range(20):
+        prior.add(turn)
+    assert prior.cost(turn) < before - 1.0
+    fresh = prior_of(np.vstack([np.tile([1.0, 0.0, 0.0], (20, 1)), [turn] * 20]))
+    assert prior.cost(turn) == fresh.cost(turn)
+
+
 def test_a_step_unlike_the_few_known_costs_when_not_young():
     """Below ``min_steps`` the young prior is flat, but the cost an echo pays (not young)
     already counts the steps known: two metres on make standing still cost the most."""

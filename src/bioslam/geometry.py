@@ -49,7 +49,11 @@ def _wrap_scalar(angle: float) -> float:
 def _compose_single(a: FloatArray, b: FloatArray) -> FloatArray:
     # The per-scan path composes single poses thousands of times a second; plain floats
     # avoid the array machinery of the vectorised form.
-    ax, ay, at = a.tolist()
+    return _compose_floats(*a.tolist(), b)
+
+
+def _compose_floats(ax: float, ay: float, at: float, b: FloatArray) -> FloatArray:
+    """``(ax, ay, at) ⊕ b`` for a single pose ``b``."""
     bx, by, bt = b.tolist()
     c, s = math.cos(at), math.sin(at)
     return np.array([ax + c * bx - s * by, ay + s * bx + c * by, _wrap_scalar(at + bt)])
@@ -87,6 +91,11 @@ def inverse(p: ArrayLike) -> FloatArray:
 
 def between(a: ArrayLike, b: ArrayLike) -> FloatArray:
     """The relative pose of ``b`` seen from ``a``: ``⊖a ⊕ b``."""
+    if _is_single(a) and _is_single(b):
+        # the per-scan path: inverse's arithmetic in plain floats, then compose's
+        x, y, t = a.tolist()  # type: ignore[union-attr]
+        c, s = math.cos(t), math.sin(t)
+        return _compose_floats(-c * x - s * y, s * x - c * y, _wrap_scalar(-t), b)  # type: ignore[arg-type]
     return compose(inverse(a), b)
 
 

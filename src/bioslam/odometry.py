@@ -546,7 +546,12 @@ class LidarOdometry:
             # the next level's endpoints (twice as far apart) on the search level's grid
             points = level_pts[min(c.search_level + 1, c.levels - 1)]
             centre, distance, angle = self._search_window(start, (previous, *motion[1:]))
-            seeds = self._search_seeds(points, centre, distance, angle, options[0][0])
+            # the typical step's window (:meth:`_typical_seeds`) searches the same pooled map
+            typical = (
+                ((forward, min(c.typical_search_distance, distance), angle),)
+                if as_sparse and c.typical_search_distance > 0.0 else ()
+            )  # fmt: skip
+            seeds = self._search_seeds(points, centre, distance, angle, options[0][0], typical)
             lone = len(seeds) == 1
             if as_sparse:
                 seeds += self._typical_seeds(points, forward, seeds)
@@ -569,9 +574,12 @@ class LidarOdometry:
                     self._credible(o, previous) for o in options
                 ):
                     break  # a match that only failed its score: a room turned round fits better
-                for angle in ring:
-                    turn = compose(previous, np.array([0.0, 0.0, angle]))
-                    seeds = self._search_seeds(points, turn, c.search_distance, c.search_angle)
+                turns = [compose(previous, np.array([0.0, 0.0, a])) for a in ring]
+                both = tuple((turn, c.search_distance, c.search_angle) for turn in turns)
+                for turn in turns:  # the two windows of a ring share one pooled map
+                    seeds = self._search_seeds(
+                        points, turn, c.search_distance, c.search_angle, also=both
+                    )
                     options += self._weighed(level_pts, seeds, normals)
         reach = (jump[0] + c.max_speed * dt, jump[1] + c.max_turn_rate * dt)
         if as_sparse and len(options) > 1:
@@ -1021,25 +1029,31 @@ class LidarOdometry:
         the larger windows found look-alikes on logs whose steps they already held:
         intel from scan 7, RPE over 1 m 4.3 -> 5.9 cm.)"""
         c = self.config
-        steps = np.array([np.zeros(3), between(start, hold[0])])
-        low, high = steps.min(axis=0), steps.max(axis=0)
-        spare = 0.8 * np.array([c.search_distance, c.search_distance, c.search_angle])
+        # in plain floats: up to twelve poses a scan, each a few array operations otherwise
+        last = between(start, hold[0]).tolist()
+        low, high = [min(0.0, v) for v in last], [max(0.0, v) for v in last]
+        spare = [0.8 * c.search_distance, 0.8 * c.search_distance, 0.8 * c.search_angle]
         for h in hold[1:]:
-            d = between(start, h)
-            if np.any(d < low - spare) or np.any(d > high + spare):
-                low, high = np.minimum(low, d), np.maximum(high, d)
-        mid, half = 0.5 * (low + high), 0.5 * (high - low)
+            d = between(start, h).tolist()
+            bounds = zip(d, low, high, spare, strict=True)
+            if any(v < lo - m or v > hi + m for v, lo, hi, m in bounds):
+                low = [min(lo, v) for lo, v in zip(low, d, strict=True)]
+                high = [max(hi, v) for hi, v in zip(high, d, strict=True)]
+        mid = np.array([0.5 * (lo + hi) for lo, hi in zip(low, high, strict=True)])
+        half = [0.5 * (hi - lo) for lo, hi in zip(low, high, strict=True)]
         return compose(start, mid), c.search_distance + max(half[0], half[1]), (
             c.search_angle + half[2]
         )
 
     def _search_seeds(
         self, points: FloatArray, centre: FloatArray, distance: float, angle: float,
-        hint: FloatArray | None = None,
+        hint: FloatArray | None = None, also: tuple[tuple[FloatArray, float, float], ...] = (),
     ) -> list[FloatArray]:
         """The wide-basin search's winner and, if it scores nearly as well, its rival, in
         the window of half-widths ``distance``, ``angle`` around ``centre`` (``hint``, the
-        match from the prediction, only speeds the search up)."""
+        match from the prediction, only speeds the search up). The map is pooled for the
+        windows ``also`` (centre, distance, angle) too, which later searches of this scan
+        then find pooled."""
         c = self.config
         window = WideBasinConfig(
             distance=distance,
@@ -1050,9 +1064,9 @@ class LidarOdometry:
         )
         if self._searcher.config != window:
             self._searcher.config = window
-        reach = float(np.max(np.hypot(points[:, 0], points[:, 1]))) + window.distance + 1.0
-        box = (centre[0] - reach, centre[1] - reach, centre[0] + reach, centre[1] + reach)
-        self._pool(self.pyramid.grids[c.search_level], box)
+        grid = self.pyramid.grids[c.search_level]
+        windows = [(centre, distance, angle), *also]
+        self._pool(grid, self._searcher.reach_box(points, windows, grid.resolution))
         found = self._searcher.search(points, centre, hint)
         seeds = [found.pose]
         if found.rival_pose is not None:

@@ -51,7 +51,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from bioslam.compiled import wrap_scalar
-from bioslam.geometry import wrap_angle
+
+#: :meth:`StepPrior.cost`'s remembered costs at most (a scan asks for a few tens).
+_MAX_COSTS = 4096
 
 
 @dataclass(frozen=True)
@@ -178,6 +180,12 @@ class StepPrior:
         # the recent steps and the same driven backwards, (2, n, 3), made once per new step
         self._array: np.ndarray | None = None
         self._longest_step: float | None = None
+        # the kernel between every two recent steps, grown a row and a column a step, for
+        # :meth:`modes` (all of them anew cost a thinned log's scan 0.25 ms)
+        self._pairs = np.zeros((0, 0))
+        # :meth:`cost` per (step, young) since the last step: the sparse chooser and the
+        # turned windows' checks ask again for the same matches
+        self._costs: dict[tuple[float, float, float, bool], float] = {}
 
     def __len__(self) -> int:
         return len(self._steps)
@@ -200,9 +208,14 @@ class StepPrior:
     def add(self, step: ArrayLike) -> None:
         """Remember an accepted step (metres, metres, radians)."""
         dx, dy, dth = (float(v) for v in np.asarray(step, dtype=np.float64).reshape(3))
+        full = len(self._steps) == self._steps.maxlen
         self._steps.append((dx, dy, dth))
         self._array = None
         self._longest_step = None
+        self._costs.clear()
+        c = self.config
+        kept = self._pairs[1:, 1:] if full else self._pairs
+        self._pairs = _grown_pairs(kept, self._history(), c.sigma_distance, c.sigma_angle)
 
     def density(self, step: ArrayLike) -> float:
         """The mean Gaussian kernel of ``step`` against the recent steps, or ``cone_reverse``
@@ -222,9 +235,11 @@ class StepPrior:
         fitted the true step far better (0.746 against 0.579), and was lost (SICK, 24
         simulated routes backing up every 45 s, thinned to a scan per metre: 8 lost, 2
         with the steps driven backwards)."""
+        c = self.config
         s = np.asarray(step, dtype=np.float64).reshape(3)
-        ahead, back = np.mean(self._kernel(self._histories(), s), axis=-1).tolist()
-        return max(ahead, self.config.cone_reverse * back)
+        kernels = _kernels(self._histories(), s, c.sigma_distance, c.sigma_angle)
+        ahead, back = np.mean(kernels, axis=-1).tolist()
+        return max(ahead, c.cone_reverse * back)
 
     def _histories(self) -> np.ndarray:
         """The recent steps and the same :func:`driven_backwards`, (2, n, 3)."""
@@ -237,15 +252,6 @@ class StepPrior:
         """The recent steps as an (n, 3) array."""
         return self._histories()[0]
 
-    def _kernel(self, steps: np.ndarray, step: np.ndarray) -> np.ndarray:
-        """The Gaussian kernel between ``steps`` and ``step`` (broadcast over their
-        leading axes; the last holds x, y, θ)."""
-        c = self.config
-        turn = wrap_angle(steps[..., 2] - step[..., 2])
-        e = ((steps[..., 0] - step[..., 0]) ** 2 + (steps[..., 1] - step[..., 1]) ** 2)
-        e = e / c.sigma_distance**2 + turn**2 / c.sigma_angle**2
-        return np.exp(-0.5 * e)
-
     def cost(self, step: ArrayLike, young: bool = True) -> float:
         """``-log((1 - f) * density + f * kinematic)`` with ``f`` the floor and
         ``kinematic`` :meth:`kinematic`: 0 for a step like all recent ones (and inside its
@@ -255,6 +261,17 @@ class StepPrior:
         every step known counts against a uniform floor: a step the odometry must not take
         however few it knows (onto the pose where a scan was just fused, whose beam pattern
         a sparse map echoes)."""
+        dx, dy, turn = np.asarray(step, dtype=np.float64).reshape(3).tolist()
+        key = (dx, dy, turn, young)
+        known = self._costs.get(key)
+        if known is None:
+            if len(self._costs) >= _MAX_COSTS:  # a run that stays dense adds no step
+                self._costs.clear()
+            known = self._costs[key] = self._cost(step, young)
+        return known
+
+    def _cost(self, step: ArrayLike, young: bool) -> float:
+        """:meth:`cost`, computed."""
         if young:
             kinematic = self.kinematic(step)
             if self.flat:
@@ -316,25 +333,60 @@ class StepPrior:
         if len(self._steps) < self.config.min_steps or count < 1:
             return []
         c = self.config
-        chosen = _typical_steps(self._history(), c.sigma_distance, c.sigma_angle, count)
+        chosen = _typical_steps(
+            self._history(), self._pairs, c.sigma_distance, c.sigma_angle, count
+        )
         return [step.copy() for step in chosen]
 
 
 @numba.njit(cache=True)
-def _typical_steps(steps: np.ndarray, sigma_distance: float, sigma_angle: float, count: int):
-    """:meth:`StepPrior.modes` on ``steps`` (n, 3): up to ``count`` rows, densest first, each
-    beyond twice a kernel width of every one before it. In loops: the pairwise arrays of
-    the vectorised form cost 0.8 ms a scan on intel (a window of 100 steps), a tenth of the
-    odometry's whole step there."""
+def _pair_kernel(a: np.ndarray, b: np.ndarray, sigma_distance: float, sigma_angle: float):
+    """The Gaussian kernel between steps ``a`` and ``b`` (x, y, θ)."""
+    turn = wrap_scalar(a[2] - b[2])
+    dx, dy = a[0] - b[0], a[1] - b[1]
+    e = (dx * dx + dy * dy) / sigma_distance**2 + turn * turn / sigma_angle**2
+    return math.exp(-0.5 * e)
+
+
+@numba.njit(cache=True)
+def _kernels(histories: np.ndarray, step: np.ndarray, sigma_distance: float, sigma_angle: float):
+    """The kernel between ``step`` and each of ``histories`` (k, n, 3): (k, n). Compiled: as
+    NumPy array operations on a hundred steps, the step prior's cost was a twentieth of a
+    thinned log's scan."""
+    out = np.empty(histories.shape[:2])
+    for i in range(histories.shape[0]):
+        for k in range(histories.shape[1]):
+            out[i, k] = _pair_kernel(histories[i, k], step, sigma_distance, sigma_angle)
+    return out
+
+
+@numba.njit(cache=True)
+def _grown_pairs(kept: np.ndarray, steps: np.ndarray, sigma_distance: float, sigma_angle: float):
+    """The pairwise kernels of ``steps`` (n, 3) from those of all but the last (``kept``,
+    (n - 1, n - 1)): a row and a column more."""
+    n = steps.shape[0]
+    out = np.empty((n, n))
+    out[: n - 1, : n - 1] = kept
+    for j in range(n):
+        out[n - 1, j] = _pair_kernel(steps[n - 1], steps[j], sigma_distance, sigma_angle)
+        out[j, n - 1] = _pair_kernel(steps[j], steps[n - 1], sigma_distance, sigma_angle)
+    return out
+
+
+@numba.njit(cache=True)
+def _typical_steps(
+    steps: np.ndarray, pairs: np.ndarray, sigma_distance: float, sigma_angle: float, count: int
+):
+    """:meth:`StepPrior.modes` on ``steps`` (n, 3) and their pairwise kernels ``pairs``
+    (n, n): up to ``count`` rows, densest first, each beyond twice a kernel width of every
+    one before it. In loops: the pairwise arrays of the vectorised form cost 0.8 ms a scan
+    on intel (a window of 100 steps), a tenth of the odometry's whole step there."""
     n = steps.shape[0]
     density = np.empty(n)
     for i in range(n):
         total = 0.0
         for j in range(n):
-            turn = wrap_scalar(steps[i, 2] - steps[j, 2])
-            dx, dy = steps[i, 0] - steps[j, 0], steps[i, 1] - steps[j, 1]
-            e = (dx * dx + dy * dy) / sigma_distance**2 + turn * turn / sigma_angle**2
-            total += math.exp(-0.5 * e)
+            total += pairs[i, j]
         density[i] = total
     order = np.argsort(-density, kind="mergesort")  # stable: the older of equals first
     open_ = np.ones(n, dtype=np.bool_)  # far from every step chosen so far

@@ -629,6 +629,52 @@ def _brute_force(levels, pts, args, nt, nx, dims, pad):
     return out
 
 
+def _percentile_90(values: FloatArray) -> float:
+    """``np.percentile(values, 90)`` (its linear rule, to the bit) by a partial sort alone:
+    the whole call costs 60 µs, on intel a hundredth of a scan's matching."""
+    n = values.shape[0]
+    virtual = (n - 1) * 0.9
+    low = math.floor(virtual)
+    high = min(low + 1, n - 1)
+    part = np.partition(values, (low, high))
+    a, b = float(part[low]), float(part[high])
+    t = virtual - low
+    return b - (b - a) * (1 - t) if t >= 0.5 else a + (b - a) * t
+
+
+@numba.njit(cache=True)
+def _arc_extent(pts, low, high):
+    """(min x, min y, max x, max y) of sensor-frame ``pts`` turned by every angle from
+    ``low`` to ``high``: each endpoint sweeps an arc, whose extreme along an axis is one of
+    its ends or, where the arc crosses that axis's direction, its whole range."""
+    full = high - low >= 2.0 * math.pi
+    out = np.array([np.inf, np.inf, -np.inf, -np.inf])
+    for k in range(pts.shape[0]):
+        r = math.hypot(pts[k, 0], pts[k, 1])
+        start = math.atan2(pts[k, 1], pts[k, 0]) + low
+        end = start + (high - low)
+        ends_x = (math.cos(start) * r, math.cos(end) * r)
+        ends_y = (math.sin(start) * r, math.sin(end) * r)
+        extremes = (
+            -r if full or _crosses(start, end, math.pi) else min(ends_x),
+            -r if full or _crosses(start, end, -0.5 * math.pi) else min(ends_y),
+            r if full or _crosses(start, end, 0.0) else max(ends_x),
+            r if full or _crosses(start, end, 0.5 * math.pi) else max(ends_y),
+        )
+        for i in range(2):
+            out[i] = min(out[i], extremes[i])
+            out[i + 2] = max(out[i + 2], extremes[i + 2])
+    return out
+
+
+@numba.njit(cache=True)
+def _crosses(start, end, direction):
+    """Whether the angles from ``start`` to ``end`` (less than a turn apart) pass
+    ``direction`` or one of its turns."""
+    lap = math.ceil((start - direction) / (2.0 * math.pi))
+    return direction + 2.0 * math.pi * lap <= end
+
+
 # --------------------------------------------------------------------------------------------
 # The matcher
 
@@ -692,14 +738,47 @@ class WideBasinMatcher:
         self._resolution = res
         self._depth = depth
 
+    def _angular_step(self, pts: FloatArray, resolution: float) -> float:
+        """The lattice's heading step for endpoints ``pts`` on a grid of ``resolution``."""
+        c = self.config
+        if c.angular_step is not None:
+            return c.angular_step
+        reach = _percentile_90(np.hypot(pts[:, 0], pts[:, 1])) if len(pts) else 1.0
+        return c.angular_cells * resolution / max(reach, resolution)
+
+    def reach_box(
+        self, points: ArrayLike, windows: list[tuple[ArrayLike, float, float]], resolution: float
+    ) -> tuple[float, float, float, float]:
+        """The box (xmin, ymin, xmax, ymax) that holds every cell the lattice of each window
+        (centre (x, y, theta), half-widths in metres and radians; searched on a grid of
+        ``resolution``) puts one of the sensor-frame ``points`` in, a lattice step beyond
+        the window too (the rival's local-maximum test looks there). Searches of those
+        windows against ``set_map(grid, box)`` find what they find against the whole grid:
+        no endpoint of theirs lands outside it, and a coarser level's bound, cut at the
+        box's edge, still bounds every pose inside. A 180° scanner's endpoints turned
+        ±45° leave a quarter of the square around its reach empty, and the pooling, a
+        tenth of a thinned log's scan, then covers two thirds of the cells it would."""
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        if len(pts) == 0:
+            x, y = (float(v) for v in np.asarray(windows[0][0], dtype=np.float64)[:2])
+            return (x, y, x, y)
+        step = self._angular_step(pts, resolution)
+        boxes = []
+        for centre, distance, angle in windows:
+            x, y, theta = (float(v) for v in np.asarray(centre, dtype=np.float64).reshape(3))
+            turn = (int(angle / step) + 2) * step
+            slack = (int(distance / resolution) + 2) * resolution
+            x0, y0, x1, y1 = _arc_extent(pts, theta - turn, theta + turn)
+            boxes.append((x + x0 - slack, y + y0 - slack, x + x1 + slack, y + y1 + slack))
+        b = np.array(boxes)
+        return (float(b[:, 0].min()), float(b[:, 1].min()), float(b[:, 2].max()),
+                float(b[:, 3].max()))  # fmt: skip
+
     def _lattice(self, pts: FloatArray, centre: FloatArray) -> tuple[int, int, tuple]:
         c = self.config
         res = self._resolution
-        if c.angular_step is not None:
-            step = c.angular_step
-        else:
-            reach = float(np.percentile(np.hypot(pts[:, 0], pts[:, 1]), 90)) if len(pts) else 1.0
-            step = self.config.angular_cells * res / max(reach, res)
+        step = self._angular_step(pts, res)
         nt = int(c.angle / step)
         nx = int(c.distance / res)
         args = (float(centre[0]), float(centre[1]), float(centre[2]), float(step),
