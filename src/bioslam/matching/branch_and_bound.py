@@ -26,8 +26,10 @@ API (both the odometry and loop-closure verification use it)::
     matcher.score_at(points, pose)               # the same score at any other pose
     refined, report = refine(pyramid, found.pose, points)   # Gauss-Newton (Eq. 3) from it
 
-``set_map(grid, box=...)`` builds only the part of the grid a search can reach (the odometry
-passes the box around its pose); ``set_map`` with no box covers the whole grid. The map
+``set_map(grid, box=...)`` builds only the part of the grid a search can reach
+(``reach_box(points, windows, resolution)``: the cells the lattices of the windows to be
+searched put the scan's endpoints in, which the odometry passes); ``set_map`` with no box
+covers the whole grid. The map
 value is the grid's occupancy probability of cells ever hit (0 elsewhere), spread to the
 neighbouring cells with a Gaussian of ``blur`` cells (a sparse scan's endpoints on a wall
 fall between another scan's).
