@@ -83,6 +83,25 @@ def test_a_step_beyond_the_reach_of_the_recent_ones_costs_as_one_off_the_cones()
     assert young.kinematic((longest + 2.0, 0.0, 0.0)) == 1.0
 
 
+def test_a_step_turning_beyond_the_recent_ones_costs_as_one_off_the_cones():
+    """Once the prior is no longer young, a step that turns farther than the widest recent
+    turn (a room seen turned round, in a log thinned to a scan per 30° of turn) costs more
+    the farther it turns, up to what a step off the heading cones costs; young, the widest
+    turn known says nothing yet."""
+    steps = thinned_log_steps()
+    prior = prior_of(steps)
+    c = prior.config
+    widest = float(np.max(np.abs(steps[:, 2])))
+    assert prior.kinematic((0.0, 0.0, widest)) == pytest.approx(1.0)
+    assert prior.kinematic((0.0, 0.0, -widest)) == pytest.approx(1.0)
+    assert 0.3 < prior.kinematic((0.0, 0.0, widest + c.sigma_angle)) < 0.7
+    assert prior.kinematic((0.0, 0.0, math.pi)) == pytest.approx(c.cone_floor)
+    assert prior.cost((0.0, 0.0, math.pi)) == pytest.approx(prior.cost((0.0, 2.0, 0.0)), abs=0.01)
+    assert prior.cost((0.0, 0.0, math.pi)) > prior.cost((0.0, 0.0, widest)) + 2.0
+    young = prior_of(steps[:40])
+    assert young.kinematic((0.0, 0.0, math.pi)) == 1.0
+
+
 def test_a_few_wrong_steps_among_many_do_not_make_their_kind_typical():
     steps = thinned_log_steps()
     steps[[10, 40, 70]] = 0.0  # three standstills accepted by mistake

@@ -32,10 +32,12 @@ that charged backing up as much as stepping sideways lost routes that back up
 (``bioslam.sim.reversing``); one that did not charge it at all lost the warehouse routes again.
 ``cone_sigma`` None turns it off for a robot that moves sideways (omnidirectional bases).
 
-What enough steps tell: how far the robot gets between two scans (its speed times their
-interval, or a log's thinning distance). Once the prior is no longer young, a step longer than
-the longest of the recent ones costs more the farther it reaches, as one off the cones does: a
-look-alike a rack period down an aisle is then no cheaper than any other unlikely step.
+What enough steps tell: how far the robot gets and how far it turns between two scans (its
+speed and turn rate times their interval, or a log's thinning distance and angle). Once the
+prior is no longer young, a step longer than the longest of the recent ones, or turning
+farther than the widest of them, costs more the farther it reaches, as one off the cones does:
+a look-alike a rack period down an aisle, or a room seen turned round, is then no cheaper
+than any other unlikely step.
 
 No file or terminal I/O here.
 """
@@ -65,7 +67,9 @@ class StepPriorConfig:
         sigma_distance, sigma_angle: kernel widths (metres, radians): half the distance and
             angle at which two matches count as distinct places (the wide-basin matcher's
             rival distance and angle), so that the prior separates distinct options and
-            leaves the choice within one basin to the scan.
+            leaves the choice within one basin to the scan. ``sigma_angle`` is also how far
+            a step may turn beyond the widest recent turn before the kinematic density falls
+            (:meth:`StepPrior._within_reach`).
         floor: weight of the uniform component of the mixture; the largest cost is
             ``-log(floor)``.
         floor_steps: with fewer than ``floor_steps / floor`` steps known the floor is
@@ -179,7 +183,7 @@ class StepPrior:
         self._steps: deque[tuple[float, float, float]] = deque(maxlen=self.config.window)
         # the recent steps and the same driven backwards, (2, n, 3), made once per new step
         self._array: np.ndarray | None = None
-        self._longest_step: float | None = None
+        self._reach: tuple[float, float] | None = None
         # the kernel between every two recent steps, grown a row and a column a step, for
         # :meth:`modes` (all of them anew cost a thinned log's scan 0.25 ms)
         self._pairs = np.zeros((0, 0))
@@ -211,7 +215,7 @@ class StepPrior:
         full = len(self._steps) == self._steps.maxlen
         self._steps.append((dx, dy, dth))
         self._array = None
-        self._longest_step = None
+        self._reach = None
         self._costs.clear()
         c = self.config
         kept = self._pairs[1:, 1:] if full else self._pairs
@@ -297,32 +301,44 @@ class StepPrior:
         inside = max(
             math.exp(-0.5 * forward * forward), c.cone_reverse * math.exp(-0.5 * reverse * reverse)
         )
-        return c.cone_floor + (1.0 - c.cone_floor) * inside * self._within_reach(dx, dy)
+        return c.cone_floor + (1.0 - c.cone_floor) * inside * self._within_reach(dx, dy, turn)
 
-    def _within_reach(self, dx: float, dy: float) -> float:
-        """1 for a displacement no longer than the longest of the recent steps, falling as a
-        Gaussian of ``cone_sigma`` beyond it, once the prior is no longer young (``floor``
-        no longer raised, :meth:`_young_floor`); 1 before. Between two scans a robot moves
-        at most its speed times their interval, or a log's thinning distance, and the
-        longest of its last steps is what that has been: a match 3.4 m on down an aisle,
-        where no step in 95 had been longer than 1.1 m, fitted 0.87 against the true
-        step's 0.78 and cost only the floor's 0.02 more than it (simulated warehouse,
-        URG-04LX, thinned to a scan per metre, adversarial route, seed 5: ATE 1.58 m ->
-        5.8 cm). Young, the bound learnt standstills: intel starts with ten turns on the
-        spot, and its first metre on lost (RPE over 1 m from scans 0-9, median 4.8 ->
-        15 cm)."""
+    def _within_reach(self, dx: float, dy: float, turn: float) -> float:
+        """1 for a step no longer than the longest of the recent steps and turning no
+        farther than the widest of them, falling as a Gaussian of ``cone_sigma`` for the
+        displacement beyond the one and of ``sigma_angle`` for the turn beyond the other,
+        once the prior is no longer young (``floor`` no longer raised, :meth:`_young_floor`);
+        1 before. Between two scans a robot moves at most its speed, and turns at most its
+        turn rate, times their interval, or a log's thinning distance and angle, and the
+        longest and widest of its last steps are what those have been. A match 3.4 m on
+        down an aisle, where no step in 95 had been longer than 1.1 m, fitted 0.87 against
+        the true step's 0.78 and cost only the floor's 0.02 more than it (simulated
+        warehouse, URG-04LX, thinned to a scan per metre, adversarial route, seed 5: ATE
+        1.58 m -> 5.8 cm). A 240° URG-04LX (5.6 m) thinned to a scan per metre or 34° of
+        turn, turning into a room it had not seen, fitted 0.27 where it was and 0.73 turned
+        round by 147°, looking back down the corridor it came from (simulated office, tour,
+        seed 5: ATE 4.9 m -> 9.6 cm). Young, the bound learnt standstills: intel starts
+        with ten turns on the spot, and its first metre on lost (RPE over 1 m from scans
+        0-9, median 4.8 -> 15 cm)."""
         n = len(self._steps)
-        if n == 0 or self._young_floor(n) > self.config.floor:
+        c = self.config
+        if n == 0 or self._young_floor(n) > c.floor or c.cone_sigma is None:
             return 1.0
-        beyond = max(0.0, math.hypot(dx, dy) - self._longest()) / self.config.cone_sigma
-        return math.exp(-0.5 * beyond * beyond)
+        longest, widest = self._longest()
+        beyond = max(0.0, math.hypot(dx, dy) - longest) / c.cone_sigma
+        turned = max(0.0, abs(turn) - widest) / c.sigma_angle
+        return math.exp(-0.5 * (beyond * beyond + turned * turned))
 
-    def _longest(self) -> float:
-        """The longest displacement among the recent steps (metres)."""
-        if self._longest_step is None:
+    def _longest(self) -> tuple[float, float]:
+        """The longest displacement (metres) and the widest turn (radians) among the recent
+        steps."""
+        if self._reach is None:
             steps = self._history()
-            self._longest_step = float(np.max(np.hypot(steps[:, 0], steps[:, 1])))
-        return self._longest_step
+            self._reach = (
+                float(np.max(np.hypot(steps[:, 0], steps[:, 1]))),
+                float(np.max(np.abs(steps[:, 2]))),
+            )
+        return self._reach
 
     def modes(self, count: int) -> list[np.ndarray]:
         """Up to ``count`` typical steps: the recent steps of highest density, each more
