@@ -183,7 +183,7 @@ class StepPrior:
         self._steps: deque[tuple[float, float, float]] = deque(maxlen=self.config.window)
         # the recent steps and the same driven backwards, (2, n, 3), made once per new step
         self._array: np.ndarray | None = None
-        self._reach: tuple[float, float] | None = None
+        self._extent: tuple[float, float] | None = None
         # the kernel between every two recent steps, grown a row and a column a step, for
         # :meth:`modes` (all of them anew cost a thinned log's scan 0.25 ms)
         self._pairs = np.zeros((0, 0))
@@ -215,7 +215,7 @@ class StepPrior:
         full = len(self._steps) == self._steps.maxlen
         self._steps.append((dx, dy, dth))
         self._array = None
-        self._reach = None
+        self._extent = None
         self._costs.clear()
         c = self.config
         kept = self._pairs[1:, 1:] if full else self._pairs
@@ -322,23 +322,23 @@ class StepPrior:
         0-9, median 4.8 -> 15 cm)."""
         n = len(self._steps)
         c = self.config
-        if n == 0 or self._young_floor(n) > c.floor or c.cone_sigma is None:
+        if n == 0 or self._young_floor(n) > c.floor:
             return 1.0
-        longest, widest = self._longest()
+        longest, widest = self._extent_of_steps()
         beyond = max(0.0, math.hypot(dx, dy) - longest) / c.cone_sigma
         turned = max(0.0, abs(turn) - widest) / c.sigma_angle
         return math.exp(-0.5 * (beyond * beyond + turned * turned))
 
-    def _longest(self) -> tuple[float, float]:
+    def _extent_of_steps(self) -> tuple[float, float]:
         """The longest displacement (metres) and the widest turn (radians) among the recent
         steps."""
-        if self._reach is None:
+        if self._extent is None:
             steps = self._history()
-            self._reach = (
+            self._extent = (
                 float(np.max(np.hypot(steps[:, 0], steps[:, 1]))),
                 float(np.max(np.abs(steps[:, 2]))),
             )
-        return self._reach
+        return self._extent
 
     def modes(self, count: int) -> list[np.ndarray]:
         """Up to ``count`` typical steps: the recent steps of highest density, each more
