@@ -547,14 +547,10 @@ class LidarOdometry:
             points = level_pts[min(c.search_level + 1, c.levels - 1)]
             centre, distance, angle = self._search_window(start, (previous, *motion[1:]))
             # the typical step's window (:meth:`_typical_seeds`) searches the same pooled map
-            typical = (
-                ((forward, min(c.typical_search_distance, distance), angle),)
-                if as_sparse and c.typical_search_distance > 0.0 else ()
-            )  # fmt: skip
+            typical = self._typical_window(forward, distance, angle) if as_sparse else ()
             seeds = self._search_seeds(points, centre, distance, angle, options[0][0], typical)
             lone = len(seeds) == 1
-            if as_sparse:
-                seeds += self._typical_seeds(points, forward, seeds)
+            seeds += self._typical_seeds(points, typical, seeds)
             options += self._weighed(level_pts, seeds, normals)
             settled = as_sparse and lone and self._settles(
                 options[1], previous, level_pts[0], normals
@@ -1086,28 +1082,41 @@ class LidarOdometry:
         self._searcher.set_map(grid, box)
         self._pooled = (grid, key)
 
-    def _typical_seeds(
-        self, points: FloatArray, forward: FloatArray, seeds: list[FloatArray]
-    ) -> list[FloatArray]:
-        """On sparse scans, the best lattice pose within ``typical_search_distance`` (and
-        the full ``search_angle``) of the typical step forward, when every seed of the wide
-        search is distinct from that step. The wide window's winner is the best fit on the
-        search level; where a 180° scanner turns into a corridor it never saw, a look-alike
-        a metre or more sideways fits as well as the true step, and the step prior, which
-        tells them apart, can only weigh the matches it is shown (simulated maze, SICK,
-        thinned to a scan per metre: a metre on with a 20° turn placed 1.6 m sideways, the
-        true step never a candidate though it scored 0.35 as the look-alike did and cost
-        less under the prior). The window lies inside the wide one, whose pooled map the
-        searcher still holds."""
+    def _typical_window(
+        self, forward: FloatArray, distance: float, angle: float
+    ) -> tuple[tuple[FloatArray, float, float], ...]:
+        """The window (centre, distance, angle) around the typical step ``forward`` that
+        :meth:`_typical_seeds` searches, beside a wide one of half-widths ``distance`` and
+        ``angle``: ``typical_search_distance`` but no wider, the wide one's angle; none
+        when the typical search is off."""
         c = self.config
-        if c.typical_search_distance <= 0.0 or not all(self._distinct(s, forward) for s in seeds):
+        if c.typical_search_distance <= 0.0:
+            return ()
+        return ((forward, min(c.typical_search_distance, distance), angle),)
+
+    def _typical_seeds(
+        self, points: FloatArray, typical: tuple[tuple[FloatArray, float, float], ...],
+        seeds: list[FloatArray],
+    ) -> list[FloatArray]:
+        """On sparse scans, the best lattice pose within the ``typical`` window
+        (:meth:`_typical_window`, none: nothing) around the typical step forward, when every
+        seed of the wide search is distinct from that step. The wide window's winner is the
+        best fit on the search level; where a 180° scanner turns into a corridor it never
+        saw, a look-alike a metre or more sideways fits as well as the true step, and the
+        step prior, which tells them apart, can only weigh the matches it is shown
+        (simulated maze, SICK, thinned to a scan per metre: a metre on with a 20° turn
+        placed 1.6 m sideways, the true step never a candidate though it scored 0.35 as the
+        look-alike did and cost less under the prior). The wide search pooled the map for
+        this window too."""
+        if not typical:
+            return []
+        forward, distance, _ = typical[0]
+        if not all(self._distinct(s, forward) for s in seeds):
             return []
         wide = self._searcher.config
         depth = self._searcher.depth_for(self._searcher.resolution)
         # no rival: the seed is the prior's candidate, the wide search judged ambiguity
-        self._searcher.config = replace(
-            wide, distance=min(c.typical_search_distance, wide.distance), min_rival_ratio=1.0
-        )
+        self._searcher.config = replace(wide, distance=distance, min_rival_ratio=1.0)
         if self._searcher.depth_for(self._searcher.resolution) != depth:
             self._searcher.config = wide  # pooled for another depth: leave it to the wide
             return []

@@ -631,6 +631,13 @@ def _brute_force(levels, pts, args, nt, nx, dims, pad):
     return out
 
 
+def _finite_points(points: ArrayLike) -> FloatArray:
+    """Sensor-frame endpoints as a contiguous (N, 2) array, those with a non-finite
+    coordinate left out."""
+    pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 2))
+    return pts[np.all(np.isfinite(pts), axis=1)]
+
+
 def _percentile_90(values: FloatArray) -> float:
     """``np.percentile(values, 90)`` (its linear rule, to the bit) by a partial sort alone:
     NumPy's call costs 60 µs for its generality, on intel a hundredth of a scan's matching."""
@@ -760,8 +767,7 @@ class WideBasinMatcher:
         box's edge, still bounds every pose inside. A 180° scanner's endpoints turned
         ±45° leave a quarter of the square around its reach empty, and the pooling, a
         tenth of a thinned log's scan, then covers two thirds of the cells it would."""
-        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        pts = _finite_points(points)
         if len(pts) == 0:
             x, y = (float(v) for v in np.asarray(windows[0][0], dtype=np.float64)[:2])
             return (x, y, x, y)
@@ -790,9 +796,7 @@ class WideBasinMatcher:
     def _prepare(self, points: ArrayLike, centre: ArrayLike) -> tuple[FloatArray, FloatArray]:
         if self._resolution == 0.0:
             raise RuntimeError("WideBasinMatcher.search needs set_map first")
-        pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 2))
-        pts = pts[np.all(np.isfinite(pts), axis=1)]
-        return pts, np.asarray(centre, dtype=np.float64).reshape(3)
+        return _finite_points(points), np.asarray(centre, dtype=np.float64).reshape(3)
 
     def _pose(self, args: tuple, j: int, ix: int, iy: int) -> FloatArray:
         x, y, th, step, _, _, res = args
