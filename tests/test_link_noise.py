@@ -5,7 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bioslam.link_noise import LinkNoise, LinkNoiseEstimator, fit_random_walk
+from bioslam.link_noise import (
+    LinkNoise,
+    LinkNoiseEstimator,
+    _descend,
+    _nll_and_derivatives,
+    fit_random_walk,
+)
 
 PRIOR = LinkNoise(odometry_var_per_m=1e-4, closure_var=4e-4)
 
@@ -54,3 +60,36 @@ def test_the_estimator_keeps_the_prior_until_enough_closures_came_in():
     assert len(estimator) == 7
     fitted = estimator.add(spans[7], r[7], heading[7], 1e-4 * spans[7])
     assert fitted != PRIOR and fitted.closure_var < 1e-5 and fitted.odometry_var_per_m == 0.0
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_the_descent_ends_where_a_general_minimiser_does(seed):
+    # the fit's own bounded Newton descent against SciPy's L-BFGS-B on the same
+    # likelihood and prior, from the same start, for both models
+    from scipy.optimize import minimize
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.choice([1, 3, 20, 200]))
+    spans, r = residuals(rate=float(rng.choice([0.0, 1e-5])), floor=1e-4, n=n, seed=seed)
+    if seed % 2:
+        r[: max(1, n // 10)] = 0.5  # closures half a metre off among them
+    squared = r**2
+    centre = np.log10([1e-4, 4e-4])
+    lo, hi = centre - 6.0, centre + 2.0
+    start = centre + rng.uniform(-3.0, 1.0, 2)
+    for drifting in (True, False):
+        keep = slice(None) if drifting else slice(1, None)
+
+        def cost(x, drifting=drifting):
+            a, b = (x[0], x[-1]) if drifting else (centre[0], x[0])
+            f, ga, gb = _nll_and_derivatives(a, b, drifting, spans, squared, centre, 1.0)[:3]
+            return f, (np.array([ga, gb]) if drifting else np.array([gb]))
+
+        general = minimize(
+            cost, start[keep], jac=True, method="L-BFGS-B",
+            bounds=list(zip(lo[keep], hi[keep], strict=True)), options={"ftol": 1e-14},
+        )  # fmt: skip
+        a, b = _descend(*start, drifting, lo, hi, spans, squared, centre, 1.0)
+        ours = np.array([a, b])[keep]
+        assert cost(ours)[0] <= general.fun + 1e-9
+        assert ours == pytest.approx(general.x, abs=1e-3)
