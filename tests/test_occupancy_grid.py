@@ -246,3 +246,27 @@ def test_fraction_through_walls_counts_beams_that_cross_a_known_wall():
     # (at x = 3.5 and 2.7) beyond it
     assert grid.fraction_through_walls((0.5, 0.0, 0.0), pts, level, margin) == 0.5
     assert grid.fraction_through_walls((0.0, 0.0, 0.0), np.zeros((0, 2)), level, margin) == 0.0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_scan_fused_without_rays_has_the_same_map_function_and_no_free_cell(seed):
+    # a submap for registration reads its hit cells only: its rays may be skipped
+    rng = np.random.default_rng(seed)
+    angles = np.sort(rng.uniform(-np.pi, np.pi, 400))
+    ranges = rng.uniform(0.5, 4.0, 400)
+    scan = np.column_stack([ranges * np.cos(angles), ranges * np.sin(angles)])
+    pose = np.array([rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(-np.pi, np.pi)])
+    with_rays, hits_only = (MapPyramid(0.05, 12.0, 3) for _ in range(2))
+    with_rays.insert_scan(pose, scan)
+    hits_only.insert_scan(pose, scan, rays=False)
+    queries = rng.uniform(-5.0, 5.0, (2000, 2))
+    for full, bare in zip(with_rays.grids, hits_only.grids, strict=True):
+        np.testing.assert_array_equal(bare.weights, full.weights)
+        np.testing.assert_array_equal(bare.means, full.means)
+        for a, b in zip(
+            full.value_and_gradient(queries, 1.0), bare.value_and_gradient(queries, 1.0),
+            strict=True,
+        ):
+            np.testing.assert_array_equal(a, b)
+        assert (full.logodds < 0).any() and not (bare.logodds < 0).any()
+        np.testing.assert_array_equal(bare.logodds > 0, full.logodds > 0)

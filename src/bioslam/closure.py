@@ -719,7 +719,12 @@ def _submap_pyramid(reference: FloatArray, reg: RegistrationConfig) -> MapPyrami
     lo = ref.min(axis=0) - 1.0
     hi = ref.max(axis=0) + 1.0
     pyramid = MapPyramid(reg.resolution, tuple(hi - lo), reg.levels, LogOddsConfig(), origin=lo)
-    pyramid.insert_scan(np.zeros(3), densify_scan(ref, 0.5 * reg.resolution, NORMAL_MAX_GAP))
+    # its hits alone: the registration reads the map function and the pooled search map,
+    # both of hit cells only, and where the submap's scans looked is the SeenArea's; rays
+    # cast from the anchor to every point of the fused scans were two thirds of a submap's
+    # cost (4.4 ms on freiburg-079) and changed nothing read
+    dense = densify_scan(ref, 0.5 * reg.resolution, NORMAL_MAX_GAP)
+    pyramid.insert_scan(np.zeros(3), dense, rays=False)
     return pyramid
 
 

@@ -187,7 +187,7 @@ def _add_clamped(grid, r, c, delta, lo, hi) -> None:
 @numba.njit(cache=True)
 def _insert_scan_kernel(
     logodds, stamps, means, hits, weights, stamp, ox, oy, res, sx, sy, world_pts, normals,
-    l_hit, l_miss, l_min, l_max, memory, subcell,
+    l_hit, l_miss, l_min, l_max, memory, subcell, rays,
 ) -> None:  # fmt: skip
     rows, cols = logodds.shape
     n = world_pts.shape[0]
@@ -213,6 +213,8 @@ def _insert_scan_kernel(
         means[r, c, 1] += w * ((y - oy - r * res) - means[r, c, 1])
         means[r, c, 2] += w * (normals[k, 0] - means[r, c, 2])
         means[r, c, 3] += w * (normals[k, 1] - means[r, c, 3])
+    if not rays:
+        return
     r0, c0 = _cell_of(sx, sy, ox, oy, res)
     for k in range(n):
         r1, c1 = _cell_of(world_pts[k, 0], world_pts[k, 1], ox, oy, res)
@@ -647,6 +649,7 @@ class OccupancyGrid:
         endpoints: ArrayLike,
         max_range: float = np.inf,
         normals: ArrayLike | None = None,
+        rays: bool = True,
     ) -> None:
         """Fuse one scan: a hit at every endpoint, a miss in every cell its beam crosses.
 
@@ -658,6 +661,8 @@ class OccupancyGrid:
             normals: ``(N, 2)`` sensor-frame surface normals (:func:`thinned_normals`), used
                 by the sub-cell map function; without them cells get none (isotropic bumps),
                 which is all a map drawn for display needs.
+            rays: False: the hits alone, no cell marked free (for a map whose free space
+                nothing reads: its hit cells come out the same, their rays never touch them).
         """
         pose = np.asarray(pose, dtype=np.float64).reshape(3)
         pts = _as_points(endpoints)
@@ -679,6 +684,7 @@ class OccupancyGrid:
             self.logodds, self._stamps, self.means, self.hits, self.weights, self._stamp,
             self.origin[0], self.origin[1], self.resolution, pose[0], pose[1], world,
             world_normals, u.l_hit, u.l_miss, u.l_min, u.l_max, u.mean_memory, self.subcell,
+            rays,
         )  # fmt: skip
 
     def value_and_gradient(
@@ -785,11 +791,13 @@ class MapPyramid:
         endpoints: ArrayLike,
         max_range: float = np.inf,
         normals: ArrayLike | None = None,
+        rays: bool = True,
     ) -> None:
+        """:meth:`OccupancyGrid.insert_scan` on every level."""
         pts = _as_points(endpoints)
         normals = thinned_normals(pts) if normals is None else _as_points(normals)
         for grid in self.grids:
-            grid.insert_scan(pose, pts, max_range, normals)
+            grid.insert_scan(pose, pts, max_range, normals, rays)
 
     def recenter(self, x: float, y: float) -> None:
         """Scroll every level by the same distance (whole coarsest cells)."""
