@@ -560,3 +560,24 @@ def test_a_registration_pinned_by_the_corridors_end_keeps_its_correction_along_i
     predicted = np.array([-0.12, 0.0, 0.004])
     settled = settle_weak_direction(grid, truth, predicted, query, modes, cfg)
     assert abs(settled[0]) < 1e-9 and abs(settled[1]) < 1e-9
+
+
+def test_hit_shares_are_map_hits_of_each_group_of_points():
+    from bioslam.matching.registration import hit_shares, map_hits
+    from bioslam.occupancy_grid import MapPyramid
+
+    rng = np.random.default_rng(3)
+    angles = np.sort(rng.uniform(-np.pi, np.pi, 300))
+    scan = np.column_stack([np.cos(angles), np.sin(angles)]) * rng.uniform(1.0, 3.0, (300, 1))
+    grid = MapPyramid(0.05, 8.0, 1).grids[0]
+    grid.insert_scan(np.zeros(3), scan)
+    world = scan + rng.normal(0.0, 0.04, scan.shape)  # near the walls, some off them
+    world[:20] += 5.0  # outside the grid
+    extent = (-3.5, -3.5, 3.5, 3.5)
+    near = rng.random(300) < 0.5
+    groups = [np.ones(300, dtype=bool), near, ~near, np.zeros(300, dtype=bool)]
+    shares = hit_shares(grid, world, extent, 0.5, groups)
+    for group, (share, count) in zip(groups, shares, strict=True):
+        expected, _, expected_count = map_hits(grid, world[group], extent, 0.5)
+        assert (share, count) == (expected, expected_count)
+    assert 0.0 < shares[0][0] < 1.0 and shares[0][1] < 300

@@ -35,7 +35,7 @@ from bioslam.config import LoopClosureConfig
 from bioslam.geometry import between, compose, inverse, transform_points, wrap_angle
 from bioslam.matching.branch_and_bound import WideBasinConfig, WideBasinMatcher, refine
 from bioslam.matching.gauss_newton import MatchReport, levels_up_to
-from bioslam.matching.registration import RegistrationConfig, densify_scan, map_hits
+from bioslam.matching.registration import RegistrationConfig, densify_scan, hit_shares
 from bioslam.occupancy_grid import NORMAL_MAX_GAP, LogOddsConfig, MapPyramid, OccupancyGrid
 
 FloatArray = NDArray[np.float64]
@@ -745,13 +745,14 @@ def seen_hit_fraction(
     far = grid.origin + grid.resolution * np.array(grid.shape[::-1])
     extent = (grid.origin[0], grid.origin[1], far[0], far[1])
     world = transform_points(pose, query)
-    share, _, inside = map_hits(grid, world, extent, level)
-    if seen is None or inside == 0:
+    every = np.ones(world.shape[0], dtype=bool)
+    covered = None if seen is None else seen.covers(world)
+    groups = [every] if covered is None else [every, covered, ~covered]
+    (share, inside), *parts = hit_shares(grid, world, extent, level, groups)
+    if covered is None or inside == 0:
         return share
-    covered = seen.covers(world)
-    seen_share, _, seen_count = map_hits(grid, world[covered], extent, level)
     # a point on a wall of the submap is judged (a hit) wherever it lies
-    other_share, _, other_count = map_hits(grid, world[~covered], extent, level)
+    (seen_share, seen_count), (other_share, other_count) = parts
     hits = seen_share * seen_count + other_share * other_count
     judged = seen_count + other_share * other_count
     return hits / max(judged, min_seen * inside)
