@@ -275,8 +275,7 @@ def map_hits(
     a cell inside ``extent`` (xmin, ymin, xmax, ymax), the share whose map function on
     ``judge`` is at least ``level`` (within about a cell of a wall), their mean map value, and
     how many were inside."""
-    values, _ = judge.value_and_gradient(world, subcell_sigma=1.0)
-    inside = _inside(extent, judge.resolution, world)
+    values, inside = _placed_values(judge, world, extent)
     n_in = int(inside.sum())
     if not n_in:
         return 0.0, 0.0, 0
@@ -289,14 +288,22 @@ def hit_shares(
 ) -> list[tuple[float, int]]:
     """:func:`map_hits`'s share and count inside for each group of the points (a mask), the
     map function evaluated once for them all."""
-    values, _ = judge.value_and_gradient(world, subcell_sigma=1.0)
-    inside = _inside(extent, judge.resolution, world)
+    values, inside = _placed_values(judge, world, extent)
     shares = []
     for group in groups:
         chosen = inside & group
         n_in = int(chosen.sum())
         shares.append((float(np.mean(values[chosen] >= level)) if n_in else 0.0, n_in))
     return shares
+
+
+def _placed_values(
+    judge: OccupancyGrid, world: FloatArray, extent: tuple[float, float, float, float]
+) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """The sub-cell map function on ``judge`` at points already placed in its frame, and
+    which of them lie at least a cell inside ``extent``."""
+    values, _ = judge.value_and_gradient(world, subcell_sigma=1.0)
+    return values, _inside(extent, judge.resolution, world)
 
 
 def _inside(
