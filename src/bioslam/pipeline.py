@@ -382,7 +382,7 @@ def _close_a_square(config: SLAMConfig) -> None:
     cmap.relax()
     cmap.mark_dirty()
     cmap.relax(iterations=2)
-    # and what refits the links' noise model after it (SciPy's optimiser, loaded once)
+    # and what refits the links' noise model after it (its compiled descent)
     LinkNoiseEstimator(configured_noise(config.cognitive_map)).add(10.0, 0.01, 0.001, 1e-4)
 
 
