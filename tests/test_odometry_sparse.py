@@ -106,8 +106,8 @@ def test_the_search_pools_the_map_again_only_when_it_changed():
     points = make_scan(ROOM, (0.5, 0.2, 0.3), sigma=0.01, rng=rng).endpoints()
     grid = odo.pyramid.grids[odo.config.search_level]
 
-    def search_matches_a_fresh_pooling(centre, also=()):
-        found = odo._search_seeds(points, centre, 1.0, 0.6, also=also)[0]
+    def search_matches_a_fresh_pooling(centre, pooled_for=()):
+        found = odo._search_seeds(points, centre, 1.0, 0.6, pooled_for=pooled_for)[0]
         fresh = WideBasinMatcher(odo._searcher.config)
         fresh.set_map(grid)
         np.testing.assert_array_equal(found, fresh.search(points, centre).pose)

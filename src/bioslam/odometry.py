@@ -548,7 +548,10 @@ class LidarOdometry:
             centre, distance, angle = self._search_window(start, (previous, *motion[1:]))
             # the typical step's window (:meth:`_typical_seeds`) searches the same pooled map
             typical = self._typical_window(forward, distance, angle) if as_sparse else ()
-            seeds = self._search_seeds(points, centre, distance, angle, options[0][0], typical)
+            seeds = self._search_seeds(
+                points, centre, distance, angle, options[0][0],
+                pooled_for=((centre, distance, angle), *typical),
+            )  # fmt: skip
             lone = len(seeds) == 1
             seeds += self._typical_seeds(points, typical, seeds)
             options += self._weighed(level_pts, seeds, normals)
@@ -574,7 +577,7 @@ class LidarOdometry:
                 both = tuple((turn, c.search_distance, c.search_angle) for turn in turns)
                 for turn in turns:  # the two windows of a ring share one pooled map
                     seeds = self._search_seeds(
-                        points, turn, c.search_distance, c.search_angle, also=both
+                        points, turn, c.search_distance, c.search_angle, pooled_for=both
                     )
                     options += self._weighed(level_pts, seeds, normals)
         reach = (jump[0] + c.max_speed * dt, jump[1] + c.max_turn_rate * dt)
@@ -1043,13 +1046,14 @@ class LidarOdometry:
 
     def _search_seeds(
         self, points: FloatArray, centre: FloatArray, distance: float, angle: float,
-        hint: FloatArray | None = None, also: tuple[tuple[FloatArray, float, float], ...] = (),
+        hint: FloatArray | None = None,
+        pooled_for: tuple[tuple[FloatArray, float, float], ...] = (),
     ) -> list[FloatArray]:
         """The wide-basin search's winner and, if it scores nearly as well, its rival, in
         the window of half-widths ``distance``, ``angle`` around ``centre`` (``hint``, the
         match from the prediction, only speeds the search up). The map is pooled for the
-        windows ``also`` (centre, distance, angle) too, which later searches of this scan
-        then find pooled."""
+        windows ``pooled_for`` (centre, distance, angle; this one among them, or it alone
+        when empty), so that later searches of this scan in the others find it pooled."""
         c = self.config
         window = WideBasinConfig(
             distance=distance,
@@ -1061,7 +1065,7 @@ class LidarOdometry:
         if self._searcher.config != window:
             self._searcher.config = window
         grid = self.pyramid.grids[c.search_level]
-        windows = [(centre, distance, angle), *also]
+        windows = list(pooled_for) or [(centre, distance, angle)]
         self._pool(grid, self._searcher.reach_box(points, windows, grid.resolution))
         found = self._searcher.search(points, centre, hint)
         seeds = [found.pose]

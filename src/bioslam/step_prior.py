@@ -385,6 +385,8 @@ def _grown_pairs(kept: np.ndarray, steps: np.ndarray, sigma_distance: float, sig
     out[: n - 1, : n - 1] = kept
     for j in range(n):
         out[n - 1, j] = _pair_kernel(steps[n - 1], steps[j], sigma_distance, sigma_angle)
+        # both ways: the wrap of a turn is not odd to the bit, and the densities summed from
+        # these rows are the ones the vectorised form gave
         out[j, n - 1] = _pair_kernel(steps[j], steps[n - 1], sigma_distance, sigma_angle)
     return out
 
