@@ -1,0 +1,303 @@
+"""Which match a scan keeps: the plausible match nearest the motion model's prior on dense
+scans, the best fit less the step prior's cost on sparse ones, a jump only on overwhelming
+evidence, and the tests of a match every caller shares (failed, rejected by the map, distinct
+from another).
+
+A mixin of :class:`bioslam.odometry.LidarOdometry`. No file or terminal I/O here.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from bioslam.geometry import between, separation, wrap_angle
+from bioslam.matching.gauss_newton import FloatArray, MatchReport
+from bioslam.odometry_config import OdometryConfig
+
+
+def match_quality(report: MatchReport) -> float:
+    """Mean M* over the matched endpoints, less the fraction of them in known free space
+    (negative evidence: the map saw through where the match puts a wall) and the fraction of
+    beams that pass through a known wall (the scan saw through where the map has one)."""
+    return report.score - report.free_fraction - report.through_fraction
+
+
+def _off_line(
+    pose: FloatArray, origin: FloatArray, direction: FloatArray, length_scale: float
+) -> float:
+    """How far ``pose`` lies from the line through ``origin`` along ``direction`` (unit,
+    (x, y, theta * length_scale), as ``MatchReport.degenerate_direction``)."""
+    offset = np.array([
+        pose[0] - origin[0], pose[1] - origin[1], length_scale * wrap_angle(pose[2] - origin[2])
+    ])  # fmt: skip
+    return float(np.linalg.norm(offset - (offset @ direction) * direction))
+
+
+class MatchChoice:
+    """The match kept among those a scan's starts led to."""
+
+    config: OdometryConfig
+
+    def _failed(self, report: MatchReport) -> bool:
+        """Endpoints in known free space, or a score far below that of recent matches."""
+        c = self.config
+        if report.free_fraction > c.recovery_free_fraction:
+            return True
+        return report.score < c.recovery_score_ratio * self._typical_score
+
+    def _rejected(self, report: MatchReport) -> bool:
+        """More endpoints in known free space than ``recovery_free_fraction``, or more
+        beams through known walls than ``recovery_through_fraction``: a wrong pose,
+        whatever its score."""
+        c = self.config
+        return (
+            report.free_fraction > c.recovery_free_fraction
+            or report.through_fraction > c.recovery_through_fraction
+        )
+
+    def _clean(self, report: MatchReport) -> bool:
+        """Little negative evidence of either kind: at most ``recovery_free_fraction`` of
+        endpoints in free space and beams through walls together."""
+        c = self.config
+        return report.free_fraction + report.through_fraction <= c.recovery_free_fraction
+
+    def _hopeless(self, option: tuple[FloatArray, MatchReport, bool], previous: FloatArray) -> bool:
+        """A match failed or rejected by the map, or, on sparse scans, a step unlike the
+        recent ones (the step prior's density below ``implausible_density``)."""
+        if option[2] or self._rejected(option[1]):
+            return True
+        return self._sparse() and self._implausible(between(previous, option[0]))
+
+    def _credible(self, option: tuple[FloatArray, MatchReport, bool], previous: FloatArray) -> bool:
+        """A match that may yet be the true step: not rejected by the map, its quality above
+        what the step prior charges for its step (on sparse scans, where the prior weighs the
+        matches; above none on dense ones), and not both failed and a step unlike the recent
+        ones. A step like the recent ones that merely fits too little of a scan seeing new
+        ground is credible. Not credible: a failed match 2.5 m and 60° off the typical step
+        (freiburg-079 thinned to a scan per metre of path, a 147° turn between two scans: at
+        quality 0.13 it kept the far ring unsearched and the run was lost), nor one that
+        barely fits (quality 0.01) a step 1.4 m back and 39° off that the prior charges 0.22
+        for (the warehouse's tour thinned by distance alone, seed 4: a turn of 50° out of the
+        ±45° window, the turned windows never searched and the route lost)."""
+        report = option[1]
+        sparse = self._sparse()
+        cost = self._step_cost(previous, option[0]) if sparse else 0.0
+        if self._rejected(report) or match_quality(report) - cost <= 0.0:
+            return False
+        implausible = sparse and self._implausible(between(previous, option[0]))
+        return not (option[2] and implausible)
+
+    def _implausible(self, step: FloatArray) -> bool:
+        """The step prior's density of ``step`` is below ``implausible_density``: a step
+        unlike the recent ones."""
+        return self._step_prior.cost(step) > -math.log(self.config.implausible_density)
+
+    def _step_cost(self, previous: FloatArray, pose: FloatArray) -> float:
+        """The step prior's cost of the step from ``previous`` to ``pose``, weighed by
+        ``step_prior_weight``; at an echo of a fused scan (:meth:`_echoes`) by
+        ``echo_prior_weight``, and in full from the first steps (the prior's floor not
+        raised while it knows few, :class:`bioslam.step_prior.StepPriorConfig`)."""
+        c = self.config
+        step = between(previous, pose)
+        if c.echo_prior_weight is not None and self._echoes(pose):
+            return c.echo_prior_weight * self._step_prior.cost(step, young=False)
+        return c.step_prior_weight * self._step_prior.cost(step)
+
+    def _echoes(self, pose: FloatArray) -> bool:
+        """``pose`` is within a finest cell (and that at ``length_scale`` in heading) of a
+        pose where one of the last ``echo_scans`` scans was fused: a scan placed there puts
+        its beams where that scan's hit, and on a sparse map (a wall held only where the
+        last scans' beams hit it) scores better for it than the true step does."""
+        return any(not self._different_start(pose, f) for f in self._fused_poses)
+
+    def _choose(
+        self, options: list[tuple[FloatArray, MatchReport, bool]],
+        motion: tuple[FloatArray, ...], previous: FloatArray, reach: tuple[float, float],
+        jump: tuple[float, float], gapless: bool = False,
+    ) -> tuple[FloatArray, MatchReport]:
+        """The plausible match nearest the motion model's prior (``plausible_ratio``; the
+        first of ``motion``, the start Gauss-Newton ran from), then the best of those in its
+        basin; a jump (far from every motion hypothesis: the start, the constant-velocity
+        prediction, the last step repeated) from the prediction's own match (the first option)
+        must be overwhelming (``overwhelming_ratio``), and one farther than the robot can
+        have moved since the last scan (``reach``) falls back on the first. Only after a
+        gap (not ``gapless``: logged stamps jitter) may a clean match beyond reach replace
+        a first match the map rejects; between scans at the scanner's rate the stamps hold,
+        and on a revisit whose map an earlier pass put a few decimetres off, the rejected
+        prediction was so replaced by a look-alike 1.4 m along a corridor, or turned 90
+        degrees, in a tenth of a second (simulated URG-04LX, maze, 600 s, seeds 0 and 3).
+        Flags the report ambiguous when a plausible match lies elsewhere, recovered when it
+        is not the first match."""
+        c = self.config
+        first = options[0]
+        if len(options) == 1:
+            return first[0], first[1]
+        quality = {id(o): match_quality(o[1]) for o in options}
+        pool = (
+            [o for o in options if not (o[2] or self._rejected(o[1]))]
+            or [o for o in options if not self._rejected(o[1])]
+            or options
+        )
+        floor = self._plausible_floor(max(quality[id(o)] for o in pool))
+        plausible = [o for o in pool if quality[id(o)] >= floor]
+        nearest = min(plausible, key=lambda o: self._pose_distance(o[0], motion[0]))
+        basin = [o for o in plausible if not self._distinct(o[0], nearest[0])]
+        chosen = max(basin, key=lambda o: quality[id(o)])
+        ambiguous = len(basin) < len(plausible)
+        if chosen is not first and all(self._is_jump(chosen[0], m, jump) for m in motion):
+            q_first = quality[id(first)]
+            if not first[2] and q_first > c.overwhelming_ratio * quality[id(chosen)]:
+                chosen, ambiguous = first, True  # a look-alike, not overwhelming evidence
+            elif self._beyond(chosen[0], previous, reach) and (
+                gapless or not (self._rejected(first[1]) and self._clean(chosen[1]))
+            ):
+                # farther than the robot can have moved since the last scan (after a gap,
+                # logged stamps jitter: a clean match wins over a prediction the map rejects)
+                chosen, ambiguous = first, True
+        pose, report = chosen[0], chosen[1]
+        report.recovered = chosen is not first
+        report.ambiguous = ambiguous
+        return pose, report
+
+    def _choose_sparse(
+        self, options: list[tuple[FloatArray, MatchReport, bool]],
+        previous: FloatArray, reach: tuple[float, float], gapless: bool = False,
+    ) -> tuple[FloatArray, MatchReport]:
+        """On sparse scans: the match not rejected by the map with the best quality less
+        ``step_prior_weight`` times the step prior's cost of its step. Where the scan cannot
+        tell places apart, the step like the robot's recent ones wins; where it can, the
+        scan does (the prior costs at most ``-log(step_prior.floor)`` times its weight).
+        When every match the map does not reject has failed, all compete the same way: a
+        match that slid off the map meets no evidence against it, but none for it either
+        (intel from its 5th scan: a 19.8 m step was so kept). A match farther than the robot
+        can have moved since the last scan (``reach``) falls back on the first, as in
+        :meth:`_choose`, unless the first is rejected and it is clean and did not fail, and
+        it turned no farther than the robot can have since the last scan or the scan came
+        after a gap (not ``gapless``). A pose lost along a corridor is so found again, but
+        a look-alike turned round is no recovery: scans at the scanner's rate match as
+        sparse ones where the search ran for most of them, as on a revisit of a map a
+        drift put a decimetre off, whose free space then rejects the true step, and a
+        look-alike turned 180° in a tenth of a second was kept there (simulated warehouse,
+        SICK, from the origin, seed 31).
+        Where the scan leaves a direction free, the step prior picks among the matches along
+        it that fit nearly as well (:meth:`_typical_on_plateau`).
+        Flags the report ambiguous when a distinct match is plausible (``plausible_ratio``
+        of the quality), recovered when it is not the first match."""
+        c = self.config
+        first = options[0]
+        pool = [o for o in options if not self._rejected(o[1])]
+        if all(o[2] for o in pool):  # no match both fits and is consistent with the map
+            pool = options
+        quality = {id(o): match_quality(o[1]) for o in options}
+        costs: dict[int, float] = {}  # the plateau and the broken-turn check ask again
+
+        def cost(option: tuple[FloatArray, MatchReport, bool]) -> float:
+            key = id(option)
+            if key not in costs:
+                costs[key] = self._step_cost(previous, option[0])
+            return costs[key]
+
+        def merit(option: tuple[FloatArray, MatchReport, bool]) -> float:
+            return quality[id(option)] - cost(option)
+
+        chosen = self._typical_on_plateau(max(pool, key=merit), pool, quality, cost)
+        if chosen is not first and self._beyond(chosen[0], previous, reach) and (
+            (gapless and abs(between(previous, chosen[0])[2]) > reach[1])  # turned beyond
+            or not (self._rejected(first[1]) and self._clean(chosen[1]) and not chosen[2])
+        ):
+            chosen = first
+        floor = self._plausible_floor(quality[id(chosen)])
+        report = chosen[1]
+        report.recovered = chosen is not first
+        report.ambiguous = any(
+            quality[id(o)] >= floor and self._distinct(o[0], chosen[0]) for o in pool
+        )
+        report.broken = report.score < c.break_score_ratio * self._typical_score or any(
+            abs(between(chosen[0], o[0])[2]) > c.break_turn
+            and merit(o) > merit(chosen) - c.break_margin
+            for o in pool
+            if not self._rejected(o[1])
+        )
+        return chosen[0], report
+
+    def _typical_on_plateau(
+        self, chosen: tuple[FloatArray, MatchReport, bool],
+        pool: list[tuple[FloatArray, MatchReport, bool]], quality: dict[int, float],
+        cost: Callable[[tuple[FloatArray, MatchReport, bool]], float],
+    ) -> tuple[FloatArray, MatchReport, bool]:
+        """Where the scan of the ``chosen`` match leaves a direction free (degenerate: a
+        corridor whose ends are out of range), the match of ``pool`` along that direction
+        from it whose step the step prior finds most typical (least ``cost``), among those
+        within two finest cells of the line, not distinct from ``chosen`` (one place, not a
+        look-alike a rack further on), neither failed nor rejected, and fitting nearly as
+        well: a quality at least ``plausible_ratio`` of its, and less by at most
+        ``plateau_slope`` per metre between them. Along such a plateau the fit varies by
+        what the walls' sampling leaves, not by where the robot is: a 240° URG-04LX (5.6 m)
+        thinned to a scan per metre took steps 0.1-0.5 m short down the maze's corridors,
+        each fitting 0.01-0.03 better than the typical step, until the map held its walls
+        twice (ATE 5.8 m, maze tour, seed 6). A SICK that sees corners within its range
+        fits 0.6 less a metre off along the corridor, and its choice stands. While the
+        step prior is flat it cannot tell the plateau's points apart."""
+        report = chosen[1]
+        if not report.degenerate or chosen[2] or self._step_prior.flat:
+            return chosen
+        c = self.config
+        q = quality[id(chosen)]
+        floor = self._plausible_floor(q)
+
+        def on_plateau(option: tuple[FloatArray, MatchReport, bool]) -> bool:
+            pose, found, failed = option
+            if failed or self._rejected(found) or quality[id(option)] < floor:
+                return False
+            if self._distinct(pose, chosen[0]):
+                return False
+            drop = q - quality[id(option)]
+            return drop <= c.plateau_slope * separation(pose, chosen[0])[0] and _off_line(
+                pose, chosen[0], report.degenerate_direction, c.length_scale
+            ) <= 2.0 * c.resolution
+
+        plateau = [chosen, *(o for o in pool if o is not chosen and on_plateau(o))]
+        return min(plateau, key=cost)
+
+    def _different_start(self, a: FloatArray, b: FloatArray) -> bool:
+        """Farther apart than a finest cell (or its width at ``length_scale`` in heading):
+        Gauss-Newton from each may end in different places."""
+        distance, turn = separation(a, b)
+        c = self.config
+        return distance > c.resolution or turn > c.resolution / c.length_scale
+
+    def _pose_distance(self, a: FloatArray, b: FloatArray) -> float:
+        distance, turn = separation(a, b)
+        return distance + self.config.length_scale * turn
+
+    def _distinct(self, a: FloatArray, b: FloatArray) -> bool:
+        """Farther apart than the search's rival distance or angle: different places."""
+        distance, turn = separation(a, b)
+        cfg = self._searcher.config
+        return distance > cfg.rival_distance or turn > cfg.rival_angle
+
+    @staticmethod
+    def _beyond(pose: FloatArray, previous: FloatArray, reach: tuple[float, float]) -> bool:
+        d = between(previous, pose)
+        return math.hypot(d[0], d[1]) > reach[0] or abs(d[2]) > reach[1]
+
+    @staticmethod
+    def _is_jump(pose: FloatArray, prior: FloatArray, jump: tuple[float, float]) -> bool:
+        """Farther from a motion hypothesis ``prior`` than ``jump`` (metres, radians)."""
+        d = between(prior, pose)
+        return math.hypot(d[0], d[1]) > jump[0] or abs(d[2]) > jump[1]
+
+    def _jump_limits(self) -> tuple[float, float]:
+        """How far from the motion model a match may lie before it counts as a jump:
+        ``jump_distance`` / ``jump_angle``, or ``jump_factor`` times the motion model's
+        typical error over the last scans if that is larger (a log thinned to a scan per
+        metre is predicted to within tens of centimetres and degrees at best; a 40 Hz
+        scanner's to within millimetres, where the fixed limits hold)."""
+        c = self.config
+        return (
+            max(c.jump_distance, c.jump_factor * self._typical_miss[0]),
+            max(c.jump_angle, c.jump_factor * self._typical_miss[1]),
+        )

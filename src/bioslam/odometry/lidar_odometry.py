@@ -1,0 +1,531 @@
+"""The LiDAR odometry's state machine (paper Sec. III-A): one update per scan, from the
+prediction through the match kept to the motion model's and the scores' bookkeeping. The
+concepts it composes each have their module in :mod:`bioslam.odometry`.
+
+No file or terminal I/O here.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from bioslam.geometry import between, compose
+from bioslam.matching.branch_and_bound import WideBasinMatcher
+from bioslam.matching.deskew import usable_endpoints
+from bioslam.matching.gauss_newton import (
+    NO_FACING,
+    FloatArray,
+    MatchReport,
+    facing_normals,
+    geometric_information,
+    grid_args,
+    kept_rows,
+    mapped_conditioning,
+    match_scan_to_map,
+    matched_normals,
+    points_per_level,
+    pose_costs,
+    summed_map,
+)
+from bioslam.motion_model import ConstantVelocityModel, translation_part
+from bioslam.occupancy_grid import MapPyramid, OccupancyGrid, subsample_by_spacing, thinned_normals
+from bioslam.odometry.choice import MatchChoice
+from bioslam.odometry.guards import PredictionGuards
+from bioslam.odometry.local_map import LocalMap
+from bioslam.odometry.search import WideSearch, turned_windows
+from bioslam.odometry_config import OdometryConfig
+from bioslam.scan import LaserScan
+from bioslam.step_prior import StepPrior
+
+
+class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
+    """Pose change from consecutive LiDAR scans alone (paper Sec. III-A).
+
+    ``update(scan)`` returns Δp, the motion since the previous scan in the previous robot
+    frame (``geometry.between(prev_pose, pose)``); ``pose`` is the pose in the odometry frame
+    (the first scan's pose is ``initial_pose``); ``last_report`` says how the match went and
+    ``last_points`` holds the scan's usable endpoints (sensor frame, de-skewed to its stamp).
+
+    One update's steps are here; the concepts they call on are mixed in from their modules:
+    the local map fused into and matched against (:class:`~.local_map.LocalMap`), the trusted
+    prediction's match checked against it (:class:`~.guards.PredictionGuards`), the starts
+    searched when the prediction is not trusted (:class:`~.search.WideSearch`) and the
+    choice among the matches (:class:`~.choice.MatchChoice`).
+    """
+
+    def __init__(self, config: OdometryConfig | None = None, initial_pose: ArrayLike = (0, 0, 0)):
+        self.config = config or OdometryConfig()
+        c = self.config
+        self.pose = np.asarray(initial_pose, dtype=np.float64).reshape(3).copy()
+        self.pyramid = self._new_pyramid()
+        self.last_report = MatchReport()
+        self.last_points: FloatArray = np.zeros((0, 2))
+        self.num_scans = 0
+        self.num_predicted_only = 0
+        self.num_recovered = 0
+        self.num_degenerate = 0
+        self.num_ambiguous = 0
+        self.num_broken = 0
+        self._searcher = WideBasinMatcher()
+        self._pooled: tuple[OccupancyGrid, tuple] | None = None  # what the searcher pooled
+        # the endpoints and normals last matched, and their geometric information
+        self._geometry: tuple[FloatArray, FloatArray, tuple] | None = None
+        self._motion = ConstantVelocityModel(
+            c.velocity_window, c.velocity_scans, c.length_scale, c.degeneracy_ratio,
+            c.constrained_ratio, c.accel_noise, c.velocity_noise, c.velocity_spread,
+            sideways_noise=c.sideways_noise, point_noise=c.weak_point_noise,
+        )
+        # the motion prior's pose and its information along the weak direction
+        self._axis_prior: tuple[FloatArray, float | None] | None = None
+        self._last_delta = np.zeros(3)
+        self._last_stamp: float | None = None
+        self._scores: deque[float] = deque(maxlen=self.config.score_window)
+        self._misses: deque[tuple[float, float, float]] = deque(maxlen=self.config.score_window)
+        self._typical_miss = (0.0, 0.0)
+        self._typical_step = 0.0
+        self._typical_score = 0.0
+        # the matches' shares of endpoints in known free space, and their median
+        self._frees: deque[float] = deque(maxlen=self.config.score_window)
+        self._typical_free = 0.0
+        self._num_scores = 0
+        self._last_inserted: FloatArray | None = None
+        # (pose, endpoints, the straight_angle they were densified with)
+        self._first_fused: tuple[FloatArray, FloatArray, float] | None = None
+        self._step_prior = StepPrior(c.step_prior)
+        # the poses of the last scans fused, whose beam patterns a sparse map echoes
+        self._fused_poses: deque[FloatArray] = deque(maxlen=max(c.echo_scans, 1))
+        self._searched: deque[bool] = deque(maxlen=c.score_window)
+        self._num_searched = 0  # of those in _searched
+        self._directions: tuple[FloatArray, FloatArray, FloatArray] | None = None
+        # on sparse scans, the map being built to replace the one matched against
+        # (:meth:`_turn_submaps`), the distance travelled while each was fused into, and
+        # whether a step was ambiguous or broken since the last turn
+        self._young: MapPyramid | None = None
+        self._travel = [0.0, 0.0]
+        self._doubts = 0
+        self._conflict = False  # and the maps disagreed since (:meth:`_maps_disagree`)
+        self._matched_levels: tuple[list[FloatArray], FloatArray, list[FloatArray]] | None = None
+        self.num_submaps = 0
+
+    # -- steps of one update ------------------------------------------------------------------
+
+    def _time_step(self, stamp: float) -> float:
+        if self._last_stamp is None:
+            return 0.0
+        dt = stamp - self._last_stamp
+        return dt if dt > 0 else 0.0
+
+    def _sensor_points(self, scan: LaserScan) -> FloatArray:
+        c = self.config
+        lo = max(c.min_range, scan.range_min, np.nextafter(0.0, 1.0))
+        hi = self._usable_range(scan)
+        increment = scan.time_increment if c.deskew else 0.0
+        vx, vy, w = self._motion.twist
+        cos_a, sin_a = self._beam_directions(scan.angles)
+        return usable_endpoints(scan.ranges, cos_a, sin_a, lo, hi, increment, vx, vy, w)
+
+    def _usable_range(self, scan: LaserScan) -> float:
+        return min(self.config.max_range, scan.range_max)
+
+    def _matched(
+        self, pts: FloatArray, keep: NDArray[np.bool_], scan: LaserScan
+    ) -> tuple[FloatArray, NDArray[np.bool_]]:
+        """The endpoints (and the kept ones among them) that are matched: those at least
+        :attr:`OdometryConfig.matched_range_margin` short of the usable range. The map holds
+        a wall only as far as earlier scans reached; moved on since the last fusion, the
+        scan's farthest endpoints on a wall ahead fall past the map's end, whose edge pulls
+        them, and the pose, back. Along a corridor longer than the range nothing else
+        fixes the pose, and that pull stalled it (simulated URG-04LX, 5.6 m). All endpoints
+        are still fused into the map."""
+        limit = self._usable_range(scan) - self.config.matched_range_margin
+        near = pts[:, 0] ** 2 + pts[:, 1] ** 2 <= limit * limit
+        if near.all():
+            return pts, keep
+        pts = kept_rows(pts, near)
+        return pts, subsample_by_spacing(pts, self.config.point_spacing)
+
+    def _beam_directions(self, angles: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Cosines and sines of the beam angles, kept while the scans' angles stay the same."""
+        known = self._directions
+        same = known is not None and (
+            known[0] is angles
+            or (known[0].shape == angles.shape and np.array_equal(known[0], angles))
+        )
+        if not same:
+            self._directions = known = (angles, np.cos(angles), np.sin(angles))
+        return known[1], known[2]
+
+    def _sparse(self) -> bool:
+        """The wide-basin search ran for at least ``sparse_share`` of the recent scans (and
+        of at least ``sparse_scans``): a thinned log or a low scan rate, where the motion
+        model's prediction is no better than a guess."""
+        c = self.config
+        return self._num_searched >= c.sparse_share * max(len(self._searched), c.sparse_scans)
+
+    def _sparse_so_far(self) -> bool:
+        """Fewer than ``sparse_scans`` matched, and the search ran for every one: a thinned
+        log before :meth:`_sparse` can tell. Its map is then the first one or two scans,
+        densest where they were taken, and, fused as measured, a pose moved back there
+        (standing still) outscored the true step a metre on."""
+        n = len(self._searched)
+        return 0 < n < self.config.sparse_scans and self._num_searched == n
+
+    def _as_sparse(self) -> bool:
+        """Matched as sparse scans: :meth:`_sparse`, or :meth:`_sparse_so_far` before it can
+        tell."""
+        return self._sparse() or self._sparse_so_far()
+
+    # -- public -------------------------------------------------------------------------------
+
+    def update(self, scan: LaserScan) -> FloatArray:
+        """Match one scan and return Δp (3,) since the previous scan (zeros on the first)."""
+        c = self.config
+        dt = self._time_step(scan.stamp)
+        previous = self.pose.copy()
+        predicted = self._motion.predict(previous, dt) if self.num_scans else previous
+        pts = self.last_points = self._sensor_points(scan)
+        keep = subsample_by_spacing(pts, c.point_spacing)
+        first = self._last_inserted is None  # nothing to match against yet
+        constraint: tuple[float, FloatArray] | None = None
+        self.num_scans += 1
+        if pts.shape[0] < c.min_points:
+            self.pose = predicted
+            self.num_predicted_only += 1
+            self.last_report = MatchReport(predicted_only=True, num_points=int(pts.shape[0]))
+        elif first:
+            self.last_report = MatchReport(num_points=int(pts.shape[0]))
+        else:
+            matched, matched_keep = self._matched(pts, keep, scan)
+            level_pts = points_per_level(matched, c.point_spacing, c.levels, matched_keep)
+            if self._first_fused is not None:
+                self._densify_first(dt)
+            start = self._best_start(level_pts[-1], previous, predicted)
+            normals = matched_normals(level_pts)
+            self._matched_levels = (level_pts, normals, facing_normals(level_pts, normals))
+            self.pose, self.last_report = self._match(
+                level_pts, start, previous, normals, dt, predicted
+            )
+            if dt <= c.gap_time and not self.last_report.overruled:
+                # after a gap the velocity is measured afresh, and where the map overruled
+                # the motion prior, the scan measured it
+                constraint = (
+                    *self._mapped_constraint(level_pts[0], normals), self._axis_offset()
+                )
+            self.num_recovered += self.last_report.recovered
+            self.num_degenerate += self.last_report.degenerate
+            self.num_ambiguous += self.last_report.ambiguous
+            self.num_broken += self.last_report.broken
+            self._doubts += self.last_report.ambiguous or self.last_report.broken
+        if not self.last_report.predicted_only and self._should_insert():
+            # every endpoint is fused, each with the normal of the kept one before it
+            self._insert(pts, thinned_normals(pts, keep))
+            self.last_report.inserted = True
+        if self.last_report.inserted and not self._scores:
+            self._remember_score(self._score_at(self.pose, kept_rows(pts, keep)))
+        self._motion.update(scan.stamp, self.pose, *(constraint or (1.0, None, None)))
+        self._last_stamp = scan.stamp
+        self._last_delta = between(previous, self.pose)
+        return self._last_delta.copy()
+
+    def steps_to_insert(self, step: ArrayLike) -> float:
+        """How many more steps like ``step`` (the last one, in the robot's frame) until the
+        pose is ``insert_distance`` / ``insert_angle`` from the last scan fused into the map
+        and the next is fused: 0 when one is due now, inf when the step does not move."""
+        if self._last_inserted is None:
+            return 0.0
+        c = self.config
+        d = between(self._last_inserted, self.pose)
+        left = (c.insert_distance - math.hypot(d[0], d[1]), c.insert_angle - abs(d[2]))
+        if min(left) <= 0.0:
+            return 0.0
+        s = np.asarray(step, dtype=np.float64).reshape(3)
+        rates = (math.hypot(s[0], s[1]), abs(s[2]))
+        return min((lo / r for lo, r in zip(left, rates, strict=True) if r > 0.0), default=math.inf)
+
+    def summary(self) -> dict[str, int]:
+        """Counts over the run: scans, matches recovered by a search, scans with an
+        unconstrained direction, scans with too few points (prediction only), scans whose
+        search found a look-alike as plausible as the match kept, sparse scans whose match
+        the odometry cannot vouch for (``MatchReport.broken``)."""
+        return {
+            "odometry_scans": self.num_scans,
+            "odometry_recovered": self.num_recovered,
+            "odometry_degenerate": self.num_degenerate,
+            "odometry_predicted_only": self.num_predicted_only,
+            "odometry_ambiguous": self.num_ambiguous,
+            "odometry_broken": self.num_broken,
+        }
+
+    def _match(
+        self, level_pts: list[FloatArray], start: FloatArray, previous: FloatArray,
+        normals: FloatArray, dt: float, predicted: FloatArray,
+    ) -> tuple[FloatArray, MatchReport]:
+        """Eq. 3 from ``start`` (the motion model's prior, :meth:`_best_start`); when that
+        cannot be trusted (:meth:`_untrusted`), also from the wide-basin search's winner and
+        its rival and from the other motion hypotheses (the constant-velocity prediction,
+        the last step repeated, the typical step straight on: after a turn on the spot in
+        a log thinned to a scan per metre the first two say "turning", the last "a metre
+        on"; on sparse scans also the step prior's typical steps, the searches' seeds and the
+        hypotheses on the finer levels alone, :meth:`_finer_basins`, and each match its
+        scan leaves free along a corridor slid there, :meth:`_slid`; the motion hypotheses not
+        where the search's lone winner settles the step, :meth:`_settles`), keeping the plausible
+        match nearest ``start`` (:meth:`_choose`), or on sparse scans and while every scan
+        so far came after a gap (:meth:`_sparse_so_far`: standing still is then no motion
+        prior) the best one (:meth:`_choose_sparse`). When
+        every match so found sees through walls, or none is credible (:meth:`_credible`),
+        the search is repeated for a turn of about ``2 * search_angle`` either way from
+        ``previous`` (thinned logs turn up to 80° between scans), and on round the circle
+        while none is credible (:func:`turned_windows`)."""
+        c = self.config
+        gapless = dt <= c.gap_time  # the start is then a trusted prediction
+        # the prior pulls towards the motion model's prediction, never a standstill it did not
+        # predict (:meth:`_prior_target`)
+        target = self._prior_target(start, previous, predicted, gapless)
+        weight = self._prior_weight(dt)
+        information = self._motion.prior_information(dt) if gapless else None
+        self._axis_prior = (start if target is None else target, information)
+        held = information if c.weak_axis_prior else None
+        options = [self._option(level_pts, start, normals, weight, target, gapless, held)]
+        if gapless:
+            options[0] = self._unless_slipped(options[0], level_pts, start, normals, weight,
+                                              target, held)  # fmt: skip
+            if not np.array_equal(start, predicted):
+                options[0] = self._unless_astray(options[0], level_pts, predicted, normals,
+                                                 weight, target, held)  # fmt: skip
+            options[0] = self._unless_reversed(options[0], level_pts, previous, normals)
+        if weight > c.search_prior_weight:
+            options[0] = self._unless_contradicted(
+                options[0], level_pts, start, normals, gapless, dt
+            )
+        motion: tuple[FloatArray, ...] = (start,)  # only compared when the search ran
+        jump = self._jump_limits()
+        # a trusted prediction's match that jumped is searched as an untrusted one is: in a
+        # spin its Gauss-Newton can slide into a look-alike basin tens of centimetres off
+        searched = c.search_distance > 0 and (
+            self._untrusted(options[0][2], dt, previous, start)
+            or self._is_jump(options[0][0], start, jump)
+        )
+        if len(self._searched) == self._searched.maxlen:
+            self._num_searched -= self._searched[0]
+        self._searched.append(searched)
+        self._num_searched += searched
+        as_sparse = self._as_sparse()
+        if searched:
+            forward = compose(previous, np.array([self._typical_step, 0.0, 0.0]))
+            motion = (start, predicted, compose(previous, self._last_delta), forward)
+            if self._sparse():
+                modes = self._step_prior.modes(c.step_modes)
+                motion += tuple(compose(previous, m) for m in modes)
+            # the next level's endpoints (twice as far apart) on the search level's grid
+            points = level_pts[min(c.search_level + 1, c.levels - 1)]
+            centre, distance, angle = self._search_window(start, (previous, *motion[1:]))
+            # the typical step's window (:meth:`_typical_seeds`) searches the same pooled map
+            typical = self._typical_window(forward, distance, angle) if as_sparse else ()
+            seeds = self._search_seeds(
+                points, centre, distance, angle, options[0][0],
+                pooled_for=((centre, distance, angle), *typical),
+            )  # fmt: skip
+            lone = len(seeds) == 1
+            seeds += self._typical_seeds(points, typical, seeds)
+            options += self._weighed(level_pts, seeds, normals)
+            settled = as_sparse and lone and self._settles(
+                options[1], previous, level_pts[0], normals
+            )
+            if not settled:
+                hypotheses = self._distinct_hypotheses(motion)
+                seeds += hypotheses
+                options += self._weighed(level_pts, hypotheses, normals)
+            finer = self._finer_basins(level_pts, normals, seeds, options) if as_sparse else []
+            self._weigh_walls([options[0], *finer], level_pts[0])
+            options += finer
+            if as_sparse:
+                slid = self._slid(options, forward, level_pts[0], normals)
+                options += self._weighed(level_pts, slid, normals, held=not self._step_prior.flat)
+            for k, ring in enumerate(turned_windows(c.search_angle)):
+                if (k > 0 or not all(self._hopeless(o, previous) for o in options)) and any(
+                    self._credible(o, previous) for o in options
+                ):
+                    break  # a match that only failed its score: a room turned round fits better
+                turns = [compose(previous, np.array([0.0, 0.0, a])) for a in ring]
+                both = tuple((turn, c.search_distance, c.search_angle) for turn in turns)
+                for turn in turns:  # the two windows of a ring share one pooled map
+                    seeds = self._search_seeds(
+                        points, turn, c.search_distance, c.search_angle, pooled_for=both
+                    )
+                    options += self._weighed(level_pts, seeds, normals)
+        reach = (jump[0] + c.max_speed * dt, jump[1] + c.max_turn_rate * dt)
+        if as_sparse and len(options) > 1:
+            pose, report = self._choose_sparse(options, previous, reach, gapless)
+        else:
+            pose, report = self._choose(options, motion, previous, reach, jump, gapless)
+        step = between(previous, pose)
+        self._remember_miss(between(start, pose), step)
+        if searched:  # the steps where the prediction was not trusted, as on sparse scans
+            self._step_prior.add(step)
+
+        report.iterations = sum(option[1].iterations for option in options)
+        self._remember_score(report.score, report.free_fraction)
+        return pose, report
+
+    def _option(
+        self, level_pts: list[FloatArray], start: FloatArray, normals: FloatArray,
+        prior_weight: float | None = None, prior_pose: FloatArray | None = None,
+        restart: bool = False, prior_information: float | None = None,
+    ) -> tuple[FloatArray, MatchReport, bool]:
+        """Gauss-Newton from ``start``: (pose, report, failed). The motion prior pulls
+        towards ``prior_pose`` (default ``start``) with ``prior_weight``, by default
+        ``search_prior_weight`` (a search's seed is no motion prior); ``restart``: see
+        :func:`bioslam.matching.gauss_newton.match_scan_to_map`."""
+        weight = self.config.search_prior_weight if prior_weight is None else prior_weight
+        pose, report = self._match_from(
+            level_pts, start, normals, weight, prior_pose, restart, prior_information
+        )
+        return pose, report, self._failed(report)
+
+    def _remember_score(self, score: float, free_fraction: float = 0.0) -> None:
+        """Keep the last ``score_window`` scores and shares of endpoints in known free space.
+        Their medians are refreshed on each of the first tenth of a window, then every tenth
+        (per scan it cost more than the rest of the failure test)."""
+        self._scores.append(score)
+        self._frees.append(free_fraction)
+        self._num_scores += 1
+        if self._refresh_due():
+            self._typical_score = float(np.median(self._scores))
+            self._typical_free = float(np.median(self._frees))
+
+    def _refresh_due(self) -> bool:
+        step = max(self.config.score_window // 10, 1)
+        return self._num_scores <= step or self._num_scores % step == 0
+
+    def _remember_miss(self, miss: FloatArray, step: FloatArray) -> None:
+        """Keep the last ``score_window`` differences between the motion model's start and
+        the match kept (metres, radians), and steps: the misses' ``miss_percentile``-th
+        percentiles are the motion model's typical error, the median of the steps longer
+        than half that percentile of the step lengths the typical step forward (a thinned
+        log keeps a scan per metre or per tens of degrees of turn: its steps are about a
+        metre or about none). Refreshed as the scores' median is."""
+        self._misses.append((math.hypot(miss[0], miss[1]), abs(miss[2]), math.hypot(*step[:2])))
+        if self._refresh_due():
+            record = np.array(self._misses)
+            misses = np.percentile(record, self.config.miss_percentile, axis=0)
+            self._typical_miss = (float(misses[0]), float(misses[1]))
+            lengths = record[:, 2]
+            self._typical_step = float(np.median(lengths[lengths >= 0.5 * misses[2]]))
+
+    def _score_at(self, pose: FloatArray, points: FloatArray) -> float:
+        """Mean M* of ``points`` at ``pose`` on the finest level (the first scan's score on
+        the map made from it is the reference until matches have been made)."""
+        grid = grid_args(self.pyramid.finest, self.config.subcell_sigma)
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        total = summed_map(grid, points, self._facing_of(points), c, s, pose[0], pose[1], False)
+        return total / max(len(points), 1)
+
+    def _facing(self, level_pts: list[FloatArray]) -> list[FloatArray] | None:
+        """The scan's :func:`~bioslam.matching.gauss_newton.facing_normals` per level, for
+        ``level_pts`` the scan's own endpoints (none for others)."""
+        held = self._matched_levels
+        return held[2] if held is not None and held[0] is level_pts else None
+
+    def _facing_of(self, points: FloatArray) -> FloatArray:
+        """The surface normals of ``points`` when they are one level of the scan's
+        endpoints, else none (:data:`~bioslam.matching.gauss_newton.NO_FACING`)."""
+        held = self._matched_levels
+        if held is not None:
+            for level, facing in zip(held[0], held[2], strict=True):
+                if level is points:
+                    return facing
+        return NO_FACING
+
+    def _match_from(
+        self, level_pts: list[FloatArray], start: FloatArray, normals: FloatArray,
+        prior_weight: float | None, prior_pose: FloatArray | None = None,
+        restart: bool = False, prior_information: float | None = None,
+        iterations: tuple[int, ...] | None = None,
+    ) -> tuple[FloatArray, MatchReport]:
+        """Gauss-Newton from ``start`` (:func:`~bioslam.matching.gauss_newton.match_scan_to_map`;
+        ``prior_weight`` None holds the pose at ``start`` along a direction the scan leaves
+        free), the share of its endpoints in known free space counted."""
+        c = self.config
+        pose, report = match_scan_to_map(
+            self.pyramid, level_pts, start, iterations or c.max_iterations, c.step_tolerance,
+            c.length_scale, c.degeneracy_ratio, c.subcell_sigma, normals, prior_weight,
+            prior_pose, restart, prior_information, self._scan_geometry(level_pts[0], normals),
+            self._facing(level_pts),
+        )  # fmt: skip
+        report.free_fraction = self.pyramid.finest.fraction_not_above_near(
+            pose, level_pts[0], c.free_logodds
+        )
+        return pose, report
+
+    def _scan_geometry(self, points: FloatArray, normals: FloatArray) -> tuple:
+        """:func:`~bioslam.matching.gauss_newton.geometric_information` of the scan's
+        endpoints, once a scan: Gauss-Newton runs from up to twenty starts on sparse scans."""
+        held = self._geometry
+        if held is None or held[0] is not points or held[1] is not normals:
+            info = geometric_information(points, normals, self.config.length_scale)
+            self._geometry = held = (points, normals, info)
+        return held[2]
+
+    def _best_start(
+        self, coarse_pts: FloatArray, previous: FloatArray, predicted: FloatArray
+    ) -> FloatArray:
+        """The initial pose with the lowest cost on the coarsest level among: the
+        constant-velocity prediction, the previous scan's motion repeated, and no motion.
+        Logged timestamps often jitter (CARMEN logs stamp scans when written, not when
+        measured): a robot turning at a steady rate per scan then gets a prediction off by
+        tens of degrees from the time-based model alone. An alternative must beat the
+        prediction clearly (``start_margin``), so that where the scan cannot tell the
+        candidates apart (a featureless corridor) the prediction is kept."""
+        candidates = np.array([predicted, compose(previous, self._last_delta), previous])
+        grid = grid_args(self.pyramid.grids[-1], self.config.subcell_sigma)
+        facing = self._facing_of(coarse_pts)
+        costs = pose_costs(grid, coarse_pts, facing, candidates)
+        best = int(np.argmin(costs))
+        if costs[best] < (1.0 - self.config.start_margin) * costs[0]:
+            return candidates[best]
+        return predicted
+
+    def _axis_offset(self) -> tuple[FloatArray | None, float]:
+        """For the motion model's filter along the weak direction
+        (:meth:`bioslam.motion_model.ConstantVelocityModel.update`): the match's offset from
+        the motion prior (robot frame) along the direction the prior held (None unless the
+        prior held one, weighed by
+        :meth:`~bioslam.motion_model.ConstantVelocityModel.prior_information`), and the
+        scan's information along it in endpoints (its conditioning times the largest
+        eigenvalue of its point-to-line information)."""
+        report = self.last_report
+        information = report.condition * report.information
+        prior = self._axis_prior
+        if prior is None or prior[1] is None or report.recovered or not report.degenerate:
+            return None, information
+        u = translation_part(report.weakest_direction)
+        if u is None:
+            return None, information
+        # where the scan alone put the pose: the prior held back ``prior_share`` of it
+        d = between(prior[0], self.pose)
+        scale = 1.0 / max(1.0 - report.prior_share, 1e-3)
+        return u[:2] * (scale * float(u[0] * d[0] + u[1] * d[1])), information
+
+    def _mapped_constraint(
+        self, points: FloatArray, normals: FloatArray
+    ) -> tuple[float, FloatArray | None]:
+        """The conditioning and weakest direction (sensor frame) of the scan's endpoints that
+        the matched pose puts on walls the map holds (a finest cell or one of its neighbours
+        above ``mapped_logodds``): what the motion model may learn its velocity from
+        (:mod:`bioslam.motion_model`). A surface the scan sees for the first time (a
+        corridor's end coming into range) does not fix the pose against the map; counted,
+        it hid that along the corridor the pose was held by nothing but the map's edge
+        ahead. Direction None when ``mapped_logodds`` is None: the velocity is then the
+        plain measurement."""
+        c = self.config
+        if c.mapped_logodds is None:
+            return 1.0, None
+        # every other endpoint: the conditioning is a ratio, and this runs on every scan
+        return mapped_conditioning(
+            self.pyramid.finest, points[::2], normals[::2], self.pose, c.mapped_logodds,
+            c.length_scale,
+        )
