@@ -36,6 +36,36 @@ class PredictionGuards:
     config: OdometryConfig
     pyramid: MapPyramid
 
+    def _guarded_option(
+        self, level_pts: list[FloatArray], start: FloatArray, previous: FloatArray,
+        normals: FloatArray, dt: float, predicted: FloatArray,
+    ) -> tuple[FloatArray, MatchReport, bool]:
+        """Gauss-Newton from ``start`` with the motion prior, (pose, report, failed); after
+        no gap (a trusted prediction) unless it slipped, strayed from the prediction or
+        missed a reversal, and with the prior's full weight unless the map contradicts it
+        along the scan's weak direction (the ``_unless_*`` checks). Notes the prior's pose
+        and information along the weak direction for the motion model's filter."""
+        c = self.config
+        gapless = dt <= c.gap_time
+        # the prior pulls towards the motion model's prediction, never a standstill it did not
+        # predict (:meth:`_prior_target`)
+        target = self._prior_target(start, previous, predicted, gapless)
+        weight = self._prior_weight(dt)
+        information = self._motion.prior_information(dt) if gapless else None
+        self._axis_prior = (start if target is None else target, information)
+        held = information if c.weak_axis_prior else None
+        option = self._option(level_pts, start, normals, weight, target, gapless, held)
+        if gapless:
+            option = self._unless_slipped(option, level_pts, start, normals, weight, target,
+                                          held)  # fmt: skip
+            if not np.array_equal(start, predicted):
+                option = self._unless_astray(option, level_pts, predicted, normals, weight,
+                                             target, held)  # fmt: skip
+            option = self._unless_reversed(option, level_pts, previous, normals)
+        if weight > c.search_prior_weight:
+            option = self._unless_contradicted(option, level_pts, start, normals, gapless, dt)
+        return option
+
     def _unless_slipped(
         self, option: tuple[FloatArray, MatchReport, bool], level_pts: list[FloatArray],
         start: FloatArray, normals: FloatArray, weight: float, target: FloatArray | None,

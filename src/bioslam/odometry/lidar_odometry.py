@@ -36,7 +36,7 @@ from bioslam.occupancy_grid import MapPyramid, OccupancyGrid, subsample_by_spaci
 from bioslam.odometry.choice import MatchChoice
 from bioslam.odometry.guards import PredictionGuards
 from bioslam.odometry.local_map import LocalMap
-from bioslam.odometry.search import WideSearch, turned_windows
+from bioslam.odometry.search import WideSearch
 from bioslam.odometry_config import OdometryConfig
 from bioslam.scan import LaserScan
 from bioslam.step_prior import StepPrior
@@ -158,6 +158,13 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
         if not same:
             self._directions = known = (angles, np.cos(angles), np.sin(angles))
         return known[1], known[2]
+
+    def _count_searched(self, searched: bool) -> None:
+        """Remember whether this scan was searched, for :meth:`_sparse`."""
+        if len(self._searched) == self._searched.maxlen:
+            self._num_searched -= self._searched[0]
+        self._searched.append(searched)
+        self._num_searched += searched
 
     def _sparse(self) -> bool:
         """The wide-basin search ran for at least ``sparse_share`` of the recent scans (and
@@ -282,25 +289,7 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
         while none is credible (:func:`turned_windows`)."""
         c = self.config
         gapless = dt <= c.gap_time  # the start is then a trusted prediction
-        # the prior pulls towards the motion model's prediction, never a standstill it did not
-        # predict (:meth:`_prior_target`)
-        target = self._prior_target(start, previous, predicted, gapless)
-        weight = self._prior_weight(dt)
-        information = self._motion.prior_information(dt) if gapless else None
-        self._axis_prior = (start if target is None else target, information)
-        held = information if c.weak_axis_prior else None
-        options = [self._option(level_pts, start, normals, weight, target, gapless, held)]
-        if gapless:
-            options[0] = self._unless_slipped(options[0], level_pts, start, normals, weight,
-                                              target, held)  # fmt: skip
-            if not np.array_equal(start, predicted):
-                options[0] = self._unless_astray(options[0], level_pts, predicted, normals,
-                                                 weight, target, held)  # fmt: skip
-            options[0] = self._unless_reversed(options[0], level_pts, previous, normals)
-        if weight > c.search_prior_weight:
-            options[0] = self._unless_contradicted(
-                options[0], level_pts, start, normals, gapless, dt
-            )
+        options = [self._guarded_option(level_pts, start, previous, normals, dt, predicted)]
         motion: tuple[FloatArray, ...] = (start,)  # only compared when the search ran
         jump = self._jump_limits()
         # a trusted prediction's match that jumped is searched as an untrusted one is: in a
@@ -309,54 +298,12 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
             self._untrusted(options[0][2], dt, previous, start)
             or self._is_jump(options[0][0], start, jump)
         )
-        if len(self._searched) == self._searched.maxlen:
-            self._num_searched -= self._searched[0]
-        self._searched.append(searched)
-        self._num_searched += searched
+        self._count_searched(searched)
         as_sparse = self._as_sparse()
         if searched:
-            forward = compose(previous, np.array([self._typical_step, 0.0, 0.0]))
-            motion = (start, predicted, compose(previous, self._last_delta), forward)
-            if self._sparse():
-                modes = self._step_prior.modes(c.step_modes)
-                motion += tuple(compose(previous, m) for m in modes)
-            # the next level's endpoints (twice as far apart) on the search level's grid
-            points = level_pts[min(c.search_level + 1, c.levels - 1)]
-            centre, distance, angle = self._search_window(start, (previous, *motion[1:]))
-            # the typical step's window (:meth:`_typical_seeds`) searches the same pooled map
-            typical = self._typical_window(forward, distance, angle) if as_sparse else ()
-            seeds = self._search_seeds(
-                points, centre, distance, angle, options[0][0],
-                pooled_for=((centre, distance, angle), *typical),
-            )  # fmt: skip
-            lone = len(seeds) == 1
-            seeds += self._typical_seeds(points, typical, seeds)
-            options += self._weighed(level_pts, seeds, normals)
-            settled = as_sparse and lone and self._settles(
-                options[1], previous, level_pts[0], normals
+            motion = self._searched_options(
+                options, level_pts, normals, start, previous, predicted, as_sparse
             )
-            if not settled:
-                hypotheses = self._distinct_hypotheses(motion)
-                seeds += hypotheses
-                options += self._weighed(level_pts, hypotheses, normals)
-            finer = self._finer_basins(level_pts, normals, seeds, options) if as_sparse else []
-            self._weigh_walls([options[0], *finer], level_pts[0])
-            options += finer
-            if as_sparse:
-                slid = self._slid(options, forward, level_pts[0], normals)
-                options += self._weighed(level_pts, slid, normals, held=not self._step_prior.flat)
-            for k, ring in enumerate(turned_windows(c.search_angle)):
-                if (k > 0 or not all(self._hopeless(o, previous) for o in options)) and any(
-                    self._credible(o, previous) for o in options
-                ):
-                    break  # a match that only failed its score: a room turned round fits better
-                turns = [compose(previous, np.array([0.0, 0.0, a])) for a in ring]
-                both = tuple((turn, c.search_distance, c.search_angle) for turn in turns)
-                for turn in turns:  # the two windows of a ring share one pooled map
-                    seeds = self._search_seeds(
-                        points, turn, c.search_distance, c.search_angle, pooled_for=both
-                    )
-                    options += self._weighed(level_pts, seeds, normals)
         reach = (jump[0] + c.max_speed * dt, jump[1] + c.max_turn_rate * dt)
         if as_sparse and len(options) > 1:
             pose, report = self._choose_sparse(options, previous, reach, gapless)

@@ -54,6 +54,74 @@ class WideSearch:
     config: OdometryConfig
     pyramid: MapPyramid
 
+    def _searched_options(
+        self, options: list[tuple[FloatArray, MatchReport, bool]], level_pts: list[FloatArray],
+        normals: FloatArray, start: FloatArray, previous: FloatArray, predicted: FloatArray,
+        as_sparse: bool,
+    ) -> tuple[FloatArray, ...]:
+        """Add to ``options`` (the prediction's match first) the matches from the wide-basin
+        search's winner and rival, the typical step's window (on sparse scans), the motion
+        hypotheses unless the lone winner settles the step, the finer levels' basins and the
+        matches slid along a free direction (on sparse scans), and the turned windows'
+        (:meth:`_turned_options`). Returns the motion hypotheses: the start, the
+        constant-velocity prediction, the last step repeated, the typical step forward and
+        on sparse scans the step prior's typical steps."""
+        c = self.config
+        forward = compose(previous, np.array([self._typical_step, 0.0, 0.0]))
+        motion = (start, predicted, compose(previous, self._last_delta), forward)
+        if self._sparse():
+            modes = self._step_prior.modes(c.step_modes)
+            motion += tuple(compose(previous, m) for m in modes)
+        # the next level's endpoints (twice as far apart) on the search level's grid
+        points = level_pts[min(c.search_level + 1, c.levels - 1)]
+        centre, distance, angle = self._search_window(start, (previous, *motion[1:]))
+        # the typical step's window (:meth:`_typical_seeds`) searches the same pooled map
+        typical = self._typical_window(forward, distance, angle) if as_sparse else ()
+        seeds = self._search_seeds(
+            points, centre, distance, angle, options[0][0],
+            pooled_for=((centre, distance, angle), *typical),
+        )  # fmt: skip
+        lone = len(seeds) == 1
+        seeds += self._typical_seeds(points, typical, seeds)
+        options += self._weighed(level_pts, seeds, normals)
+        settled = as_sparse and lone and self._settles(
+            options[1], previous, level_pts[0], normals
+        )
+        if not settled:
+            hypotheses = self._distinct_hypotheses(motion)
+            seeds += hypotheses
+            options += self._weighed(level_pts, hypotheses, normals)
+        finer = self._finer_basins(level_pts, normals, seeds, options) if as_sparse else []
+        self._weigh_walls([options[0], *finer], level_pts[0])
+        options += finer
+        if as_sparse:
+            slid = self._slid(options, forward, level_pts[0], normals)
+            options += self._weighed(level_pts, slid, normals, held=not self._step_prior.flat)
+        self._turned_options(options, points, level_pts, normals, previous)
+        return motion
+
+    def _turned_options(
+        self, options: list[tuple[FloatArray, MatchReport, bool]], points: FloatArray,
+        level_pts: list[FloatArray], normals: FloatArray, previous: FloatArray,
+    ) -> None:
+        """Add to ``options`` the matches from the windows turned about ``2 * search_angle``
+        either way from ``previous`` while every match so far is hopeless or none credible,
+        and then from the rings further round the circle while none is credible
+        (:func:`turned_windows`)."""
+        c = self.config
+        for k, ring in enumerate(turned_windows(c.search_angle)):
+            if (k > 0 or not all(self._hopeless(o, previous) for o in options)) and any(
+                self._credible(o, previous) for o in options
+            ):
+                break  # a match that only failed its score: a room turned round fits better
+            turns = [compose(previous, np.array([0.0, 0.0, a])) for a in ring]
+            both = tuple((turn, c.search_distance, c.search_angle) for turn in turns)
+            for turn in turns:  # the two windows of a ring share one pooled map
+                seeds = self._search_seeds(
+                    points, turn, c.search_distance, c.search_angle, pooled_for=both
+                )
+                options += self._weighed(level_pts, seeds, normals)
+
     def _untrusted(self, failed: bool, dt: float, previous: FloatArray, start: FloatArray) -> bool:
         """The match failed, the scan came after a gap, the predicted step is large, or this
         is the first match: the motion model knows no velocity yet and predicts standing
