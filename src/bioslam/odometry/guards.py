@@ -39,21 +39,15 @@ class PredictionGuards:
     def _guarded_option(
         self, level_pts: list[FloatArray], start: FloatArray, previous: FloatArray,
         normals: FloatArray, dt: float, predicted: FloatArray,
+        prior: tuple[FloatArray | None, float, float | None],
     ) -> tuple[FloatArray, MatchReport, bool]:
-        """Gauss-Newton from ``start`` with the motion prior, (pose, report, failed); after
-        no gap (a trusted prediction) unless it slipped, strayed from the prediction or
-        missed a reversal, and with the prior's full weight unless the map contradicts it
-        along the scan's weak direction (the ``_unless_*`` checks). Notes the prior's pose
-        and information along the weak direction for the motion model's filter."""
-        c = self.config
-        gapless = dt <= c.gap_time
-        # the prior pulls towards the motion model's prediction, never a standstill it did not
-        # predict (:meth:`_prior_target`)
-        target = self._prior_target(start, previous, predicted, gapless)
-        weight = self._prior_weight(dt)
-        information = self._motion.prior_information(dt) if gapless else None
-        self._axis_prior = (start if target is None else target, information)
-        held = information if c.weak_axis_prior else None
+        """Gauss-Newton from ``start`` with the motion ``prior`` (its target, weight and held
+        information, :meth:`_motion_prior`), (pose, report, failed); after no gap (a trusted
+        prediction) unless it slipped, strayed from the prediction or missed a reversal, and
+        with the prior's full weight unless the map contradicts it along the scan's weak
+        direction (the ``_unless_*`` checks)."""
+        target, weight, held = prior
+        gapless = self._gapless(dt)
         option = self._option(level_pts, start, normals, weight, target, gapless, held)
         if gapless:
             option = self._unless_slipped(option, level_pts, start, normals, weight, target,
@@ -62,7 +56,7 @@ class PredictionGuards:
                 option = self._unless_astray(option, level_pts, predicted, normals, weight,
                                              target, held)  # fmt: skip
             option = self._unless_reversed(option, level_pts, previous, normals)
-        if weight > c.search_prior_weight:
+        if weight > self.config.search_prior_weight:
             option = self._unless_contradicted(option, level_pts, start, normals, gapless, dt)
         return option
 
@@ -253,30 +247,3 @@ class PredictionGuards:
         """The least quality plausible beside ``quality``: short of it by at most
         ``1 - plausible_ratio`` of its size (a quality can be negative)."""
         return quality - (1.0 - self.config.plausible_ratio) * abs(quality)
-
-    def _prior_target(
-        self, start: FloatArray, previous: FloatArray, predicted: FloatArray, gapless: bool
-    ) -> FloatArray | None:
-        """Where the motion prior pulls along a direction the scan does not constrain: the
-        constant-velocity prediction when :meth:`_best_start` chose to start from the last
-        pose (standing still scored better on the coarse level), else the start itself
-        (None). Pulled towards that standstill start, the pose stood still along an aisle
-        for seconds while the robot drove on, its slid scans were fused, and the map then
-        held it there (simulated warehouse, UTM-30LX, adversarial route: 2.3 m behind
-        after 1 s of degenerate scans). With ``sideways_noise`` the prediction also when
-        the start is the last step repeated: its turn is a better start in a spin, but its
-        slide along the corridor is no motion the model predicts. After a gap the
-        prediction is no prior."""
-        if not gapless or np.array_equal(start, predicted):
-            return None
-        if self.config.sideways_noise > 0.0 or np.array_equal(start, previous):
-            return predicted
-        return None
-
-    def _prior_weight(self, dt: float) -> float:
-        """``prior_weight`` for a scan that came without a gap, ``search_prior_weight``
-        after one: the constant-velocity prediction across a gap (a thinned log's second)
-        is no better than the last pose (intel: RPE 52 cm with the full weight, 44 cm
-        without)."""
-        c = self.config
-        return c.prior_weight if dt <= c.gap_time else c.search_prior_weight

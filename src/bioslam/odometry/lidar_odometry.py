@@ -216,7 +216,7 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
             self.pose, self.last_report = self._match(
                 level_pts, start, previous, normals, dt, predicted
             )
-            if dt <= c.gap_time and not self.last_report.overruled:
+            if self._gapless(dt) and not self.last_report.overruled:
                 # after a gap the velocity is measured afresh, and where the map overruled
                 # the motion prior, the scan measured it
                 constraint = (
@@ -288,8 +288,9 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
         ``previous`` (thinned logs turn up to 80° between scans), and on round the circle
         while none is credible (:func:`turned_windows`)."""
         c = self.config
-        gapless = dt <= c.gap_time  # the start is then a trusted prediction
-        options = [self._guarded_option(level_pts, start, previous, normals, dt, predicted)]
+        gapless = self._gapless(dt)
+        prior = self._motion_prior(start, previous, predicted, dt)
+        options = [self._guarded_option(level_pts, start, previous, normals, dt, predicted, prior)]
         motion: tuple[FloatArray, ...] = (start,)  # only compared when the search ran
         jump = self._jump_limits()
         # a trusted prediction's match that jumped is searched as an untrusted one is: in a
@@ -317,6 +318,54 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
         report.iterations = sum(option[1].iterations for option in options)
         self._remember_score(report.score, report.free_fraction)
         return pose, report
+
+    def _gapless(self, dt: float) -> bool:
+        """The scan came no later than ``gap_time`` after the last: its prediction is a
+        trusted motion prior."""
+        return dt <= self.config.gap_time
+
+    def _motion_prior(
+        self, start: FloatArray, previous: FloatArray, predicted: FloatArray, dt: float
+    ) -> tuple[FloatArray | None, float, float | None]:
+        """The motion prior of the match from ``start``: where it pulls (None: the start,
+        :meth:`_prior_target`), its weight (:meth:`_prior_weight`) and the information it
+        holds along the weak direction (with ``weak_axis_prior``). Notes its pose and its
+        predicted information there for the motion model's filter (:meth:`_axis_offset`)."""
+        gapless = self._gapless(dt)
+        # the prior pulls towards the motion model's prediction, never a standstill it did not
+        # predict (:meth:`_prior_target`)
+        target = self._prior_target(start, previous, predicted, gapless)
+        information = self._motion.prior_information(dt) if gapless else None
+        self._axis_prior = (start if target is None else target, information)
+        held = information if self.config.weak_axis_prior else None
+        return target, self._prior_weight(dt), held
+
+    def _prior_target(
+        self, start: FloatArray, previous: FloatArray, predicted: FloatArray, gapless: bool
+    ) -> FloatArray | None:
+        """Where the motion prior pulls along a direction the scan does not constrain: the
+        constant-velocity prediction when :meth:`_best_start` chose to start from the last
+        pose (standing still scored better on the coarse level), else the start itself
+        (None). Pulled towards that standstill start, the pose stood still along an aisle
+        for seconds while the robot drove on, its slid scans were fused, and the map then
+        held it there (simulated warehouse, UTM-30LX, adversarial route: 2.3 m behind
+        after 1 s of degenerate scans). With ``sideways_noise`` the prediction also when
+        the start is the last step repeated: its turn is a better start in a spin, but its
+        slide along the corridor is no motion the model predicts. After a gap the
+        prediction is no prior."""
+        if not gapless or np.array_equal(start, predicted):
+            return None
+        if self.config.sideways_noise > 0.0 or np.array_equal(start, previous):
+            return predicted
+        return None
+
+    def _prior_weight(self, dt: float) -> float:
+        """``prior_weight`` for a scan that came without a gap, ``search_prior_weight``
+        after one: the constant-velocity prediction across a gap (a thinned log's second)
+        is no better than the last pose (intel: RPE 52 cm with the full weight, 44 cm
+        without)."""
+        c = self.config
+        return c.prior_weight if self._gapless(dt) else c.search_prior_weight
 
     def _option(
         self, level_pts: list[FloatArray], start: FloatArray, normals: FloatArray,

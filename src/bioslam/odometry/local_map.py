@@ -159,7 +159,7 @@ class LocalMap:
         pose, pts, filled = self._first_fused
         self._first_fused = None
         c = self.config
-        angle = c.dense_straight_angle if dt <= c.gap_time else c.first_straight_angle
+        angle = c.dense_straight_angle if self._gapless(dt) else c.first_straight_angle
         dense, added = densify_with_mask(pts, c.resolution, NORMAL_MAX_GAP, angle, filled)
         if added.any():
             self._fuse(pose, dense[added], thinned_normals(dense)[added])

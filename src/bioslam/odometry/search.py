@@ -130,7 +130,7 @@ class WideSearch:
         c = self.config
         step = between(previous, start)
         large = math.hypot(step[0], step[1]) > c.large_step or abs(step[2]) > c.large_turn
-        return failed or dt > c.gap_time or large or self.num_scans == 2
+        return failed or not self._gapless(dt) or large or self.num_scans == 2
 
     def _search_window(
         self, start: FloatArray, hold: tuple[FloatArray, ...]
