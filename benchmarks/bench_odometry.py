@@ -10,6 +10,10 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
 - ``deskew``: the fast-turn run with and without de-skewing.
 - ``shortrange``: the URG-04LX preset (240°, 5.6 m) on three 60 s routes, beside the same
   sensor with a 30 m range and with a 360° field of view.
+- ``shortrangeseeds``: the URG-04LX on the maze's 600 s tour, seeds 1-12, the hall's, rooms'
+  and warehouse's tour (seed 7), and 300 s of the maze's and hall's adversarial and
+  reversing routes (seed 8): where a corridor longer than the range is driven on the motion
+  model and the few endpoints at its doors and ends.
 - ``corridor``: corridors longer than the range, where only the motion model carries the
   pose: the URG-04LX out and back along a closed 24 m corridor (a door niche near each end,
   0.3 m off the centre-line), and the SICK preset along an 80 m corridor with a door every
@@ -573,6 +577,21 @@ def main() -> None:
             sim_case(f"urg04lx {label} seed {seed}", model, 60.0, seed=seed)
             for label, model in short_range_models()
             for seed in range(3)
+        ],
+        "shortrangeseeds": lambda: [
+            sim_case(f"{world} {route} urg04lx, {length:.0f} s, seed {seed}",
+                     LIDAR_PRESETS["urg04lx"], length, seed=seed, world=world, route=route)
+            for world, route, length, seeds in (
+                ("maze", "tour", duration, range(1, 13)),
+                ("hall", "tour", duration, (7,)),
+                ("rooms", "tour", duration, (7,)),
+                ("warehouse", "tour", duration, (7,)),
+                ("maze", "adversarial", duration / 2, (8,)),
+                ("maze", "reversing", duration / 2, (8,)),
+                ("hall", "adversarial", duration / 2, (8,)),
+                ("hall", "reversing", duration / 2, (8,)),
+            )
+            for seed in seeds
         ],
         "corridor": lambda: [closed_corridor_case(), doors_corridor_case()],
         "thinned": lambda: [
