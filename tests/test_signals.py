@@ -127,3 +127,32 @@ def test_an_interrupt_wrapped_by_python_is_still_an_interrupt() -> None:
     with pytest.raises(ValueError), signals.interruptible():
         raise ValueError("not a signal")
     assert signals.wrapped_interrupt(RuntimeError("plain")) is None
+
+
+def test_a_signal_inside_an_atomic_step_is_raised_when_the_step_ends():
+    """A scan's update is finished before the run stops: the signal that arrives in it is
+    raised after its last line, and the loop runs no further step."""
+    done: list[int] = []
+    with (
+        signals.installed(), pytest.raises(signals.Interrupted) as stopped,
+        signals.interruptible(),
+    ):
+        for step in range(3):
+            with signals.atomic():
+                if step == 1:
+                    signal.raise_signal(signal.SIGTERM)
+                done.append(step)
+    assert done == [0, 1]
+    assert stopped.value.exit_code == 143
+
+
+def test_outside_an_atomic_step_a_signal_still_stops_the_loop_at_once():
+    done: list[int] = []
+    with signals.installed(), pytest.raises(signals.Interrupted), signals.interruptible():
+        for step in range(3):
+            with signals.atomic():
+                done.append(step)
+            if step == 0:
+                signal.raise_signal(signal.SIGINT)
+                done.append(-1)  # not reached
+    assert done == [0]

@@ -484,27 +484,38 @@ def _feed(
     bar: tqdm,
     observer: ScanObserver | None,
 ) -> None:
-    """The scan loop of :func:`run_slam`: process, time, keep keyframes and snapshots."""
+    """The scan loop of :func:`run_slam`: process, time, keep keyframes and snapshots. A
+    signal stops it between scans (:func:`bioslam.signals.atomic`), never inside one."""
     for scan in scans:
-        t0 = time.thread_time()
-        pose = system.process(scan)
-        result.scan_seconds.append(time.thread_time() - t0)
-        if result.first_stamp is None:
-            result.first_stamp = scan.stamp
-        result.last_stamp = scan.stamp
-        odo_pose = system.self_motion.pose
-        if result.keyframes.wants(odo_pose):
-            points = thin_points(scan.endpoints(), options.map_point_spacing)
-            result.keyframes.add(system.num_scans - 1, points, odo_pose)
-        while pending_snapshots and scan.stamp - result.first_stamp >= pending_snapshots[0]:
-            if isinstance(system, BioSLAM):
-                result.snapshots.append(cognitive_map_snapshot(system, pending_snapshots[0]))
-            pending_snapshots.pop(0)
+        with signals.atomic():
+            pose = _step(scan, system, result, options, pending_snapshots)
         if observer is not None:
             observer(scan, pose, system)
         if options.trim_every > 0 and system.num_scans % options.trim_every == 0:
             release_free_memory()
         bar.update(1)
+
+
+def _step(
+    scan: LaserScan, system: BioSLAM | OdometryOnly, result: RunResult, options: RunOptions,
+    pending_snapshots: list[float],
+) -> Pose2D:
+    """One scan of :func:`_feed`: processed and timed, its keyframe and snapshots kept."""
+    t0 = time.thread_time()
+    pose = system.process(scan)
+    result.scan_seconds.append(time.thread_time() - t0)
+    if result.first_stamp is None:
+        result.first_stamp = scan.stamp
+    result.last_stamp = scan.stamp
+    odo_pose = system.self_motion.pose
+    if result.keyframes.wants(odo_pose):
+        points = thin_points(scan.endpoints(), options.map_point_spacing)
+        result.keyframes.add(system.num_scans - 1, points, odo_pose)
+    while pending_snapshots and scan.stamp - result.first_stamp >= pending_snapshots[0]:
+        if isinstance(system, BioSLAM):
+            result.snapshots.append(cognitive_map_snapshot(system, pending_snapshots[0]))
+        pending_snapshots.pop(0)
+    return pose
 
 
 def render_map(

@@ -5,8 +5,9 @@ command installs :func:`installed` handlers; from then on a signal either raises
 :class:`Interrupted` (inside an :func:`interruptible` section: start-up, the scan loop, the
 figures, which are safe to abandon) or is only recorded (inside a :func:`protected` section:
 writing the trajectories and the summary, which must be whole) and raised at the start of the
-next interruptible section. :func:`received` tells what arrived, so that the command can mark
-its summary ``"interrupted": true`` and exit with ``128 + signal number`` (130, 143).
+next interruptible section, or at the end of an :func:`atomic` step inside one (a scan).
+:func:`received` tells what arrived, so that the command can mark its summary
+``"interrupted": true`` and exit with ``128 + signal number`` (130, 143).
 
 Without installed handlers (library use) the sections change nothing: Ctrl-C raises
 ``KeyboardInterrupt`` as Python does by default.
@@ -149,15 +150,32 @@ def protected() -> Iterator[None]:
 
 
 @contextlib.contextmanager
+def atomic() -> Iterator[None]:
+    """Inside an interruptible section, a step that must not be left half done (one scan's
+    update of the odometry, the pose cells and the map): a signal arriving in the block is
+    raised when it ends. Cut short, an experience appended to some of the map's columns and
+    not the others failed the map's writing after the run (index 9 of 9 stamps)."""
+    with protected():
+        yield
+    if not _State.protected:
+        _raise_pending()
+
+
+def _raise_pending() -> None:
+    """Raise the signal recorded during a protected block and not acted on yet."""
+    if _State.pending and _State.installed and _State.received is not None:
+        _State.pending = False
+        raise Interrupted(_State.received)
+
+
+@contextlib.contextmanager
 def interruptible() -> Iterator[None]:
     """Signals raise :class:`Interrupted` inside the block, including one recorded before it
     that was not acted on yet (it arrived during a protected write)."""
     saved = _State.protected
     _State.protected = 0
     try:
-        if _State.pending and _State.installed and _State.received is not None:
-            _State.pending = False
-            raise Interrupted(_State.received)
+        _raise_pending()
         try:
             yield
         except Exception as exc:
