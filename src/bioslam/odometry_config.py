@@ -172,7 +172,7 @@ class OdometryConfig:
             the pose 0.1-0.25 m back along a corridor and the speed measured from it turned
             the robot round (URG-04LX, maze, 10 Hz, tour: every such overrule on three of six
             seeds, ATE 0.7-3.4 m; ``benchmarks/README.md``, "Stray endpoints"). The price:
-            a robot backing up along a corridor is seen to by fewer endpoints, later.
+            a robot backing up along a corridor is noticed later, when more endpoints say so.
         rival_ratio: the search's rival is matched only if it scores at least this fraction
             of the winner on the search's grid.
         jump_distance, jump_angle, overwhelming_ratio: a match farther than this from the
