@@ -152,10 +152,12 @@ class PredictionGuards:
         match is repeated with the weak prior of a search's seed, and if the prior's match is
         not plausible beside it (``plausible_ratio`` of its quality) or that match explains
         the contradiction away (:meth:`_contradiction_explained`), the scan's evidence along
-        that direction wins (``MatchReport.overruled``). Where the weak prior's match stays
-        with the prior (on a plateau Gauss-Newton does not move), the match from the pose
-        along the weak direction that leaves the fewest endpoints in free space
-        (:meth:`_slid_out_of_free_space`) is weighed instead."""
+        that direction wins (``MatchReport.overruled``), as far as the robot can have moved
+        against the prediction since the last scan (:meth:`_overrules`). Where the weak
+        prior's match stays with the prior (on a plateau Gauss-Newton does not move) or went
+        beyond that reach, the match from the pose along the weak direction that leaves the
+        fewest endpoints in free space (:meth:`_slid_out_of_free_space`) is weighed
+        instead."""
         report = option[1]
         if not report.degenerate or report.free_fraction <= 0.0:
             return option
