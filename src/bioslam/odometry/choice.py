@@ -25,7 +25,7 @@ def match_quality(report: MatchReport) -> float:
     return report.score - report.free_fraction - report.through_fraction
 
 
-def _off_line(
+def off_line(
     pose: FloatArray, origin: FloatArray, direction: FloatArray, length_scale: float
 ) -> float:
     """How far ``pose`` lies from the line through ``origin`` along ``direction`` (unit,
@@ -255,7 +255,7 @@ class MatchChoice:
             if self._distinct(pose, chosen[0]):
                 return False
             drop = q - quality[id(option)]
-            return drop <= c.plateau_slope * separation(pose, chosen[0])[0] and _off_line(
+            return drop <= c.plateau_slope * separation(pose, chosen[0])[0] and off_line(
                 pose, chosen[0], report.degenerate_direction, c.length_scale
             ) <= 2.0 * c.resolution
 

@@ -19,7 +19,7 @@ from bioslam.geometry import compose, inverse
 from bioslam.matching.gauss_newton import FloatArray, MatchReport, levels_up_to
 from bioslam.motion_model import translation_part
 from bioslam.occupancy_grid import MapPyramid
-from bioslam.odometry.choice import match_quality
+from bioslam.odometry.choice import match_quality, off_line
 from bioslam.odometry_config import OdometryConfig
 
 
@@ -176,10 +176,17 @@ class PredictionGuards:
         unless_plausible: bool = False,
     ) -> bool:
         """Whether ``alternative`` replaces the motion prior's contradicted ``option``: it lies
-        within a scan's reach of it (:meth:`_within_reach`) and explains the contradiction
-        away (:meth:`_contradiction_explained`), or, ``unless_plausible``, the prior's match
-        is not plausible beside it."""
+        within a scan's reach of it (:meth:`_within_reach`), along the direction the scan does
+        not constrain (within a finest cell of that line: the scan's evidence wins there only;
+        an overrule 0.25 m back and 2.3° round, whose speed the corridor carried, lost the
+        URG-04LX maze tour seed 12, ATE 99.6 -> 35.2 cm), and explains the contradiction away
+        (:meth:`_contradiction_explained`), or, ``unless_plausible``, the prior's match is not
+        plausible beside it."""
         if not self._within_reach(option[0], alternative[0], dt):
+            return False
+        direction = option[1].degenerate_direction
+        c = self.config
+        if off_line(alternative[0], option[0], direction, c.length_scale) > c.resolution:
             return False
         if unless_plausible and not self._plausible_beside(option[1], alternative[1]):
             return True
