@@ -197,8 +197,8 @@ class PredictionGuards:
         normals: FloatArray, dt: float,
     ) -> tuple[FloatArray, MatchReport, bool] | None:
         """Gauss-Newton from the pose along the contradicted match's weak direction, within
-        what the robot can have moved against the prediction since the last scan (its
-        speed plus ``max_speed``, times ``dt``; finest cells apart), whose endpoints fit best
+        what the robot can have moved against the prediction since the last scan
+        (:meth:`_weak_reach`; finest cells apart), whose endpoints fit best
         less their share in known free space; None where that is the match's own pose or
         the match is not contradicted (:meth:`_contradicted`). Along an aisle longer than
         the range the map function is flat where the prior put the pose, and a descent from
@@ -265,7 +265,7 @@ class PredictionGuards:
         """Whether ``alternative`` explains away a contradiction of the motion prior along
         the scan's weak direction: the prior's ``option`` is contradicted
         (:meth:`_contradicted`), and ``alternative`` did not fail, fitted better
-        (:func:`_match_quality`) and put no more of its endpoints in known free space than
+        (:func:`.match_quality`) and put no more of its endpoints in known free space than
         is typical, or fewer than ``contradiction_points`` and at most half the prior's (in
         a clean world none is typical: a robot speeding up from 0.65 to 1.2 m/s along an
         aisle, the weak prior's match right with 1-2 stray endpoints against the prior's
@@ -286,7 +286,7 @@ class PredictionGuards:
         )
 
     def _plausible_beside(self, report: MatchReport, other: MatchReport) -> bool:
-        """A match whose quality (:func:`_match_quality`) falls short of ``other``'s by at
+        """A match whose quality (:func:`.match_quality`) falls short of ``other``'s by at
         most ``1 - plausible_ratio`` of its size."""
         return match_quality(report) >= self._plausible_floor(match_quality(other))
 
