@@ -7,9 +7,11 @@ import math
 import numpy as np
 import pytest
 
+from bioslam.matching.deskew import se2_exp
 from bioslam.step_prior import (
     StepPrior,
     StepPriorConfig,
+    arc_length,
     driven_backwards,
     heading_cone_offset,
 )
@@ -325,3 +327,26 @@ def test_a_step_unlike_the_few_known_costs_when_not_young():
     worst = -math.log(prior.config.floor)
     assert prior.cost((0.0, 0.0, 0.0), young=False) == pytest.approx(worst, abs=0.01)
     assert prior.cost((1.0, 0.0, 0.0), young=False) < 0.05 * worst
+
+
+@pytest.mark.parametrize(
+    "twist", [(1.0, 0.0, 1.2), (0.7, 0.0, -0.5), (-1.0, 0.0, 0.3), (0.4, 0.0, 0.0)]
+)
+def test_a_step_driven_along_an_arc_has_that_arc_s_length(twist):
+    assert arc_length(se2_exp(twist)) == pytest.approx(abs(twist[0]), abs=1e-12)
+
+
+def test_a_robot_turning_on_the_spot_goes_nowhere_while_it_turns():
+    """Steps of a metre straight on and turns of 0.6 rad on the spot (a log thinned by
+    distance or angle): a turn as wide goes no path; one that turns while it drives a metre
+    goes a metre; none is known for a turn while only straight steps are."""
+    prior = StepPrior()
+    for k in range(20):
+        prior.add((1.0, 0.01 * (k % 3), 0.01))
+    assert prior.turning_length(0.8) is None
+    for k in range(10):
+        prior.add((0.02, 0.0, 0.6 * (-1) ** k))
+    assert prior.turning_length(-0.7) == pytest.approx(0.02, abs=1e-3)
+    for _ in range(15):
+        prior.add(se2_exp((1.0, 0.0, 0.9)))
+    assert prior.turning_length(1.0) == pytest.approx(1.0, abs=1e-9)

@@ -152,6 +152,19 @@ def heading_cone_offset(step: ArrayLike, reverse: bool = False) -> float:
     return _forward_cone_offset(-dx, -dy, turn) if reverse else _forward_cone_offset(dx, dy, turn)
 
 
+def arc_length(step: ArrayLike) -> float:
+    """The length of the circular arc, tangent to the start heading, that a step (dx, dy,
+    dθ) follows driven at a constant speed and turn rate (the translation of its constant
+    body twist, :func:`bioslam.matching.deskew.se2_log`), forwards or backwards: the path a
+    wheeled robot covers with that step."""
+    dx, dy, turn = np.asarray(step, dtype=np.float64).reshape(3).tolist()
+    if abs(turn) < 1e-9:
+        return math.hypot(dx, dy)
+    a = math.sin(turn) / turn
+    b = (1.0 - math.cos(turn)) / turn
+    return math.hypot(a * dx + b * dy, -b * dx + a * dy) / (a * a + b * b)
+
+
 def driven_backwards(steps: np.ndarray) -> np.ndarray:
     """Each step (dx, dy, dθ; (..., 3)) as the robot would take it backing up: (-dx, dy,
     -dθ), the unicycle's motion with both its speed and its turn rate negated (the path
@@ -339,6 +352,20 @@ class StepPrior:
                 float(np.max(np.abs(steps[:, 2]))),
             )
         return self._extent
+
+    def turning_length(self, turn: float) -> float | None:
+        """The median path length (:func:`arc_length`) of the recent steps that turned at
+        least half as far as ``turn`` (radians) either way: how far the robot goes while it
+        turns that much (about nothing for one that turns on the spot, a metre for one
+        thinned to a scan per metre that turns while it drives). None while no such step is
+        known."""
+        if not self._steps:
+            return None
+        steps = self._history()
+        turning = steps[np.abs(steps[:, 2]) >= 0.5 * abs(turn)]
+        if len(turning) == 0:
+            return None
+        return float(np.median([arc_length(step) for step in turning]))
 
     def modes(self, count: int) -> list[np.ndarray]:
         """Up to ``count`` typical steps: the recent steps of highest density, each more
