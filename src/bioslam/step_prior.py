@@ -197,6 +197,7 @@ class StepPrior:
         # the recent steps and the same driven backwards, (2, n, 3), made once per new step
         self._array: np.ndarray | None = None
         self._extent: tuple[float, float] | None = None
+        self._lengths: np.ndarray | None = None  # :meth:`_path_lengths`
         # the kernel between every two recent steps, grown a row and a column a step, for
         # :meth:`modes` (all of them anew cost a thinned log's scan 0.25 ms)
         self._pairs = np.zeros((0, 0))
@@ -229,6 +230,7 @@ class StepPrior:
         self._steps.append((dx, dy, dth))
         self._array = None
         self._extent = None
+        self._lengths = None
         self._costs.clear()
         c = self.config
         kept = self._pairs[1:, 1:] if full else self._pairs
@@ -361,11 +363,16 @@ class StepPrior:
         known."""
         if not self._steps:
             return None
-        steps = self._history()
-        turning = steps[np.abs(steps[:, 2]) >= 0.5 * abs(turn)]
-        if len(turning) == 0:
+        turning = np.abs(self._history()[:, 2]) >= 0.5 * abs(turn)
+        if not turning.any():
             return None
-        return float(np.median([arc_length(step) for step in turning]))
+        return float(np.median(self._path_lengths()[turning]))
+
+    def _path_lengths(self) -> np.ndarray:
+        """The recent steps' :func:`arc_length`, (n,), made once per new step."""
+        if self._lengths is None:
+            self._lengths = np.array([arc_length(step) for step in self._history()])
+        return self._lengths
 
     def modes(self, count: int) -> list[np.ndarray]:
         """Up to ``count`` typical steps: the recent steps of highest density, each more
