@@ -276,7 +276,8 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
         its rival and from the other motion hypotheses (the constant-velocity prediction,
         the last step repeated, the typical step straight on: after a turn on the spot in
         a log thinned to a scan per metre the first two say "turning", the last "a metre
-        on"; on sparse scans also the step prior's typical steps, the searches' seeds and the
+        on"; on sparse scans also the step prior's typical steps, the arc to the winner's
+        heading, :meth:`_arc_seeds`, the searches' seeds and the
         hypotheses on the finer levels alone, :meth:`_finer_basins`, and each match its
         scan leaves free along a corridor slid there, :meth:`_slid`; the motion hypotheses not
         where the search's lone winner settles the step, :meth:`_settles`), keeping the plausible

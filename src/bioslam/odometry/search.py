@@ -61,7 +61,8 @@ class WideSearch:
         as_sparse: bool,
     ) -> tuple[FloatArray, ...]:
         """Add to ``options`` (the prediction's match first) the matches from the wide-basin
-        search's winner and rival, the typical step's window (on sparse scans), the motion
+        search's winner and rival, the typical step's window and the arc to the winner's
+        heading (on sparse scans, :meth:`_arc_seeds`), the motion
         hypotheses unless the lone winner settles the step, the finer levels' basins and the
         matches slid along a free direction (on sparse scans), and the turned windows'
         (:meth:`_turned_options`). Returns the motion hypotheses: the start, the
@@ -110,7 +111,8 @@ class WideSearch:
         """Add to ``options`` the matches from the windows turned about ``2 * search_angle``
         either way from ``previous`` while every match so far is hopeless or none credible,
         and then from the rings further round the circle while none is credible
-        (:func:`turned_windows`)."""
+        (:func:`turned_windows`); on sparse scans also from the arc to each window's winner's
+        heading (:meth:`_arc_seeds`)."""
         c = self.config
         for k, ring in enumerate(turned_windows(c.search_angle)):
             if (k > 0 or not all(self._hopeless(o, previous) for o in options)) and any(
