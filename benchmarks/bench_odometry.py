@@ -197,6 +197,19 @@ def sim_case(name, lidar, duration, config=None, fast_turns=False, obstacles=(),
     :data:`bioslam.sim.ROUTES` (``adversarial``: weaving off the centre-lines, turning back,
     spinning on the spot, then driving fast); ``start_offset``, ``from_origin``: see
     :func:`run_odometry`."""
+    scans = simulated_scans(world, lidar, duration, seed, route, thin, fast_turns, obstacles)
+    scans = itertools.islice(scans, 0, None, every)
+    est, gt, ms, extra = run_odometry(scans, config, start_offset=start_offset,
+                                      from_origin=from_origin)
+    return summary(name, est, gt, ms, extra)
+
+
+def simulated_scans(world, lidar, duration, seed=0, route="tour", thin=None, fast_turns=False,
+                    obstacles=()):  # fmt: skip
+    """The (scan, true pose) pairs of a simulated run of :func:`sim_case`: ``world`` a name
+    for :func:`bioslam.sim.load_world`, ``route`` ``"tour"`` or one of
+    :data:`bioslam.sim.ROUTES`, ``thin=(metres, radians)`` a scan per distance or angle
+    travelled along the true path."""
     world = load_world(world)
     if route == "tour":
         route = make_route(world, duration=duration, seed=seed, fast_turns=fast_turns)
@@ -204,14 +217,11 @@ def sim_case(name, lidar, duration, config=None, fast_turns=False, obstacles=(),
         route = ROUTES[route](world, duration=duration, seed=seed)
     obstacles = obstacles(route) if callable(obstacles) else obstacles
     scans = simulate_scans(world, lidar, route, seed=seed, obstacles=obstacles)
-    if thin is not None:
-        items = list(scans)
-        keep = thin_indices(np.array([true for _, true in items]), *thin)
-        scans = iter([items[k] for k in keep])
-    scans = itertools.islice(scans, 0, None, every)
-    est, gt, ms, extra = run_odometry(scans, config, start_offset=start_offset,
-                                      from_origin=from_origin)
-    return summary(name, est, gt, ms, extra)
+    if thin is None:
+        return scans
+    items = list(scans)
+    keep = thin_indices(np.array([true for _, true in items]), *thin)
+    return iter([items[k] for k in keep])
 
 
 @functools.cache

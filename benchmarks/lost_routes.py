@@ -24,13 +24,12 @@ import re
 from dataclasses import dataclass
 
 import numpy as np
-from bench_odometry import office_world
+from bench_odometry import office_world, simulated_scans
 
 from bioslam.geometry import between
 from bioslam.odometry import LidarOdometry
 from bioslam.odometry.choice import match_quality
-from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world, make_route, simulate_scans
-from bioslam.thinning import thin_indices
+from bioslam.sim import LIDAR_PRESETS
 
 #: A thinned simulated route's name as ``bench_odometry.py`` prints it.
 ROUTE_NAME = re.compile(
@@ -86,16 +85,12 @@ def route_scans(name: str, duration: float) -> list[tuple]:
     m = ROUTE_NAME.match(name)
     if m is None:
         raise ValueError(f"not a thinned simulated route: {name!r}")
-    seed = int(m["seed"])
-    world = load_world(office_world() if m["world"] == "office" else m["world"])
-    if m["route"] == "tour":
-        route = make_route(world, duration=duration, seed=seed)
-    else:
-        route = ROUTES[m["route"]](world, duration=duration, seed=seed)
-    items = list(simulate_scans(world, LIDAR_PRESETS[m["lidar"]], route, seed=seed))
-    angle = float(m["angle"]) if m["angle"] else None
-    keep = thin_indices(np.array([t for _, t in items]), float(m["distance"]), angle)
-    return [(items[k][0], np.asarray(items[k][1], dtype=float)) for k in keep]
+    world = office_world() if m["world"] == "office" else m["world"]
+    thin = (float(m["distance"]), float(m["angle"]) if m["angle"] else None)
+    items = simulated_scans(
+        world, LIDAR_PRESETS[m["lidar"]], duration, int(m["seed"]), m["route"], thin
+    )
+    return [(scan, np.asarray(truth, dtype=float)) for scan, truth in items]
 
 
 def next_quality(before: WatchedOdometry, items: list[tuple], k: int, n: int, keep_true: bool):

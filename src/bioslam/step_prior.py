@@ -53,6 +53,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from bioslam.compiled import wrap_scalar
+from bioslam.matching.deskew import se2_log
 
 #: :meth:`StepPrior.cost`'s remembered costs at most (a scan asks for a few tens).
 _MAX_COSTS = 4096
@@ -157,12 +158,8 @@ def arc_length(step: ArrayLike) -> float:
     dθ) follows driven at a constant speed and turn rate (the translation of its constant
     body twist, :func:`bioslam.matching.deskew.se2_log`), forwards or backwards: the path a
     wheeled robot covers with that step."""
-    dx, dy, turn = np.asarray(step, dtype=np.float64).reshape(3).tolist()
-    if abs(turn) < 1e-9:
-        return math.hypot(dx, dy)
-    a = math.sin(turn) / turn
-    b = (1.0 - math.cos(turn)) / turn
-    return math.hypot(a * dx + b * dy, -b * dx + a * dy) / (a * a + b * b)
+    vx, vy, _ = se2_log(step)
+    return math.hypot(vx, vy)
 
 
 def driven_backwards(steps: np.ndarray) -> np.ndarray:

@@ -234,14 +234,15 @@ class WideSearch:
         them). Thinned battery (``benchmarks/README.md``, "A corner's arc"): 39 of 218
         routes lost, 37 with the arcs.
         """
-        turn = wrap_angle(float(seed[2] - previous[2]))
-        turning = self._step_prior.turning_length(turn)
         length = self._typical_step
-        if length <= 0.0 or (turning is not None and turning < 0.5 * length):
+        if length <= 0.0:
             return []
+        turn = wrap_angle(float(seed[2] - previous[2]))
         arc = compose(previous, se2_exp((length, 0.0, turn)))
-        forward = compose(previous, np.array([length, 0.0, 0.0]))
-        if not self._distinct(arc, forward):
+        if not self._distinct(arc, compose(previous, np.array([length, 0.0, 0.0]))):
+            return []  # the cheap test first: it rules out most scans' arcs
+        turning = self._step_prior.turning_length(turn)
+        if turning is not None and turning < 0.5 * length:
             return []
         return [arc] if all(self._different_start(arc, k) for k in known) else []
 
