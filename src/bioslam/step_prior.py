@@ -194,6 +194,9 @@ class StepPrior:
         # the recent steps and the same driven backwards, (2, n, 3), made once per new step
         self._array: np.ndarray | None = None
         self._extent: tuple[float, float] | None = None
+        # each recent step's :func:`arc_length`, made once as it comes (all of them anew
+        # for every new step cost a thinned log's scan a twentieth)
+        self._arcs: deque[float] = deque(maxlen=self.config.window)
         self._lengths: np.ndarray | None = None  # :meth:`_path_lengths`
         # the kernel between every two recent steps, grown a row and a column a step, for
         # :meth:`modes` (all of them anew cost a thinned log's scan 0.25 ms)
@@ -225,6 +228,7 @@ class StepPrior:
         dx, dy, dth = (float(v) for v in np.asarray(step, dtype=np.float64).reshape(3))
         full = len(self._steps) == self._steps.maxlen
         self._steps.append((dx, dy, dth))
+        self._arcs.append(arc_length((dx, dy, dth)))
         self._array = None
         self._extent = None
         self._lengths = None
@@ -366,9 +370,9 @@ class StepPrior:
         return float(np.median(self._path_lengths()[turning]))
 
     def _path_lengths(self) -> np.ndarray:
-        """The recent steps' :func:`arc_length`, (n,), made once per new step."""
+        """The recent steps' :func:`arc_length`, (n,)."""
         if self._lengths is None:
-            self._lengths = np.array([arc_length(step) for step in self._history()])
+            self._lengths = np.array(self._arcs)
         return self._lengths
 
     def modes(self, count: int) -> list[np.ndarray]:
