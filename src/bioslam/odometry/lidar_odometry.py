@@ -88,6 +88,7 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
         self._typical_miss = (0.0, 0.0)
         self._typical_step = 0.0
         self._typical_score = 0.0
+        self._after_gap = False  # the scan being matched came after ``gap_time``
         # the matches' shares of endpoints in known free space, and their median
         self._frees: deque[float] = deque(maxlen=self.config.score_window)
         self._typical_free = 0.0
@@ -290,6 +291,7 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
         while none is credible (:func:`turned_windows`)."""
         c = self.config
         gapless = self._gapless(dt)
+        self._after_gap = not gapless
         prior = self._motion_prior(start, previous, predicted, dt)
         options = [self._guarded_option(level_pts, start, previous, normals, dt, predicted, prior)]
         motion: tuple[FloatArray, ...] = (start,)  # only compared when the search ran
