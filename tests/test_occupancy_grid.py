@@ -1,7 +1,9 @@
+import math
+
 import numpy as np
 import pytest
 
-from bioslam.occupancy_grid import MapPyramid, OccupancyGrid
+from bioslam.occupancy_grid import MapPyramid, OccupancyGrid, edge_twins
 
 
 def _wall_scan(x_wall: float, n: int = 181, half_width: float = 1.5) -> np.ndarray:
@@ -270,3 +272,46 @@ def test_a_scan_fused_without_rays_has_the_same_map_function_and_no_free_cell(se
             np.testing.assert_array_equal(a, b)
         assert (full.logodds < 0).any() and not (bare.logodds < 0).any()
         np.testing.assert_array_equal(bare.logodds > 0, full.logodds > 0)
+
+
+def test_edge_twins_hold_a_wall_along_a_cell_edge_in_the_cells_on_both_sides():
+    """A wall along a cell edge (y = 1.0 on a 5 cm grid), its endpoints 4 mm either side of
+    it: each is copied just across the edge, so every cell along the wall on both sides is
+    hit; a point 1 cm from an edge gets a twin across it, one 2 cm from the nearer edge (in
+    the middle half of its cell) none, nor one on a surface facing 45° off both axes."""
+    xs = np.arange(0.0, 1.0, 0.05) + 0.025
+    ys = 1.0 + np.where(np.arange(xs.size) % 2 == 0, 0.004, -0.004)
+    world = np.column_stack([xs, ys])
+    normals = np.tile([0.0, -1.0], (xs.size, 1))
+    twins, twin_normals = edge_twins(world, normals, np.zeros(2), 0.05)
+    assert twins.shape == world.shape
+    np.testing.assert_allclose(twins[:, 0], xs)
+    assert np.all(np.sign(twins[:, 1] - 1.0) == -np.sign(ys - 1.0))  # across the edge
+    assert np.all(np.abs(twins[:, 1] - 1.0) <= 0.0011)
+    np.testing.assert_array_equal(twin_normals, normals)
+    rows = {int(np.floor(y / 0.05)) for y in np.concatenate([ys, twins[:, 1]])}
+    assert rows == {19, 20}
+    up = np.array([[0.0, 1.0]])
+    near, _ = edge_twins(np.array([[0.3, 0.51]]), up, np.zeros(2), 0.05)
+    assert near.shape == (1, 2) and np.floor(near[0, 1] / 0.05) == 9  # 0.51: row 10
+    mid, _ = edge_twins(np.array([[0.3, 0.52]]), up, np.zeros(2), 0.05)
+    assert mid.shape == (0, 2)
+    diagonal = np.array([[math.sqrt(0.5), math.sqrt(0.5)]])
+    none, _ = edge_twins(np.array([[0.3, 0.5]]), diagonal, np.zeros(2), 0.05)
+    assert none.shape == (0, 2)
+
+
+def test_edge_twins_are_fused_as_hits_without_rays():
+    """A grid's twins of a wall seen from 2 m: the wall's cells on the far side of its edge
+    become occupied too; no cell the first scan left unknown is marked free by them."""
+    grid = OccupancyGrid(0.05, (4.0, 4.0), origin=(-2.0, -2.0))
+    ys = np.linspace(-0.5, 0.5, 41)
+    wall = np.column_stack([np.full(ys.size, 1.004), ys])  # 4 mm past the edge at x = 1.0
+    normals = np.tile([-1.0, 0.0], (ys.size, 1))
+    grid.insert_scan((0.0, 0.0, 0.0), wall, normals=normals)
+    before = grid.logodds.copy()
+    grid.insert_edge_twins((0.0, 0.0, 0.0), wall, normals)
+    col = int(np.floor((1.0 - 0.01 + 2.0) / 0.05))  # the column just short of the edge
+    rows = np.floor((ys + 2.0) / 0.05).astype(int)
+    assert np.all(before[rows, col] <= 0.0) and np.all(grid.logodds[rows, col] > 0.0)
+    assert np.all(grid.logodds[before == 0.0] >= 0.0)

@@ -337,6 +337,42 @@ def subsample_by_spacing(pts, spacing):
     return keep
 
 
+# A surface counts as running along a grid axis when its normal is within 45° of the other.
+_AXIS_FACING = math.cos(math.pi / 4)
+# Surface points within this fraction of a cell of a cell edge get a twin across it: range
+# noise of 1-3 cm spreads a wall's hits over both sides of an edge that near, and the twin,
+# on the edge, stays that close to the measured wall.
+_EDGE_BAND = 0.25
+# How far past a cell edge a twin is put (metres): inside the neighbour, not on the edge.
+_TWIN_MARGIN = 1e-3
+
+
+def edge_twins(
+    world: FloatArray, world_normals: FloatArray, origin: FloatArray, resolution: float
+) -> tuple[FloatArray, FloatArray]:
+    """Copies of surface points ``world`` (grid frame, with their unit ``world_normals``)
+    that lie within a quarter cell of a cell edge across their surface (the axis the
+    surface faces: its normal within 45° of it), moved just across that edge, and their
+    normals: the cells either side of the edge then both hold the surface. Range noise
+    spreads the hits of a wall that runs along an edge over both sides of it only over many
+    scans; one scan holds it on one side or the other, where each beam happened to land,
+    and another scan's endpoints on it score by that pattern (:func:`subcell_point` blends
+    the four cells around a point)."""
+    moved, normals = [], []
+    for axis in (0, 1):
+        facing = np.abs(world_normals[:, axis]) > _AXIS_FACING
+        u = (world[facing, axis] - origin[axis]) / resolution
+        frac = u - np.floor(u)
+        near = np.minimum(frac, 1.0 - frac) <= _EDGE_BAND
+        shift = np.where(frac < 0.5, -frac * resolution - _TWIN_MARGIN,
+                         (1.0 - frac) * resolution + _TWIN_MARGIN)  # fmt: skip
+        twins = world[facing][near]
+        twins[:, axis] += shift[near]
+        moved.append(twins)
+        normals.append(world_normals[facing][near])
+    return np.vstack(moved), np.vstack(normals)
+
+
 def thinned_normals(
     points: FloatArray, keep: NDArray[np.bool_] | None = None, spacing: float = 0.05
 ) -> FloatArray:
@@ -686,6 +722,22 @@ class OccupancyGrid:
             world_normals, u.l_hit, u.l_miss, u.l_min, u.l_max, u.mean_memory, self.subcell,
             rays,
         )  # fmt: skip
+
+    def insert_edge_twins(self, pose: ArrayLike, endpoints: ArrayLike, normals: ArrayLike) -> None:
+        """Fuse, as hits without rays, the :func:`edge_twins` of sensor-frame ``endpoints``
+        on surfaces (sensor-frame unit ``normals``) seen from ``pose``: the walls a lone scan
+        holds, in the cells on both sides of the cell edges they run along."""
+        pose = np.asarray(pose, dtype=np.float64).reshape(3)
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        rot_t = np.array([[c, s], [-s, c]])
+        world = _as_points(endpoints) @ rot_t + pose[:2]
+        twins, twin_normals = edge_twins(
+            world, _as_points(normals) @ rot_t, self.origin, self.resolution
+        )
+        # back to the sensor frame, as :meth:`insert_scan` takes them
+        self.insert_scan(
+            pose, (twins - pose[:2]) @ rot_t.T, normals=twin_normals @ rot_t.T, rays=False
+        )
 
     def value_and_gradient(
         self, points: ArrayLike, subcell_sigma: float | None = None

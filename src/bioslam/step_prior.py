@@ -303,14 +303,6 @@ class StepPrior:
             kinematic, f = 1.0, self.config.floor
         return -math.log((1.0 - f) * self._mean_kernel(step) + f * kinematic)
 
-    def unknown_cost(self) -> float:
-        """The cost of a step before the learned density knows any (an echo's, which
-        :meth:`cost` not young counts from the first step on): the young floor's uniform
-        share alone, ``-log(max(floor, max_young_floor))``, as though the step were unlike
-        every one to come."""
-        c = self.config
-        return -math.log(max(c.floor, c.max_young_floor))
-
     def kinematic(self, step: ArrayLike) -> float:
         """The kinematic density of ``step``, in [``cone_floor``, 1]: 1 inside its heading
         cone (:func:`heading_cone_offset`), ``cone_reverse`` of that inside the opposite

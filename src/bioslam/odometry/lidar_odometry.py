@@ -88,7 +88,6 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
         self._typical_miss = (0.0, 0.0)
         self._typical_step = 0.0
         self._typical_score = 0.0
-        self._after_gap = False  # the scan being matched came after ``gap_time``
         # the matches' shares of endpoints in known free space, and their median
         self._frees: deque[float] = deque(maxlen=self.config.score_window)
         self._typical_free = 0.0
@@ -96,6 +95,9 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
         self._last_inserted: FloatArray | None = None
         # (pose, endpoints, the straight_angle they were densified with)
         self._first_fused: tuple[FloatArray, FloatArray, float] | None = None
+        # the first scan's finest map with its walls on both sides of the cell edges they run
+        # along, while a thinned log's second scan is matched (:meth:`_densify_first`)
+        self._first_twinned: OccupancyGrid | None = None
         self._step_prior = StepPrior(c.step_prior)
         # the poses of the last scans fused, whose beam patterns a sparse map echoes
         self._fused_poses: deque[FloatArray] = deque(maxlen=max(c.echo_scans, 1))
@@ -217,6 +219,7 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
             self.pose, self.last_report = self._match(
                 level_pts, start, previous, normals, dt, predicted
             )
+            self._first_twinned = None  # the first match is made
             if self._gapless(dt) and not self.last_report.overruled:
                 # after a gap the velocity is measured afresh, and where the map overruled
                 # the motion prior, the scan measured it
@@ -291,7 +294,6 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
         while none is credible (:func:`turned_windows`)."""
         c = self.config
         gapless = self._gapless(dt)
-        self._after_gap = not gapless
         prior = self._motion_prior(start, previous, predicted, dt)
         options = [self._guarded_option(level_pts, start, previous, normals, dt, predicted, prior)]
         motion: tuple[FloatArray, ...] = (start,)  # only compared when the search ran
@@ -415,10 +417,13 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
             lengths = record[:, 2]
             self._typical_step = float(np.median(lengths[lengths >= 0.5 * misses[2]]))
 
-    def _score_at(self, pose: FloatArray, points: FloatArray) -> float:
-        """Mean M* of ``points`` at ``pose`` on the finest level (the first scan's score on
-        the map made from it is the reference until matches have been made)."""
-        grid = grid_args(self.pyramid.finest, self.config.subcell_sigma)
+    def _score_at(
+        self, pose: FloatArray, points: FloatArray, on: OccupancyGrid | None = None
+    ) -> float:
+        """Mean M* of ``points`` at ``pose`` on the finest level, or on the grid ``on`` (the
+        first scan's score on the map made from it is the reference until matches have been
+        made)."""
+        grid = grid_args(self.pyramid.finest if on is None else on, self.config.subcell_sigma)
         c, s = math.cos(pose[2]), math.sin(pose[2])
         total = summed_map(grid, points, self._facing_of(points), c, s, pose[0], pose[1], False)
         return total / max(len(points), 1)

@@ -8,6 +8,7 @@ A mixin of :class:`bioslam.odometry.LidarOdometry`, whose state it reads (``conf
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
@@ -163,6 +164,11 @@ class LocalMap:
         dense, added = densify_with_mask(pts, c.resolution, NORMAL_MAX_GAP, angle, filled)
         if added.any():
             self._fuse(pose, dense[added], thinned_normals(dense)[added])
+        if not self._gapless(dt):
+            # every point it was fused with: those added when it was, and these
+            whole = densify_scan(pts, c.resolution, NORMAL_MAX_GAP, angle)
+            self._first_twinned = copy.deepcopy(self.pyramid.finest)
+            self._first_twinned.insert_edge_twins(pose, whole, thinned_normals(whole))
 
     def _not_in_known_free_space(self, pose: FloatArray, pts: FloatArray) -> NDArray[np.bool_]:
         """Endpoints whose cell and its 8 neighbours several earlier scans saw free are taken
