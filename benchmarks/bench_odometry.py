@@ -55,6 +55,10 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
   lobby of pillars, a corridor with doors into ten rooms of desks, a cross corridor), SICK
   and URG-04LX, the tour, adversarial and reversing routes, seeds 2-5, a third of the run's
   duration, thinned to a scan per 1 m / 0.6 rad.
+- ``crowdedthinned``: routes and seeds no default was tuned on (seeds 51 and 52): the five
+  worlds (the four and the office), tour and adversarial route, 300 s, three people walking
+  the roadmap, the SICK preset with 5 % of its beams lost and its 361-beam mode, thinned to
+  a scan per 1 m / 0.6 rad.
 - ``turnonspot``: logs thinned by distance alone, which keep no scan while the robot turns
   on the spot (up to 180° between two scans): freiburg-079 at a scan per metre of
   displacement and of path (as ``bioslam thin`` does), and the SICK preset on the four
@@ -561,6 +565,26 @@ def main() -> None:
             for seed in seeds
         ]
 
+    def crowded_thinned() -> list[dict]:
+        """The five worlds' tour and adversarial route, half the run's duration, seeds 51
+        and 52, three people walking the roadmap, the SICK preset with 5 % of its beams lost
+        and its 361-beam mode, thinned to a scan per 1 m / 0.6 rad."""
+        sick = dataclasses.replace(LIDAR_PRESETS["sick"], dropout_prob=0.05)
+        rows = []
+        for name in ("maze", "rooms", "warehouse", "hall", "office"):
+            world = office_world() if name == "office" else name
+            for route, (label, lidar), seed in itertools.product(
+                ("tour", "adversarial"), (("sick361", LIDAR_PRESETS["sick361"]),
+                                          ("sick, 5 % dropouts", sick)), (51, 52),
+            ):  # fmt: skip
+                people = load_world(world), seed
+                rows.append(sim_case(
+                    f"{name} {route} {label}, 3 people, a scan per 1 m / 0.6 rad, seed {seed}",
+                    lidar, duration / 2, world=world, seed=seed, thin=(1.0, 0.6), route=route,
+                    obstacles=lambda _, p=people: people_on_roadmap(p[0], 3, seed=p[1]),
+                ))  # fmt: skip
+        return rows
+
     cases = {
         "maze": lambda: sim_case("maze utm30lx", utm, duration),
         "lowcost": lambda: sim_case(
@@ -677,6 +701,7 @@ def main() -> None:
             for route in ("tour", "adversarial", "reversing")
             for seed in range(2, 6)
         ],
+        "crowdedthinned": crowded_thinned,
         "turnonspot": lambda: [
             log_case("freiburg-079 thinned to a scan per 1 m by distance alone",
                      "freiburg-079-corrected.log.gz", False, None, thinned(1.0, math.inf)),
