@@ -204,7 +204,8 @@ class MatchChoice:
         Where the scan leaves a direction free, the step prior picks among the matches along
         it that fit nearly as well (:meth:`_typical_on_plateau`).
         Flags the report ambiguous when a distinct match is plausible (``plausible_ratio``
-        of the quality), recovered when it is not the first match."""
+        of the quality), recovered when it is not the first match. ``quality_of``: a match's
+        quality (default :func:`match_quality` of its report)."""
         c = self.config
         first = options[0]
         pool = [o for o in options if not self._rejected(o[1])]

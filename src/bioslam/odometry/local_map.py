@@ -156,7 +156,10 @@ class LocalMap:
         log's seconds), else with ``dense_straight_angle``, as every later scan at the
         scanner's rate. Left as dots, the first scan is the whole map for the next ones,
         whose beams land on its dots only when placed back at the start: a SICK in a
-        pillared hall, its walls 7-15 m away, stood still while the robot drove 15 m."""
+        pillared hall, its walls 7-15 m away, stood still while the robot drove 15 m. After
+        a gap it also leaves a copy of the finest level with the scan's walls in the cells
+        on both sides of the cell edges they run along (``_first_twinned``, on which the
+        first match is chosen: :meth:`~bioslam.odometry.choice.MatchChoice._quality_on`)."""
         pose, pts, filled = self._first_fused
         self._first_fused = None
         c = self.config
