@@ -573,15 +573,15 @@ def main() -> None:
         rows = []
         for name in ("maze", "rooms", "warehouse", "hall", "office"):
             world = office_world() if name == "office" else name
+            roadmap = load_world(world)  # the people walk its roadmap
             for route, (label, lidar), seed in itertools.product(
                 ("tour", "adversarial"), (("sick361", LIDAR_PRESETS["sick361"]),
                                           ("sick, 5 % dropouts", sick)), (51, 52),
             ):  # fmt: skip
-                people = load_world(world), seed
                 rows.append(sim_case(
                     f"{name} {route} {label}, 3 people, a scan per 1 m / 0.6 rad, seed {seed}",
                     lidar, duration / 2, world=world, seed=seed, thin=(1.0, 0.6), route=route,
-                    obstacles=lambda _, p=people: people_on_roadmap(p[0], 3, seed=p[1]),
+                    obstacles=lambda _, w=roadmap, s=seed: people_on_roadmap(w, 3, seed=s),
                 ))  # fmt: skip
         return rows
 

@@ -21,6 +21,8 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from bioslam.geometry import inverse, rotation, transform_points
+
 FloatArray = NDArray[np.float64]
 
 
@@ -360,16 +362,15 @@ def edge_twins(
     the four cells around a point)."""
     moved, normals = [], []
     for axis in (0, 1):
-        facing = np.abs(world_normals[:, axis]) > _AXIS_FACING
-        u = (world[facing, axis] - origin[axis]) / resolution
+        u = (world[:, axis] - origin[axis]) / resolution
         frac = u - np.floor(u)
         near = np.minimum(frac, 1.0 - frac) <= _EDGE_BAND
-        shift = np.where(frac < 0.5, -frac * resolution - _TWIN_MARGIN,
-                         (1.0 - frac) * resolution + _TWIN_MARGIN)  # fmt: skip
-        twins = world[facing][near]
-        twins[:, axis] += shift[near]
+        keep = near & (np.abs(world_normals[:, axis]) > _AXIS_FACING)
+        twins = world[keep]
+        twins[:, axis] += np.where(frac[keep] < 0.5, -frac[keep] * resolution - _TWIN_MARGIN,
+                                   (1.0 - frac[keep]) * resolution + _TWIN_MARGIN)  # fmt: skip
         moved.append(twins)
-        normals.append(world_normals[facing][near])
+        normals.append(world_normals[keep])
     return np.vstack(moved), np.vstack(normals)
 
 
@@ -728,15 +729,14 @@ class OccupancyGrid:
         on surfaces (sensor-frame unit ``normals``) seen from ``pose``: the walls a lone scan
         holds, in the cells on both sides of the cell edges they run along."""
         pose = np.asarray(pose, dtype=np.float64).reshape(3)
-        c, s = math.cos(pose[2]), math.sin(pose[2])
-        rot_t = np.array([[c, s], [-s, c]])
-        world = _as_points(endpoints) @ rot_t + pose[:2]
+        turn = rotation(float(pose[2]))
         twins, twin_normals = edge_twins(
-            world, _as_points(normals) @ rot_t, self.origin, self.resolution
-        )
+            transform_points(pose, endpoints), _as_points(normals) @ turn.T, self.origin,
+            self.resolution,
+        )  # fmt: skip
         # back to the sensor frame, as :meth:`insert_scan` takes them
         self.insert_scan(
-            pose, (twins - pose[:2]) @ rot_t.T, normals=twin_normals @ rot_t.T, rays=False
+            pose, transform_points(inverse(pose), twins), normals=twin_normals @ turn, rays=False
         )
 
     def value_and_gradient(

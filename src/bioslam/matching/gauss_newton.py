@@ -587,11 +587,12 @@ def match_scan_to_map(
     start = pose.copy()
     faces = facing or [NO_FACING] * len(level_points)
     for k in range(len(pyramid.grids) - 1, -1, -1):
-        if k > 0 and iters[len(pyramid.grids) - 1 - k] == 0:
+        level_iterations = iters[len(pyramid.grids) - 1 - k]
+        if k > 0 and level_iterations == 0:
             continue  # a level turned off (:func:`levels_up_to`) would only score the start
         pose, H, mean, n, converged, cost, scan = _gauss_newton_level(
             grid_args(pyramid.grids[k], subcell_sigma), level_points[k], faces[k], pose,
-            iters[len(pyramid.grids) - 1 - k], step_tolerance * pyramid.grids[k].resolution,
+            level_iterations, step_tolerance * pyramid.grids[k].resolution,
             length_scale, degeneracy_ratio, hold, prior,
         )  # fmt: skip
         report.iterations += int(n)
