@@ -350,3 +350,48 @@ def test_a_robot_turning_on_the_spot_goes_nowhere_while_it_turns():
     for _ in range(15):
         prior.add(se2_exp((1.0, 0.0, 0.9)))
     assert prior.turning_length(1.0) == pytest.approx(1.0, abs=1e-9)
+
+
+def corner_steps() -> np.ndarray:
+    """A log thinned to a scan per metre or per 0.6 rad: metres straight on, turns of 0.6
+    rad that ended the step within a few decimetres, and one metre on while turning 24°."""
+    straight = [se2_exp((1.0, 0.0, 0.0))] * 12
+    turns = [se2_exp((0.3, 0.0, math.radians(a))) for a in (36.0, -37.0, 35.0)]
+    return np.array([*straight, *turns, se2_exp((1.0, 0.0, math.radians(24.0)))])
+
+
+def test_the_thinning_rule_is_read_from_the_steps():
+    """A metre on when nearly straight, the least turn of the steps that ended short; none
+    from a scanner at its rate (no step ends short) or from turns alone."""
+    assert prior_of(corner_steps()).thinning_extent() == pytest.approx((1.0, math.radians(35.0)))
+    assert prior_of(np.tile([0.1, 0.0, 0.02], (30, 1))).thinning_extent() is None
+    assert prior_of(np.tile([0.0, 0.0, 0.6], (30, 1))).thinning_extent() is None
+
+
+def test_a_step_that_turned_less_than_the_thinning_angle_went_the_thinning_distance():
+    """Turning 29°, short of the 35° at which steps ended short, a metre on costs nothing
+    and 0.3 m on does, more than the joint density, to which each is unlike every recent
+    step, prefers it. Turning 36°, or a metre on, a step reached the rule's end and costs
+    nothing."""
+    prior = prior_of(corner_steps())
+    long_turn = se2_exp((1.0, 0.0, math.radians(29.0)))
+    short_turn = se2_exp((0.3, 0.0, math.radians(29.0)))
+    assert prior.length_cost(long_turn) == 0.0
+    assert prior.length_cost(short_turn) > 0.15
+    assert prior.length_cost(se2_exp((0.3, 0.0, math.radians(22.0)))) > prior.length_cost(
+        short_turn
+    )
+    assert prior.cost(long_turn) + prior.length_cost(long_turn) < prior.cost(
+        short_turn
+    ) + prior.length_cost(short_turn)
+    assert prior.length_cost(se2_exp((0.3, 0.0, math.radians(36.0)))) == 0.0
+
+
+def test_without_a_thinning_rule_no_length_costs_anything():
+    """A scanner at its rate (steps of 0.1 m, none ended short), and a prior too young to
+    say anything: no length costs."""
+    steady = prior_of(np.tile([0.1, 0.0, 0.02], (30, 1)))
+    young = prior_of(corner_steps()[:2])
+    assert young.flat
+    for prior in (steady, young):
+        assert prior.length_cost(se2_exp((0.01, 0.0, 0.05))) == 0.0

@@ -369,6 +369,48 @@ class StepPrior:
             return None
         return float(np.median(self._path_lengths()[turning]))
 
+    def length_cost(self, step: ArrayLike) -> float:
+        """``-log`` of how likely a step of that path length (:func:`arc_length`) and turn
+        ends where ``step`` does on a log thinned by distance or angle, mixed with the
+        uniform ``floor``. Such a log ends every step at the first of the two: a metre on
+        however little it turned, or 0.6 rad round however little it went; so a step
+        shorter than the recent nearly straight steps (turning less than ``sigma_angle``:
+        their median length, :meth:`thinning_extent`) that turned less than the recent
+        steps ended short of that length did (the least of their turns) reached neither.
+        Its density is ``1 - (1 - exp(-s²/2)) (1 - exp(-u²/2))``, with ``s`` the step's
+        length short of the straight steps' in ``sigma_distance`` and ``u`` its turn short
+        of the short steps' in ``sigma_angle``: 1 (cost 0) where it reached either. 0 while
+        the learned density is :attr:`flat` or the recent steps show no such rule (too few
+        straight steps, none ended short: a scanner at its rate)."""
+        extent = self.thinning_extent() if not self.flat else None
+        if extent is None:
+            return 0.0
+        c = self.config
+        distance, angle = extent
+        turn = abs(float(np.asarray(step, dtype=np.float64).reshape(3)[2]))
+        short = max(0.0, distance - arc_length(step)) / c.sigma_distance
+        less = max(0.0, angle - turn) / c.sigma_angle
+        reached = (1.0 - math.exp(-0.5 * short * short)) * (1.0 - math.exp(-0.5 * less * less))
+        density = 1.0 - reached
+        return -math.log((1.0 - c.floor) * density + c.floor)
+
+    def thinning_extent(self) -> tuple[float, float] | None:
+        """The distance and angle at which the recent steps ended, as a log thinned by
+        distance or angle ends them (:meth:`length_cost`): the median path length of the
+        steps that turned less than ``sigma_angle``, and the least turn of the steps
+        shorter than that by more than two ``sigma_distance``. None with fewer than
+        ``min_steps`` such straight steps or no such short one."""
+        c = self.config
+        lengths, turns = self._path_lengths(), np.abs(self._history()[:, 2])
+        straight = turns < c.sigma_angle
+        if np.count_nonzero(straight) < c.min_steps:
+            return None
+        distance = float(np.median(lengths[straight]))
+        short = lengths < distance - 2.0 * c.sigma_distance
+        if not short.any():
+            return None
+        return distance, float(np.min(turns[short]))
+
     def _path_lengths(self) -> np.ndarray:
         """The recent steps' :func:`arc_length`, (n,)."""
         if self._lengths is None:

@@ -83,6 +83,7 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
         self._axis_prior: tuple[FloatArray, float | None] | None = None
         self._last_delta = np.zeros(3)
         self._last_stamp: float | None = None
+        self._last_dt = 0.0  # the interval before the last scan (0 before the second)
         self._scores: deque[float] = deque(maxlen=self.config.score_window)
         self._misses: deque[tuple[float, float, float]] = deque(maxlen=self.config.score_window)
         self._typical_miss = (0.0, 0.0)
@@ -239,6 +240,7 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
             self._remember_score(self._score_at(self.pose, kept_rows(pts, keep)))
         self._motion.update(scan.stamp, self.pose, *(constraint or (1.0, None, None)))
         self._last_stamp = scan.stamp
+        self._last_dt = dt
         self._last_delta = between(previous, self.pose)
         return self._last_delta.copy()
 
