@@ -198,6 +198,9 @@ class StepPrior:
         # for every new step cost a thinned log's scan a twentieth)
         self._arcs: deque[float] = deque(maxlen=self.config.window)
         self._lengths: np.ndarray | None = None  # :meth:`_path_lengths`
+        # :meth:`thinning_extent`, and whether it was read since the last step
+        self._thinning: tuple[float, float] | None = None
+        self._thinning_read = False
         # the kernel between every two recent steps, grown a row and a column a step, for
         # :meth:`modes` (all of them anew cost a thinned log's scan 0.25 ms)
         self._pairs = np.zeros((0, 0))
@@ -232,6 +235,7 @@ class StepPrior:
         self._array = None
         self._extent = None
         self._lengths = None
+        self._thinning_read = False
         self._costs.clear()
         c = self.config
         kept = self._pairs[1:, 1:] if full else self._pairs
@@ -390,16 +394,21 @@ class StepPrior:
         turn = abs(float(np.asarray(step, dtype=np.float64).reshape(3)[2]))
         short = max(0.0, distance - arc_length(step)) / c.sigma_distance
         less = max(0.0, angle - turn) / c.sigma_angle
-        reached = (1.0 - math.exp(-0.5 * short * short)) * (1.0 - math.exp(-0.5 * less * less))
-        density = 1.0 - reached
-        return -math.log((1.0 - c.floor) * density + c.floor)
+        neither = (1.0 - math.exp(-0.5 * short * short)) * (1.0 - math.exp(-0.5 * less * less))
+        return -math.log((1.0 - c.floor) * (1.0 - neither) + c.floor)
 
     def thinning_extent(self) -> tuple[float, float] | None:
         """The distance and angle at which the recent steps ended, as a log thinned by
         distance or angle ends them (:meth:`length_cost`): the median path length of the
         steps that turned less than ``sigma_angle``, and the least turn of the steps
         shorter than that by more than two ``sigma_distance``. None with fewer than
-        ``min_steps`` such straight steps or no such short one."""
+        ``min_steps`` such straight steps or no such short one. Made once per new step."""
+        if not self._thinning_read:
+            self._thinning, self._thinning_read = self._read_thinning(), True
+        return self._thinning
+
+    def _read_thinning(self) -> tuple[float, float] | None:
+        """:meth:`thinning_extent`, computed."""
         c = self.config
         lengths, turns = self._path_lengths(), np.abs(self._history()[:, 2])
         straight = turns < c.sigma_angle
