@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from bioslam.matching.deskew import se2_exp
 from bioslam.step_prior import (
@@ -395,3 +397,32 @@ def test_without_a_thinning_rule_no_length_costs_anything():
     assert young.flat
     for prior in (steady, young):
         assert prior.length_cost(se2_exp((0.01, 0.0, 0.05))) == 0.0
+
+
+@given(
+    seed=st.integers(0, 2**16),
+    length=st.floats(0.0, 3.0),
+    turn=st.floats(-math.pi, math.pi),
+    more=st.floats(0.0, 1.0),
+)
+@settings(max_examples=60, deadline=None)
+def test_the_length_cost_is_bounded_and_falls_as_a_step_reaches_further(seed, length, turn, more):
+    """On any thinned log's steps: the cost lies in [0, -log(floor)], is 0 for a step that
+    reached the rule's distance or angle, and never grows as the same turn goes further or
+    the same length turns further."""
+    prior = prior_of(thinned_log_steps(60, seed))
+    extent = prior.thinning_extent()
+    assert extent is not None
+    distance, angle = extent
+    floor = prior.config.floor
+
+    def cost(arc: float, heading: float) -> float:
+        return prior.length_cost(se2_exp((arc, 0.0, heading)))
+
+    here = cost(length, turn)
+    assert 0.0 <= here <= -math.log(floor) + 1e-12
+    if length >= distance or abs(turn) >= angle:
+        assert here == 0.0
+    assert cost(length + more, turn) <= here + 1e-12
+    wider = math.copysign(min(abs(turn) + more, math.pi), turn)
+    assert cost(length, wider) <= here + 1e-12
