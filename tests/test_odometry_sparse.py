@@ -649,20 +649,15 @@ def test_a_scan_soon_after_a_thinned_step_is_searched():
     matched is not trusted as it would be between dense scans; a turn of 40° on the spot
     there is found."""
     path = room_path(8, 0.6)
-    rng = np.random.default_rng(3)
-    odo = LidarOdometry(initial_pose=path[0])
-    for k, true in enumerate(path):
-        odo.update(make_scan(ROOM, true, stamp=3.0 * k, sigma=0.01, rng=rng))
+    _, odo = run(OdometryConfig(), path, 3.0, seed=3)
     nudged = compose(odo.pose, np.array([0.05, 0.0, 0.0]))
     assert odo._untrusted(False, 0.5, odo.pose, nudged)
     x, y, heading = path[-1]
     spun = (x, y, heading + math.radians(40.0))
+    rng = np.random.default_rng(3)
     odo.update(make_scan(ROOM, spun, stamp=3.0 * len(path) - 2.5, sigma=0.01, rng=rng))
     distance, turn = pose_error(spun, odo.pose)
     assert distance < 0.05 and turn < math.radians(1.0)
-    dense = room_path(20, 0.02)
-    odo = LidarOdometry(initial_pose=dense[0])
-    for k, true in enumerate(dense):
-        odo.update(make_scan(ROOM, true, stamp=0.025 * k, sigma=0.01, rng=rng))
+    _, odo = run(OdometryConfig(), room_path(20, 0.02), 0.025, seed=3)
     nudged = compose(odo.pose, np.array([0.02, 0.0, 0.0]))
     assert not odo._untrusted(False, 0.025, odo.pose, nudged)

@@ -362,11 +362,16 @@ def corner_steps() -> np.ndarray:
     return np.array([*straight, *turns, se2_exp((1.0, 0.0, math.radians(24.0)))])
 
 
+def steady_steps() -> np.ndarray:
+    """A scanner at its rate: steps of 0.1 m turning 0.02 rad, none ending short."""
+    return np.tile([0.1, 0.0, 0.02], (30, 1))
+
+
 def test_the_thinning_rule_is_read_from_the_steps():
     """A metre on when nearly straight, the least turn of the steps that ended short; none
     from a scanner at its rate (no step ends short) or from turns alone."""
     assert prior_of(corner_steps()).thinning_extent() == pytest.approx((1.0, math.radians(35.0)))
-    assert prior_of(np.tile([0.1, 0.0, 0.02], (30, 1))).thinning_extent() is None
+    assert prior_of(steady_steps()).thinning_extent() is None
     assert prior_of(np.tile([0.0, 0.0, 0.6], (30, 1))).thinning_extent() is None
 
 
@@ -392,7 +397,7 @@ def test_a_step_that_turned_less_than_the_thinning_angle_went_the_thinning_dista
 def test_without_a_thinning_rule_no_length_costs_anything():
     """A scanner at its rate (steps of 0.1 m, none ended short), and a prior too young to
     say anything: no length costs."""
-    steady = prior_of(np.tile([0.1, 0.0, 0.02], (30, 1)))
+    steady = prior_of(steady_steps())
     young = prior_of(corner_steps()[:2])
     assert young.flat
     for prior in (steady, young):
