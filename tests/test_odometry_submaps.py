@@ -54,11 +54,11 @@ def run(config: OdometryConfig, path, dt: float, doubt_at: int | None = None,
     match = odo._match
 
     def doubted(*args, **kwargs):
-        pose, report = match(*args, **kwargs)
+        pose, report, searched = match(*args, **kwargs)
         report.ambiguous, report.broken = odo.num_scans - 1 == doubt_at, False
         if report.ambiguous:
             pose = compose(pose, np.asarray(shift, dtype=float))
-        return pose, report
+        return pose, report, searched
 
     odo._match = doubted
     poses = []

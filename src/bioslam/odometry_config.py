@@ -122,6 +122,20 @@ class OdometryConfig:
             this log-odds (free, seen so by about four scans with the default miss update) are
             not fused into the map (moving objects; ours).
         deskew: correct per-beam motion when ``scan.time_increment > 0``.
+        sweep_turn_rate: after a gap or on sparse scans, where the motion model's twist is a
+            mean over seconds, the turn rate a 360° scan is de-skewed with is measured on the
+            scan (:mod:`bioslam.odometry.sweep`) among rates within this many rad/s either
+            way (a robot's turns; 0: never measured). RPLIDAR thinned to a scan per metre /
+            0.6 rad, 48 simulated routes: 14 lost without, none with.
+        sweep_min_skew: ... on scans whose sweep at ``sweep_turn_rate`` turns at least this
+            much (rad; 1°: a 360° scanner at 7 Hz turns 12°).
+        sweep_rates, sweep_refinements: the rates tried: this many evenly spaced, then the
+            two rates half the last spacing either side of the best, this many times.
+        sweep_iterations: Gauss-Newton iterations per level, finest first, of each rate's
+            match (levels not given: none).
+        sweep_rematch: where the measured rate bends the scan by at least this much (rad)
+            against the one it was matched with, the scan is matched afresh, its match
+            chosen again (a spin on the spot: the bent scan's choice may be a look-alike).
         min_points: fewer valid endpoints than this give a prediction-only update.
         recovery_free_fraction: a match that leaves more than this fraction of the matched
             endpoints in cells the map knows to be free has probably failed (a good match
@@ -392,6 +406,12 @@ class OdometryConfig:
     subcell_sigma: float | None = 1.0
     free_logodds: float = -1.5
     deskew: bool = True
+    sweep_turn_rate: float = 1.5
+    sweep_min_skew: float = math.radians(1.0)
+    sweep_rates: int = 5
+    sweep_refinements: int = 2
+    sweep_iterations: tuple[int, ...] = (10, 10)
+    sweep_rematch: float = math.radians(4.0)
     min_points: int = 20
     recovery_free_fraction: float = 0.2
     recovery_score_ratio: float = 0.5
@@ -448,6 +468,12 @@ class OdometryConfig:
             )
         if not (self.resolution > 0 and self.map_size > 4 * self.recenter_distance > 0):
             raise ValueError("need resolution > 0 and map_size > 4 * recenter_distance > 0")
+        if self.sweep_turn_rate < 0 or self.sweep_rates < 1 or self.sweep_refinements < 0:
+            raise ValueError(
+                f"sweep_turn_rate and sweep_refinements must be non-negative and sweep_rates "
+                f"positive, got {self.sweep_turn_rate}, {self.sweep_refinements}, "
+                f"{self.sweep_rates}"
+            )
         if self.score_window < 1:
             raise ValueError(f"score_window must be at least 1, got {self.score_window}")
         if not (0.0 < self.sparse_share <= 1.0 and 0.0 < self.implausible_density <= 1.0):

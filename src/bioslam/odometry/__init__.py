@@ -15,11 +15,14 @@ to keep, one concept a module:
   of sparse scans;
 - :mod:`~bioslam.odometry.guards`: the trusted prediction's match checked against the map;
 - :mod:`~bioslam.odometry.search`: the starts searched when the prediction is not trusted;
-- :mod:`~bioslam.odometry.choice`: which of the matches the scan keeps.
+- :mod:`~bioslam.odometry.choice`: which of the matches the scan keeps;
+- :mod:`~bioslam.odometry.sweep`: the turn during a 360° scan's sweep, measured on the scan
+  where the motion model cannot give it (after a gap, on a thinned log).
 
 Frames: the sensor frame is taken as the robot frame (no extrinsic offset). The pose of a scan
 is the pose at ``scan.stamp`` (the first beam, as in ROS); with per-beam timing the endpoints
-are de-skewed to that instant with the current constant-velocity estimate.
+are de-skewed to that instant with the current constant-velocity estimate (after a gap, on
+a 360° scan, with the turn rate measured on the scan).
 
 No file or terminal I/O here.
 """

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -37,12 +38,29 @@ from bioslam.odometry.choice import MatchChoice
 from bioslam.odometry.guards import PredictionGuards
 from bioslam.odometry.local_map import LocalMap
 from bioslam.odometry.search import WideSearch
+from bioslam.odometry.sweep import SweepMotion, sweep_seconds
 from bioslam.odometry_config import OdometryConfig
 from bioslam.scan import LaserScan
 from bioslam.step_prior import StepPrior
 
 
-class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
+@dataclass
+class Found:
+    """One scan's match: the pose kept and its report, the start it was matched from, whether
+    the prediction was searched beyond, and the endpoints (sensor frame; ``keep``: the kept
+    ones) with the levels and normals it was matched on."""
+
+    pose: FloatArray
+    report: MatchReport
+    start: FloatArray
+    searched: bool
+    points: FloatArray
+    keep: NDArray[np.bool_]
+    levels: list[FloatArray]
+    normals: FloatArray
+
+
+class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMotion):
     """Pose change from consecutive LiDAR scans alone (paper Sec. III-A).
 
     ``update(scan)`` returns Δp, the motion since the previous scan in the previous robot
@@ -53,8 +71,9 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
     One update's steps are here; the concepts they call on are mixed in from their modules:
     the local map fused into and matched against (:class:`~.local_map.LocalMap`), the trusted
     prediction's match checked against it (:class:`~.guards.PredictionGuards`), the starts
-    searched when the prediction is not trusted (:class:`~.search.WideSearch`) and the
-    choice among the matches (:class:`~.choice.MatchChoice`).
+    searched when the prediction is not trusted (:class:`~.search.WideSearch`), the
+    choice among the matches (:class:`~.choice.MatchChoice`) and, after a gap or on a
+    thinned log, the turn during the scan's sweep (:class:`~.sweep.SweepMotion`).
     """
 
     def __init__(self, config: OdometryConfig | None = None, initial_pose: ArrayLike = (0, 0, 0)):
@@ -104,6 +123,7 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
         self._fused_poses: deque[FloatArray] = deque(maxlen=max(c.echo_scans, 1))
         self._searched: deque[bool] = deque(maxlen=c.score_window)
         self._num_searched = 0  # of those in _searched
+        self._counted_scan = 0  # the scan last counted in _searched
         self._directions: tuple[FloatArray, FloatArray, FloatArray] | None = None
         # on sparse scans, the map being built to replace the one matched against
         # (:meth:`_turn_submaps`), the distance travelled while each was fused into, and
@@ -123,12 +143,16 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
         dt = stamp - self._last_stamp
         return dt if dt > 0 else 0.0
 
-    def _sensor_points(self, scan: LaserScan) -> FloatArray:
+    def _sensor_points(
+        self, scan: LaserScan, twist: tuple[float, float, float] | None = None
+    ) -> FloatArray:
+        """The scan's usable endpoints de-skewed with ``twist`` (body frame; default the
+        motion model's)."""
         c = self.config
         lo = max(c.min_range, scan.range_min, np.nextafter(0.0, 1.0))
         hi = self._usable_range(scan)
         increment = scan.time_increment if c.deskew else 0.0
-        vx, vy, w = self._motion.twist
+        vx, vy, w = self._motion.twist if twist is None else twist
         cos_a, sin_a = self._beam_directions(scan.angles)
         return usable_endpoints(scan.ranges, cos_a, sin_a, lo, hi, increment, vx, vy, w)
 
@@ -164,7 +188,11 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
         return known[1], known[2]
 
     def _count_searched(self, searched: bool) -> None:
-        """Remember whether this scan was searched, for :meth:`_sparse`."""
+        """Remember whether this scan was searched, for :meth:`_sparse` (once a scan: a scan
+        matched again replaces its entry)."""
+        if self._counted_scan == self.num_scans:
+            self._num_searched -= self._searched.pop()
+        self._counted_scan = self.num_scans
         if len(self._searched) == self._searched.maxlen:
             self._num_searched -= self._searched[0]
         self._searched.append(searched)
@@ -210,22 +238,22 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
         elif first:
             self.last_report = MatchReport(num_points=int(pts.shape[0]))
         else:
-            matched, matched_keep = self._matched(pts, keep, scan)
-            level_pts = points_per_level(matched, c.point_spacing, c.levels, matched_keep)
             if self._first_fused is not None:
                 self._densify_first(dt)
-            start = self._best_start(level_pts[-1], previous, predicted)
-            normals = matched_normals(level_pts)
-            self._matched_levels = (level_pts, normals, facing_normals(level_pts, normals))
-            self.pose, self.last_report = self._match(
-                level_pts, start, previous, normals, dt, predicted
-            )
+            found = self._match_scan(pts, keep, scan, previous, predicted, dt)
+            if self._sweep_unknown(scan, dt):
+                found = self._with_sweep_settled(scan, previous, predicted, dt, found)
+            pts, keep = found.points, found.keep
+            self.last_points = pts
+            self.pose, self.last_report = found.pose, found.report
+            self._note_match(found, previous)
             self._first_twinned = None  # the first match is made
             if self._gapless(dt) and not self.last_report.overruled:
                 # after a gap the velocity is measured afresh, and where the map overruled
                 # the motion prior, the scan measured it
                 constraint = (
-                    *self._mapped_constraint(level_pts[0], normals), self._axis_offset()
+                    *self._mapped_constraint(found.levels[0], found.normals),
+                    self._axis_offset(),
                 )
             self.num_recovered += self.last_report.recovered
             self.num_degenerate += self.last_report.degenerate
@@ -273,10 +301,55 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
             "odometry_broken": self.num_broken,
         }
 
+    def _match_scan(
+        self, pts: FloatArray, keep: NDArray[np.bool_], scan: LaserScan, previous: FloatArray,
+        predicted: FloatArray, dt: float,
+    ) -> Found:
+        """The scan's endpoints ``pts`` (``keep``: the kept ones) matched from the motion
+        model's best start (:meth:`_best_start`, :meth:`_match`)."""
+        c = self.config
+        matched, matched_keep = self._matched(pts, keep, scan)
+        level_pts = points_per_level(matched, c.point_spacing, c.levels, matched_keep)
+        start = self._best_start(level_pts[-1], previous, predicted)
+        normals = matched_normals(level_pts)
+        self._matched_levels = (level_pts, normals, facing_normals(level_pts, normals))
+        pose, report, searched = self._match(level_pts, start, previous, normals, dt, predicted)
+        return Found(pose, report, start, searched, pts, keep, level_pts, normals)
+
+    def _with_sweep_settled(
+        self, scan: LaserScan, previous: FloatArray, predicted: FloatArray, dt: float,
+        found: Found,
+    ) -> Found:
+        """``found`` with the scan de-skewed by the turn rate measured on it
+        (:meth:`~.sweep.SweepMotion._settle_sweep`): the settled match where that rate bends
+        the scan by less than ``sweep_rematch`` against the one it was matched with, else
+        the scan matched afresh as de-skewed (a robot spinning on the spot through a 360°
+        sweep bends the scan by 6°, and the match chosen for the bent scan may be a
+        look-alike a metre off)."""
+        settled = self._settle_sweep(scan, previous, found.pose, dt)
+        if settled is None:
+            return found
+        bend = abs(settled.rate - float(self._motion.twist[2])) * sweep_seconds(scan)
+        if bend >= self.config.sweep_rematch:
+            return self._match_scan(settled.points, settled.keep, scan, previous, predicted, dt)
+        return replace(
+            found, pose=settled.pose, points=settled.points, keep=settled.keep,
+            levels=settled.levels, normals=settled.normals,
+        )  # fmt: skip
+
+    def _note_match(self, found: Found, previous: FloatArray) -> None:
+        """Remember the match kept: the motion model's miss, the step (for the step prior,
+        where the prediction was not trusted, as on sparse scans) and the score."""
+        step = between(previous, found.pose)
+        self._remember_miss(between(found.start, found.pose), step)
+        if found.searched:
+            self._step_prior.add(step)
+        self._remember_score(found.report.score, found.report.free_fraction)
+
     def _match(
         self, level_pts: list[FloatArray], start: FloatArray, previous: FloatArray,
         normals: FloatArray, dt: float, predicted: FloatArray,
-    ) -> tuple[FloatArray, MatchReport]:
+    ) -> tuple[FloatArray, MatchReport, bool]:
         """Eq. 3 from ``start`` (the motion model's prior, :meth:`_best_start`); when that
         cannot be trusted (:meth:`_untrusted`), also from the wide-basin search's winner and
         its rival and from the other motion hypotheses (the constant-velocity prediction,
@@ -317,14 +390,8 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice):
             pose, report = self._choose_sparse(options, previous, reach, gapless)
         else:
             pose, report = self._choose(options, motion, previous, reach, jump, gapless)
-        step = between(previous, pose)
-        self._remember_miss(between(start, pose), step)
-        if searched:  # the steps where the prediction was not trusted, as on sparse scans
-            self._step_prior.add(step)
-
         report.iterations = sum(option[1].iterations for option in options)
-        self._remember_score(report.score, report.free_fraction)
-        return pose, report
+        return pose, report, searched
 
     def _gapless(self, dt: float) -> bool:
         """The scan came no later than ``gap_time`` after the last: its prediction is a
