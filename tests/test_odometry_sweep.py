@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from _sim_runs import largest_error, odometry_run
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -94,3 +95,10 @@ def test_scans_at_the_scanner_rate_and_part_circle_scanners_are_left_alone():
             for rate in (1.5, 0.0)
         ]  # fmt: skip
         np.testing.assert_array_equal(*runs)
+
+
+def test_sweep_settings_out_of_range_are_refused():
+    """A negative turn rate or no rate to try is a configuration error, named."""
+    for bad in ({"sweep_turn_rate": -1.0}, {"sweep_rates": 0}, {"sweep_refinements": -1}):
+        with pytest.raises(ValueError, match="sweep_"):
+            OdometryConfig(**bad)

@@ -45,7 +45,7 @@ from bioslam.step_prior import StepPrior
 
 
 @dataclass
-class Found:
+class ScanMatch:
     """One scan's match: the pose kept and its report, the start it was matched from, whether
     the prediction was searched beyond, and the endpoints (sensor frame; ``keep``: the kept
     ones) with the levels and normals it was matched on."""
@@ -304,7 +304,7 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
     def _match_scan(
         self, pts: FloatArray, keep: NDArray[np.bool_], scan: LaserScan, previous: FloatArray,
         predicted: FloatArray, dt: float,
-    ) -> Found:
+    ) -> ScanMatch:
         """The scan's endpoints ``pts`` (``keep``: the kept ones) matched from the motion
         model's best start (:meth:`_best_start`, :meth:`_match`)."""
         c = self.config
@@ -314,12 +314,12 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         normals = matched_normals(level_pts)
         self._matched_levels = (level_pts, normals, facing_normals(level_pts, normals))
         pose, report, searched = self._match(level_pts, start, previous, normals, dt, predicted)
-        return Found(pose, report, start, searched, pts, keep, level_pts, normals)
+        return ScanMatch(pose, report, start, searched, pts, keep, level_pts, normals)
 
     def _with_sweep_settled(
         self, scan: LaserScan, previous: FloatArray, predicted: FloatArray, dt: float,
-        found: Found,
-    ) -> Found:
+        found: ScanMatch,
+    ) -> ScanMatch:
         """``found`` with the scan de-skewed by the turn rate measured on it
         (:meth:`~.sweep.SweepMotion._settle_sweep`): the settled match where that rate bends
         the scan by less than ``sweep_rematch`` against the one it was matched with, else
@@ -337,7 +337,7 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
             levels=settled.levels, normals=settled.normals,
         )  # fmt: skip
 
-    def _note_match(self, found: Found, previous: FloatArray) -> None:
+    def _note_match(self, found: ScanMatch, previous: FloatArray) -> None:
         """Remember the match kept: the motion model's miss, the step (for the step prior,
         where the prediction was not trusted, as on sparse scans) and the score."""
         step = between(previous, found.pose)
