@@ -74,6 +74,16 @@ def above_near_point(logodds, x, y, ox, oy, res, level):
 
 
 @numba.njit(cache=True)
+def _above(logodds, world, ox, oy, res, level):
+    rows, cols = logodds.shape
+    out = np.zeros(world.shape[0], dtype=np.bool_)
+    for k in range(world.shape[0]):
+        r, c = _cell_of(world[k, 0], world[k, 1], ox, oy, res)
+        out[k] = (logodds[r, c] if 0 <= r < rows and 0 <= c < cols else 0.0) > level
+    return out
+
+
+@numba.njit(cache=True)
 def _above_near(logodds, world, ox, oy, res, level):
     out = np.zeros(world.shape[0], dtype=np.bool_)
     for k in range(world.shape[0]):
@@ -646,6 +656,12 @@ class OccupancyGrid:
         (clamped to the grid), has a log-odds above ``level``."""
         ox, oy = self.origin.tolist()
         return _above_near(self.logodds, _as_points(points), ox, oy, self.resolution, level)
+
+    def above(self, points: ArrayLike, level: float) -> NDArray[np.bool_]:
+        """For world points ``(N, 2)``: whether the cell of each has a log-odds above
+        ``level`` (cells beyond the grid are unknown, log-odds 0)."""
+        ox, oy = self.origin.tolist()
+        return _above(self.logodds, _as_points(points), ox, oy, self.resolution, level)
 
     def fraction_not_above_near(self, pose: ArrayLike, points: ArrayLike, level: float) -> float:
         """:meth:`above_near`'s complement as a fraction, for sensor-frame ``points`` placed

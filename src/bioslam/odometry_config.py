@@ -121,6 +121,13 @@ class OdometryConfig:
         free_logodds: endpoints falling where the cell and its neighbours are all at or below
             this log-odds (free, seen so by about four scans with the default miss update) are
             not fused into the map (moving objects; ours).
+        object_size, object_gap, object_lag, object_still, object_reach: at the scanner's
+            rate, a run of endpoints standing apart from the walls the map holds (each within
+            ``object_gap`` metres of the next, its ends at most ``object_size`` apart) is an
+            object, and one whose nearest object ``object_lag`` seconds before lies more than
+            ``object_still`` but at most ``object_reach`` metres away moved, and is not fused
+            (:meth:`bioslam.odometry.local_map.LocalMap._moving_objects`; ``object_size`` 0:
+            every endpoint fused). Ours.
         deskew: correct per-beam motion when ``scan.time_increment > 0``.
         sweep_turn_rate: after a gap or on sparse scans, where the motion model's twist is a
             mean over seconds, the turn rate a 360° scan is de-skewed with is measured on the
@@ -405,6 +412,11 @@ class OdometryConfig:
     start_margin: float = 0.1
     subcell_sigma: float | None = 1.0
     free_logodds: float = -1.5
+    object_size: float = 0.7
+    object_gap: float = 0.15
+    object_lag: float = 0.2
+    object_still: float = 0.1
+    object_reach: float = 1.0
     deskew: bool = True
     sweep_turn_rate: float = 1.5
     sweep_min_skew: float = math.radians(1.0)

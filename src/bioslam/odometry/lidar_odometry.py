@@ -129,6 +129,8 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         # (:meth:`_turn_submaps`), the distance travelled while each was fused into, and
         # whether a step was ambiguous or broken since the last turn
         self._young: MapPyramid | None = None
+        # at the scanner's rate, the stamps and centres of the objects the last scans saw
+        self._object_track: deque[tuple[float, FloatArray]] = deque(maxlen=64)
         self._travel = [0.0, 0.0]
         self._doubts = 0
         self._conflict = False  # and the maps disagreed since (:meth:`_maps_disagree`)
@@ -260,6 +262,8 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
             self.num_ambiguous += self.last_report.ambiguous
             self.num_broken += self.last_report.broken
             self._doubts += self.last_report.ambiguous or self.last_report.broken
+        if not self.last_report.predicted_only:
+            self._track_objects(scan.stamp, self.pose, pts)
         if not self.last_report.predicted_only and self._should_insert():
             # every endpoint is fused, each with the normal of the kept one before it
             self._insert(pts, thinned_normals(pts, keep))
