@@ -4,6 +4,7 @@ endpoints taken for objects, and a route through corridors people walk."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from bioslam.geometry import compose
 from bioslam.odometry import LidarOdometry, OdometryConfig
@@ -61,3 +62,10 @@ def test_people_walking_the_corridors_are_not_followed():
     map, within 0.3 m."""
     assert _maze_with_people(412, 0.7) < 0.3
     assert _maze_with_people(412, 0.0) > 1.0
+
+
+def test_object_settings_out_of_range_are_refused():
+    """Negative sizes or a reach shorter than the stillness threshold are named errors."""
+    for bad in ({"object_size": -0.1}, {"object_lag": -1.0}, {"object_reach": 0.05}):
+        with pytest.raises(ValueError, match="object_"):
+            OdometryConfig(**bad)

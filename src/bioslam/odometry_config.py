@@ -480,6 +480,14 @@ class OdometryConfig:
             )
         if not (self.resolution > 0 and self.map_size > 4 * self.recenter_distance > 0):
             raise ValueError("need resolution > 0 and map_size > 4 * recenter_distance > 0")
+        if min(self.object_size, self.object_gap, self.object_lag, self.object_still) < 0 or (
+            self.object_reach < self.object_still
+        ):
+            raise ValueError(
+                f"object_size, object_gap, object_lag and object_still must be non-negative "
+                f"and object_reach at least object_still, got {self.object_size}, "
+                f"{self.object_gap}, {self.object_lag}, {self.object_still}, {self.object_reach}"
+            )
         if self.sweep_turn_rate < 0 or self.sweep_rates < 1 or self.sweep_refinements < 0:
             raise ValueError(
                 f"sweep_turn_rate and sweep_refinements must be non-negative and sweep_rates "

@@ -1,6 +1,7 @@
 """The odometry's local map (paper Sec. III-A): the occupancy-grid pyramid each scan is fused
-into and matched against, a window that scrolls with the robot, and on sparse scans the
-younger submap that replaces it when a wrong step put walls in it twice.
+into and matched against, a window that scrolls with the robot, the objects kept out of it
+while they move (a person walking ahead), and on sparse scans the younger submap that
+replaces it when a wrong step put walls in it twice.
 
 A mixin of :class:`bioslam.odometry.LidarOdometry`, whose state it reads (``config``,
 ``pose``, ``pyramid`` and the submaps' bookkeeping). No file or terminal I/O here.
