@@ -30,16 +30,16 @@ def compact_runs(
     within ``gap`` of the next) whose ends lie at most ``size`` apart and that touch no point
     that is not new (the point before or after the run, within ``gap``): objects standing
     apart from what the map holds, as (first, last) indices."""
-    if not new.any():
-        return []
-    bounds = _compact_runs(np.ascontiguousarray(points, dtype=np.float64), new, gap, size)
+    bounds, _ = _compact_runs(np.ascontiguousarray(points, dtype=np.float64), new, gap, size)
     return [(int(first), int(last)) for first, last in bounds]
 
 
 @numba.njit(cache=True)
 def _compact_runs(points, new, gap, size):
+    """:func:`compact_runs` as an array of (first, last) rows, with each run's centre."""
     n = points.shape[0]
     out = np.empty((n, 2), dtype=np.int64)
+    centres = np.empty((n, 2))
     count = 0
     k = 0
     while k < n:
@@ -55,9 +55,11 @@ def _compact_runs(points, new, gap, size):
         if not (before or after) and extent <= size:
             out[count, 0] = k
             out[count, 1] = last
+            centres[count, 0] = points[k : last + 1, 0].mean()
+            centres[count, 1] = points[k : last + 1, 1].mean()
             count += 1
         k = last + 1
-    return out[:count]
+    return out[:count], centres[:count]
 
 
 @numba.njit(cache=True, inline="always")
@@ -103,19 +105,16 @@ class LocalMap:
         self._last_inserted = self.pose.copy()
         self._fused_poses.append(self._last_inserted)
 
-    def _objects(
-        self, pose: FloatArray, pts: FloatArray
-    ) -> tuple[list[tuple[int, int]], FloatArray]:
+    def _objects(self, pose: FloatArray, pts: FloatArray) -> tuple[NDArray[np.int64], FloatArray]:
         """The objects among a scan's endpoints ``pts`` placed at ``pose``: the runs of them
         standing apart from the walls the map holds (cells above ``wall_logodds``: hit more
         often than seen through, so a person fused once is still no wall), at most
-        ``object_size`` long (:func:`compact_runs`), and their centres (world frame)."""
+        ``object_size`` long (:func:`compact_runs`: (first, last) rows), and their centres
+        (world frame)."""
         c = self.config
         world = transform_points(pose, pts)
         new = ~self.pyramid.finest.above(world, c.wall_logodds)
-        runs = compact_runs(world, new, c.object_gap, c.object_size)
-        centres = np.array([world[a : b + 1].mean(axis=0) for a, b in runs]).reshape(-1, 2)
-        return runs, centres
+        return _compact_runs(world, new, c.object_gap, c.object_size)
 
     def _track_objects(self, stamp: float, pose: FloatArray, pts: FloatArray) -> None:
         """Remember where this scan (matched at ``pose``) saw objects, while the scans come at
@@ -148,7 +147,7 @@ class LocalMap:
         if not before or not before[-1].shape[0]:
             return moving
         runs, centres = self._objects(pose, pts)
-        for (first, last), centre in zip(runs, centres, strict=True):
+        for (first, last), centre in zip(runs.tolist(), centres, strict=True):
             nearest = float(np.min(np.hypot(*(before[-1] - centre).T)))
             moving[first : last + 1] = c.object_still < nearest <= c.object_reach
         return moving
