@@ -480,20 +480,18 @@ class OdometryConfig:
             )
         if not (self.resolution > 0 and self.map_size > 4 * self.recenter_distance > 0):
             raise ValueError("need resolution > 0 and map_size > 4 * recenter_distance > 0")
-        if min(self.object_size, self.object_gap, self.object_lag, self.object_still) < 0 or (
-            self.object_reach < self.object_still
-        ):
-            raise ValueError(
-                f"object_size, object_gap, object_lag and object_still must be non-negative "
-                f"and object_reach at least object_still, got {self.object_size}, "
-                f"{self.object_gap}, {self.object_lag}, {self.object_still}, {self.object_reach}"
-            )
-        if self.sweep_turn_rate < 0 or self.sweep_rates < 1 or self.sweep_refinements < 0:
-            raise ValueError(
-                f"sweep_turn_rate and sweep_refinements must be non-negative and sweep_rates "
-                f"positive, got {self.sweep_turn_rate}, {self.sweep_refinements}, "
-                f"{self.sweep_rates}"
-            )
+        objects = (self.object_size, self.object_gap, self.object_lag, self.object_still)
+        _require(
+            min(objects) >= 0 and self.object_reach >= self.object_still,
+            "object_size, object_gap, object_lag and object_still must be non-negative and "
+            f"object_reach at least object_still, got {(*objects, self.object_reach)}",
+        )
+        sweep = (self.sweep_turn_rate, self.sweep_refinements, self.sweep_rates)
+        _require(
+            min(sweep[:2]) >= 0 and self.sweep_rates >= 1,
+            "sweep_turn_rate and sweep_refinements must be non-negative and sweep_rates "
+            f"positive, got {sweep}",
+        )
         if self.score_window < 1:
             raise ValueError(f"score_window must be at least 1, got {self.score_window}")
         if not (0.0 < self.sparse_share <= 1.0 and 0.0 < self.implausible_density <= 1.0):
@@ -518,3 +516,9 @@ class OdometryConfig:
                 f"search_level must name a pyramid level (0..{self.levels - 1}), "
                 f"got {self.search_level}"
             )
+
+
+def _require(condition: bool, message: str) -> None:
+    """Refuse a setting: ``ValueError(message)`` unless ``condition``."""
+    if not condition:
+        raise ValueError(message)
