@@ -311,14 +311,21 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
     ) -> ScanMatch:
         """The scan's endpoints ``pts`` (``keep``: the kept ones) matched from the motion
         model's best start (:meth:`_best_start`, :meth:`_match`)."""
-        c = self.config
-        matched, matched_keep = self._matched(pts, keep, scan)
-        level_pts = points_per_level(matched, c.point_spacing, c.levels, matched_keep)
+        level_pts, normals = self._levels(pts, keep, scan)
         start = self._best_start(level_pts[-1], previous, predicted)
-        normals = matched_normals(level_pts)
         self._matched_levels = (level_pts, normals, facing_normals(level_pts, normals))
         pose, report, searched = self._match(level_pts, start, previous, normals, dt, predicted)
         return ScanMatch(pose, report, start, searched, pts, keep, level_pts, normals)
+
+    def _levels(
+        self, pts: FloatArray, keep: NDArray[np.bool_], scan: LaserScan
+    ) -> tuple[list[FloatArray], FloatArray]:
+        """The matched endpoints of ``pts`` (:meth:`_matched`) on each pyramid level, finest
+        first, and the finest level's surface normals."""
+        c = self.config
+        matched, matched_keep = self._matched(pts, keep, scan)
+        level_pts = points_per_level(matched, c.point_spacing, c.levels, matched_keep)
+        return level_pts, matched_normals(level_pts)
 
     def _with_sweep_settled(
         self, scan: LaserScan, previous: FloatArray, predicted: FloatArray, dt: float,

@@ -140,15 +140,16 @@ class LocalMap:
         the first time is fused."""
         c = self.config
         moving = np.zeros(pts.shape[0], dtype=bool)
-        if not self._object_track:
-            return moving
-        before = [centres for stamp, centres in self._object_track
-                  if stamp <= self._object_track[-1][0] - c.object_lag]  # fmt: skip
-        if not before or not before[-1].shape[0]:
+        latest = self._object_track[-1][0] if self._object_track else math.inf
+        before = next(
+            (seen for stamp, seen in reversed(self._object_track)
+             if stamp <= latest - c.object_lag), None,
+        )  # fmt: skip
+        if before is None or not before.shape[0]:
             return moving
         runs, centres = self._objects(pose, pts)
         for (first, last), centre in zip(runs.tolist(), centres, strict=True):
-            nearest = float(np.min(np.hypot(*(before[-1] - centre).T)))
+            nearest = float(np.min(np.hypot(*(before - centre).T)))
             moving[first : last + 1] = c.object_still < nearest <= c.object_reach
         return moving
 

@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from bioslam.geometry import between
-from bioslam.matching.gauss_newton import FloatArray, matched_normals, points_per_level
+from bioslam.matching.gauss_newton import FloatArray
 from bioslam.occupancy_grid import subsample_by_spacing
 from bioslam.odometry_config import OdometryConfig
 from bioslam.scan import LaserScan
@@ -98,6 +98,7 @@ class SweepMotion:
     model cannot give it."""
 
     config: OdometryConfig
+
     def _sweep_unknown(self, scan: LaserScan, dt: float) -> bool:
         """Whether this scan's sweep is to be measured: it goes round the circle
         (:func:`closes_circle`), is long enough for the robot to turn ``sweep_min_skew`` in
@@ -140,9 +141,7 @@ class SweepMotion:
         if points.shape[0] < c.min_points:
             return None
         keep = subsample_by_spacing(points, c.point_spacing)
-        matched, matched_keep = self._matched(points, keep, scan)
-        level_pts = points_per_level(matched, c.point_spacing, c.levels, matched_keep)
-        normals = matched_normals(level_pts)
+        level_pts, normals = self._levels(points, keep, scan)
         iterations = (c.sweep_iterations + (0,) * c.levels)[: c.levels]
         pose, report = self._match_from(
             level_pts, start, normals, c.search_prior_weight, iterations=iterations
