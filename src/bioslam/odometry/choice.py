@@ -15,7 +15,7 @@ import numpy as np
 
 from bioslam.geometry import between, separation, wrap_angle
 from bioslam.matching.gauss_newton import FloatArray, MatchReport
-from bioslam.occupancy_grid import OccupancyGrid
+from bioslam.occupancy_grid import MapPyramid, OccupancyGrid
 from bioslam.odometry_config import OdometryConfig
 
 
@@ -41,7 +41,9 @@ class MatchChoice:
     """The match kept among those a scan's starts led to."""
 
     config: OdometryConfig
+    pyramid: MapPyramid
     _first_twinned: OccupancyGrid | None
+    _matched_levels: tuple[list[FloatArray], FloatArray, list[FloatArray]] | None
 
     def _failed(self, report: MatchReport) -> bool:
         """Endpoints in known free space, or a score far below that of recent matches."""
@@ -211,6 +213,8 @@ class MatchChoice:
         pool = [o for o in options if not self._rejected(o[1])]
         if all(o[2] for o in pool):  # no match both fits and is consistent with the map
             pool = options
+        # the place by the walls' extent, unless the caller judges on a map of its own
+        place_quality = self._place_quality() if quality_of is None else None
         quality_of = quality_of or (lambda o: match_quality(o[1]))
         quality = {id(o): quality_of(o) for o in options}
         costs: dict[int, float] = {}  # the plateau and the broken-turn check ask again
@@ -224,7 +228,8 @@ class MatchChoice:
         def merit(option: tuple[FloatArray, MatchReport, bool]) -> float:
             return quality[id(option)] - cost(option)
 
-        chosen = self._typical_on_plateau(max(pool, key=merit), pool, quality, cost, previous)
+        best = self._at_place(pool, merit, cost, place_quality)
+        chosen = self._typical_on_plateau(best, pool, quality, cost, previous)
         if chosen is not first and self._beyond(chosen[0], previous, reach) and (
             (gapless and abs(between(previous, chosen[0])[2]) > reach[1])  # turned beyond
             or not (self._rejected(first[1]) and self._clean(chosen[1]) and not chosen[2])
@@ -243,6 +248,50 @@ class MatchChoice:
             if not self._rejected(o[1])
         )
         return chosen[0], report
+
+    def _place_quality(self) -> Callable[[tuple[FloatArray, MatchReport, bool]], float] | None:
+        """:func:`match_quality` of a match with, for its mean map value, the share of its
+        endpoints within a cell of a wall (the cell or one of its eight neighbours above
+        ``place_logodds``); None when ``place_logodds`` is None or no scan is being
+        matched."""
+        level = self.config.place_logodds
+        if level is None or self._matched_levels is None:
+            return None
+        grid, points = self.pyramid.finest, self._matched_levels[0][0]
+
+        def quality(option: tuple[FloatArray, MatchReport, bool]) -> float:
+            report = option[1]
+            near = 1.0 - grid.fraction_not_above_near(option[0], points, level)
+            return match_quality(report) - report.score + near
+
+        return quality
+
+    def _at_place(
+        self, pool: list[tuple[FloatArray, MatchReport, bool]],
+        merit: Callable[[tuple[FloatArray, MatchReport, bool]], float],
+        cost: Callable[[tuple[FloatArray, MatchReport, bool]], float],
+        place_quality: Callable[[tuple[FloatArray, MatchReport, bool]], float] | None,
+    ) -> tuple[FloatArray, MatchReport, bool]:
+        """The match of ``pool`` of best ``merit`` (quality less step cost) among those at
+        the place where ``place_quality`` less the step cost is best (not distinct from
+        that match); the best by ``merit`` when ``place_quality`` is None.
+
+        The mean map value says how sure the map is of the walls a match puts its
+        endpoints on, and a map is surest where the robot has been: walls fused from near
+        and often. A corridor's walls ahead, seen from its mouth at a grazing angle, are
+        held by few hits between the misses of beams passing along them. Turning into a
+        corridor on a log thinned to a scan per metre, a match 0.7 m short put the scan's
+        walls on the part fused from near and fitted 0.746 against the true step's 0.602,
+        and the route was lost there (a ring corridor's diagonal, SICK, seed 131: 4 m at
+        worst), while the share of endpoints within a cell of a wall was the same for both
+        (0.928 against 0.934). That share says where the scan's walls are, not how often
+        they were seen: it picks the place. Within it, the mean map value's finer slope
+        picks the match (by the share alone, the routes held lost a few centimetres
+        each, 2.6 -> 2.8 cm median over the thinned battery)."""
+        if place_quality is None:
+            return max(pool, key=merit)
+        place = max(pool, key=lambda o: place_quality(o) - cost(o))
+        return max((o for o in pool if not self._distinct(o[0], place[0])), key=merit)
 
     def _quality_on(
         self, grid: OccupancyGrid, option: tuple[FloatArray, MatchReport, bool]
