@@ -56,6 +56,10 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
   lobby of pillars, a corridor with doors into ten rooms of desks, a cross corridor), SICK
   and URG-04LX, the tour, adversarial and reversing routes, seeds 2-5, a third of the run's
   duration, thinned to a scan per 1 m / 0.6 rad.
+- ``ring``: the ring-corridor floor plan (``ring_floor_plan.py``: identical offices off a
+  ring corridor, a corridor cut through its core at 28°, a lab of pillars), SICK, its
+  361-beam mode, RPLIDAR and URG-04LX, the tour, adversarial and reversing routes, seeds 131
+  and 132, a third of the run's duration, thinned to a scan per 1 m / 0.6 rad.
 - ``crowdedthinned``: routes and seeds no default was tuned on (seeds 51 and 52): the five
   worlds (the four and the office), tour and adversarial route, 300 s, three people walking
   the roadmap, the SICK preset with 5 % of its beams lost and its 361-beam mode, thinned to
@@ -227,6 +231,21 @@ def simulated_scans(world, lidar, duration, seed=0, route="tour", thin=None, fas
     items = list(scans)
     keep = thin_indices(np.array([true for _, true in items]), *thin)
     return iter([items[k] for k in keep])
+
+
+@functools.cache
+def ring_world() -> str:
+    """The ring-corridor floor plan (``ring_floor_plan.py``), written once into a temporary
+    folder (removed at exit): its map YAML's path."""
+    import atexit
+    import shutil
+    import tempfile
+
+    from ring_floor_plan import write_ring
+
+    folder = Path(tempfile.mkdtemp(prefix="bioslam-ring-"))
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    return str(write_ring(folder))
 
 
 @functools.cache
@@ -701,6 +720,14 @@ def main() -> None:
             for lidar in ("sick", "urg04lx")
             for route in ("tour", "adversarial", "reversing")
             for seed in range(2, 6)
+        ],
+        "ring": lambda: [
+            sim_case(f"ring {route} {lidar}, a scan per 1 m / 0.6 rad, seed {seed}",
+                     LIDAR_PRESETS[lidar], duration / 3, world=ring_world(), seed=seed,
+                     thin=(1.0, 0.6), route=route)
+            for lidar in ("sick", "sick361", "rplidar", "urg04lx")
+            for route in ("tour", "adversarial", "reversing")
+            for seed in (131, 132)
         ],
         "crowdedthinned": crowded_thinned,
         "turnonspot": lambda: [
