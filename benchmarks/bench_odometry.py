@@ -100,6 +100,7 @@ import functools
 import itertools
 import math
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -233,35 +234,32 @@ def simulated_scans(world, lidar, duration, seed=0, route="tour", thin=None, fas
     return iter([items[k] for k in keep])
 
 
-@functools.cache
-def ring_world() -> str:
-    """The ring-corridor floor plan (``ring_floor_plan.py``), written once into a temporary
-    folder (removed at exit): its map YAML's path."""
+def _written_world(write: Callable[[Path], Path], prefix: str) -> str:
+    """A floor plan written by ``write`` into a temporary folder (removed at exit): its map
+    YAML's path, which :func:`bioslam.sim.load_world` reads."""
     import atexit
     import shutil
     import tempfile
 
+    folder = Path(tempfile.mkdtemp(prefix=prefix))
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    return str(write(folder))
+
+
+@functools.cache
+def ring_world() -> str:
+    """The ring-corridor floor plan (``ring_floor_plan.py``), written once."""
     from ring_floor_plan import write_ring
 
-    folder = Path(tempfile.mkdtemp(prefix="bioslam-ring-"))
-    atexit.register(shutil.rmtree, folder, ignore_errors=True)
-    return str(write_ring(folder))
+    return _written_world(write_ring, "bioslam-ring-")
 
 
 @functools.cache
 def office_world() -> str:
-    """The office floor plan (``office_floor_plan.py``), written once into a temporary
-    folder (removed at exit): its map YAML's path, which :func:`bioslam.sim.load_world`
-    reads."""
-    import atexit
-    import shutil
-    import tempfile
-
+    """The office floor plan (``office_floor_plan.py``), written once."""
     from office_floor_plan import write_office
 
-    folder = Path(tempfile.mkdtemp(prefix="bioslam-office-"))
-    atexit.register(shutil.rmtree, folder, ignore_errors=True)
-    return str(write_office(folder))
+    return _written_world(write_office, "bioslam-office-")
 
 
 def people_on_route(route) -> list[MovingObstacle]:

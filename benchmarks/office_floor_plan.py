@@ -2,7 +2,7 @@
 the loop closure's defaults were tuned on: a 36 m x 24 m floor with a lobby of pillars, a
 corridor 2.4 m wide with doors into ten rooms of desks, and a cross corridor.
 
-    python benchmarks/office_floor_plan.py OUT_DIR   # writes OUT_DIR/office.{png,yaml}
+    python benchmarks/office_floor_plan.py OUT_DIR   # writes OUT_DIR/office.{pgm,yaml}
     bioslam sim --world OUT_DIR/office.yaml ...
 
 ``bench_odometry.py --only office`` and ``bench_loops.py --cases <dir>/office.yaml-sick-tour``
@@ -68,18 +68,20 @@ def floor_plan(seed: int = 0) -> np.ndarray:
     return img[::-1]
 
 
-def write_office(folder: Path) -> Path:
-    """Write ``office.png`` and ``office.yaml`` into ``folder``; the YAML's path."""
-    from PIL import Image
+def write_floor_plan(folder: Path, name: str, image: np.ndarray, resolution: float) -> Path:
+    """Write a floor plan's occupancy ``image`` (``FREE`` / ``OCCUPIED`` pixels, row 0 at the
+    top) as the map_server map ``<name>.pgm`` + ``<name>.yaml`` into ``folder``, origin at
+    its lower-left corner; the YAML's path."""
+    from bioslam.io.mapfile import OccupancyImage, write_map
 
     folder.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(floor_plan()).save(folder / "office.png")
-    yaml = folder / "office.yaml"
-    yaml.write_text(
-        f"image: office.png\nresolution: {RESOLUTION}\norigin: [0.0, 0.0, 0.0]\nnegate: 0\n"
-        "occupied_thresh: 0.65\nfree_thresh: 0.196\n"
-    )
-    return yaml
+    occupancy = np.where(image[::-1] == OCCUPIED, 1.0, 0.0)
+    return write_map(folder, OccupancyImage(occupancy, resolution), name=name)[1]
+
+
+def write_office(folder: Path) -> Path:
+    """Write ``office.pgm`` and ``office.yaml`` into ``folder``; the YAML's path."""
+    return write_floor_plan(folder, "office", floor_plan(), RESOLUTION)
 
 
 if __name__ == "__main__":

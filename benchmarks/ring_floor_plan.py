@@ -4,7 +4,7 @@ offices off its long sides (a cabinet at the same place in each, a chair where i
 2 m corridor cut diagonally through the core at 28° (off the axes the others run along, its
 walls a staircase of 5 cm pixels), and a lab of pillars off its west side.
 
-    python benchmarks/ring_floor_plan.py OUT_DIR   # writes OUT_DIR/ring.{png,yaml}
+    python benchmarks/ring_floor_plan.py OUT_DIR   # writes OUT_DIR/ring.{pgm,yaml}
     bioslam sim --world OUT_DIR/ring.yaml ...
 
 The benchmarks README ("Where the map is surest") runs thinned and dense routes on it.
@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from office_floor_plan import write_floor_plan
 
 RESOLUTION = 0.05  # metres per pixel
 WIDTH, HEIGHT = 40.0, 28.0
@@ -59,17 +60,8 @@ def floor_plan(seed: int = 7) -> np.ndarray:
 
 
 def write_ring(folder: Path) -> Path:
-    """Write ``ring.png`` and ``ring.yaml`` into ``folder``; the YAML's path."""
-    from PIL import Image
-
-    folder.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(np.ascontiguousarray(floor_plan())).save(folder / "ring.png")
-    yaml = folder / "ring.yaml"
-    yaml.write_text(
-        f"image: ring.png\nresolution: {RESOLUTION}\norigin: [0.0, 0.0, 0.0]\nnegate: 0\n"
-        "occupied_thresh: 0.65\nfree_thresh: 0.196\n"
-    )
-    return yaml
+    """Write ``ring.pgm`` and ``ring.yaml`` into ``folder``; the YAML's path."""
+    return write_floor_plan(folder, "ring", floor_plan(), RESOLUTION)
 
 
 if __name__ == "__main__":
