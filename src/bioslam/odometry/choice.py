@@ -23,7 +23,13 @@ def match_quality(report: MatchReport) -> float:
     """Mean M* over the matched endpoints, less the fraction of them in known free space
     (negative evidence: the map saw through where the match puts a wall) and the fraction of
     beams that pass through a known wall (the scan saw through where the map has one)."""
-    return report.score - report.free_fraction - report.through_fraction
+    return quality_with_score(report, report.score)
+
+
+def quality_with_score(report: MatchReport, score: float) -> float:
+    """:func:`match_quality` of ``report`` with ``score`` for its mean M* (the fit measured
+    another way or on another map)."""
+    return score - report.free_fraction - report.through_fraction
 
 
 def off_line(
@@ -260,9 +266,8 @@ class MatchChoice:
         grid, points = self.pyramid.finest, self._matched_levels[0][0]
 
         def quality(option: tuple[FloatArray, MatchReport, bool]) -> float:
-            report = option[1]
             near = 1.0 - grid.fraction_not_above_near(option[0], points, level)
-            return match_quality(report) - report.score + near
+            return quality_with_score(option[1], near)
 
         return quality
 
@@ -306,9 +311,8 @@ class MatchChoice:
         against 0.570 on the tour, 0.501 against 0.470 turning 7° on the weaving route;
         lost from the start). Only the choice is made so: the matches themselves, and the
         map, are as before."""
-        report = option[1]
         points = self._matched_levels[0][0]
-        return match_quality(report) - report.score + self._score_at(option[0], points, grid)
+        return quality_with_score(option[1], self._score_at(option[0], points, grid))
 
     def _typical_on_plateau(
         self, chosen: tuple[FloatArray, MatchReport, bool],

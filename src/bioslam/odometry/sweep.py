@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 from bioslam.geometry import between
 from bioslam.matching.gauss_newton import FloatArray
 from bioslam.occupancy_grid import subsample_by_spacing
+from bioslam.odometry.choice import match_quality
 from bioslam.odometry_config import OdometryConfig
 from bioslam.scan import LaserScan
 
@@ -82,7 +83,8 @@ def best_rate(
 class SweepFit:
     """A scan de-skewed with turn ``rate`` (rad/s) and matched: its endpoints (sensor frame)
     and the kept ones among them, the levels and normals matched, the pose Gauss-Newton
-    reached and its fit (M* less the share of endpoints in known free space)."""
+    reached and its fit (:func:`~bioslam.odometry.choice.match_quality`: M* less the share of
+    endpoints in known free space; no beams are traced through walls here)."""
 
     rate: float
     points: FloatArray
@@ -146,5 +148,4 @@ class SweepMotion:
         pose, report = self._match_from(
             level_pts, start, normals, c.search_prior_weight, iterations=iterations
         )
-        quality = report.score - report.free_fraction
-        return SweepFit(twist[2], points, keep, level_pts, normals, pose, quality)
+        return SweepFit(twist[2], points, keep, level_pts, normals, pose, match_quality(report))
