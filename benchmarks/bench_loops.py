@@ -298,7 +298,7 @@ def report_log(path: str, config: SLAMConfig) -> str:
     reference = source.reference
     slam, full_ms, odo_ms = timed_run(scans, config)
     if reference is None:
-        return report_loop_gap(path, slam, full_ms, odo_ms)
+        return report_loop_gap(path, slam, full_ms, odo_ms, scans)
     errors = closure_errors(slam, reference)
     metres = np.array([e[2] for e in errors])
     full = evaluate(slam.trajectory(), reference)["ate_rmse_m"]
@@ -337,19 +337,30 @@ def cost_line(full_ms: np.ndarray, odo_ms: np.ndarray) -> str:
     )
 
 
-def report_loop_gap(path: str, slam: BioSLAM, full_ms: np.ndarray, odo_ms: np.ndarray) -> str:
-    """A log without corrected poses: closures, checks and the loop gap
-    (``loop_consistency.loop_gap``) of the full system against its own odometry's."""
-    from loop_consistency import loop_gap
+def report_loop_gap(
+    path: str, slam: BioSLAM, full_ms: np.ndarray, odo_ms: np.ndarray, scans: list
+) -> str:
+    """A log without corrected poses: closures, checks, the loop gap and the return misfit
+    (``loop_consistency``) of the full system against its own odometry's."""
+    from loop_consistency import loop_gap, return_misfit
 
     by = checks_by_outcome(slam)
     full, odo = loop_gap(slam.trajectory()), loop_gap(slam.odometry_trajectory())
+    misfits = [
+        return_misfit(traj, scans) for traj in (slam.trajectory(), slam.odometry_trajectory())
+    ]
     return "\n".join([
         f"{path} ({slam.num_scans} scans, no reference)",
         f"  accepted closures {slam.summary()['loop_closures']} of {len(slam.checks)} checks: "
         + ", ".join(f"{k} {v}" for k, v in sorted(by.items())),
         f"  loop gap full {full['loop_gap_m']:.3f} m / {full['loop_gap_deg']:.1f} deg, odometry "
         f"{odo['loop_gap_m']:.3f} m / {odo['loop_gap_deg']:.1f} deg",
+        "  return misfit (the return scan registered against the start's): "
+        + ", ".join(
+            f"{name} {m['misfit_m']:.3f} m / {m['misfit_deg']:.1f} deg at score {m['score']:.3f}"
+            + (f" (not measured: {m['reason']})" if m.get("reason") else "")
+            for name, m in zip(("full", "odometry"), misfits, strict=True)
+        ),
         cost_line(full_ms, odo_ms),
     ])
 
