@@ -71,3 +71,29 @@ def test_scans_at_the_scanner_rate_run_as_without_it():
 def test_a_place_level_that_is_not_a_number_is_refused():
     with pytest.raises(ValueError, match="place_logodds"):
         OdometryConfig(place_logodds=math.nan)
+
+
+def _turned(x: float, heading: float, score: float, free: float) -> tuple:
+    return np.array([x, 0.0, heading]), MatchReport(score=score, free_fraction=free), False
+
+
+@pytest.mark.parametrize(("turned_score", "vetoed"), [(1.0, True), (0.7, False)])
+def test_a_step_kept_only_by_the_map_s_veto_of_a_better_turned_match_is_flagged(
+    turned_score, vetoed
+):
+    """A thinned scan spinning in a symmetric room: the match 120° round fits better than
+    the one kept, its endpoints in free space counted, but too many of them lie where the map
+    saw free space (a quarter, above ``recovery_free_fraction``). The odometry
+    keeps its step (the veto stands) and flags it ``vetoed``, which breaks its chain for the
+    closures; a turned match that fits worse leaves the step unflagged."""
+    from bioslam.closure import odometry_broke
+    from bioslam.config import LoopClosureConfig
+
+    odo = LidarOdometry()
+    kept = _turned(0.5, 0.0, 0.6, 0.0)
+    pool = [kept, _turned(0.5, math.radians(120.0), turned_score, 0.25)]
+    pose, report = odo._sparse_choice(pool, np.zeros(3), (3.0, math.pi))
+    assert pose is kept[0] and not report.broken
+    assert report.vetoed is vetoed
+    step = np.array([0.5, 0.0, 0.0])
+    assert odometry_broke(report, step, step, 1.0, LoopClosureConfig()) is vetoed

@@ -88,8 +88,12 @@ def odometry_broke(
     simulated maze the odometry jumped 0.5 m along corridors (SICK) and 1.9 m (URG-04LX),
     and closures then confirmed the jump. A step along a direction the scan does not
     constrain (``report.degenerate``) faster than ``max_speed`` (m/s) is a break too, and
-    so is a step the odometry reports it cannot vouch for (``report.broken``)."""
-    if report.predicted_only or report.broken:
+    so is a step the odometry reports it cannot vouch for (``report.broken``) or kept only
+    by the map's veto of a better match turned the other way (``report.vetoed``: a thinned
+    SICK spinning in a ring corridor's office took a 120° turn for a true -60° the map
+    rejected, and turned back 180° two seconds later; closures to the place made between
+    the two then confirmed it, 1.5-2.4 m and 180° off)."""
+    if report.predicted_only or report.broken or report.vetoed:
         return True  # no match, or one the odometry itself cannot vouch for
     if report.degenerate and math.hypot(step[0], step[1]) > max_speed * dt:
         # blind along a corridor, the odometry ran faster than the robot can move (URG-04LX

@@ -71,6 +71,11 @@ class MatchReport:
             ones, or a match turned the other way fits about as well
             (``OdometryConfig.break_score_ratio``): the odometry cannot vouch for the step,
             a break of its chain (:func:`bioslam.closure.odometry_broke`).
+        vetoed: on sparse scans, a match turned the other way (``break_turn``) fits better,
+            step cost included, but the map's free space rejected it: the step kept rests
+            on that veto alone, which a map fused from a few sparse scans, some misplaced,
+            does not make sure. The odometry keeps its choice; its chain is broken there for
+            the closures (:func:`bioslam.closure.odometry_broke`).
         covariance: 3x3 covariance of (x, y, theta) in the map frame from the scan alone
             (:func:`match_covariance`); NaN where no match was made. Along a direction the
             scan does not constrain it is large: there the pose kept the motion prior.
@@ -93,6 +98,7 @@ class MatchReport:
     ambiguous: bool = False
     restarted: bool = False
     broken: bool = False
+    vetoed: bool = False
     overruled: bool = False
     #: :func:`match_covariance`'s arguments, kept so that the covariance is computed only for
     #: the report someone reads (the searches' and closures' candidates are never read)

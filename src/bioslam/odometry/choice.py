@@ -253,6 +253,11 @@ class MatchChoice:
             for o in pool
             if not self._rejected(o[1])
         )
+        report.vetoed = any(
+            abs(between(chosen[0], o[0])[2]) > c.break_turn and merit(o) > merit(chosen)
+            for o in options
+            if self._rejected(o[1])
+        )
         return chosen[0], report
 
     def _place_quality(self) -> Callable[[tuple[FloatArray, MatchReport, bool]], float] | None:
