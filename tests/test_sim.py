@@ -383,3 +383,24 @@ def test_the_reversing_route_backs_up_along_its_own_path():
     gaps = np.min(np.hypot(*(poses[::20, None, :2] - path[None, :, :]).T), axis=0)
     assert gaps.max() < 0.03
     check_clearance(world, poses, 0.25)
+
+
+def test_a_u_turn_left_by_merging_near_waypoints_is_taken_on_the_spot():
+    """Two corners a few centimetres apart (a map's roadmap) merge into one vertex where the
+    walk goes back the way it came: the legs are cut there, and each can be rounded."""
+    from bioslam.sim.adversarial import _legs, _Waypoints
+    from bioslam.sim.route import SHARPEST_ROUNDED, rounded_polyline
+
+    way = _Waypoints()
+    for point in ((0.0, 0.0), (0.0, 2.0), (0.03, 2.0), (0.0, 0.0), (2.0, 0.0)):
+        way.add(np.array(point))
+    legs = _legs(way)
+    assert [leg.tolist() for leg in legs] == [
+        [[0.0, 0.0], [0.0, 2.0]],
+        [[0.0, 2.0], [0.0, 0.0], [2.0, 0.0]],
+    ]
+    for leg in legs:
+        assert all(
+            turn_angle(leg, i - 1, i, i + 1) <= SHARPEST_ROUNDED for i in range(1, len(leg) - 1)
+        )
+        rounded_polyline(leg, np.full(len(leg), 1.0), 0.5, 0.05)

@@ -20,6 +20,7 @@ from scipy.ndimage import minimum_filter1d
 from bioslam.geometry import wrap_angle
 from bioslam.sim.reversing import make_reversing_route
 from bioslam.sim.route import (
+    SHARPEST_ROUNDED,
     CoverageWalker,
     Route,
     RouteConfig,
@@ -213,10 +214,17 @@ def _spin(heading: float, delta: float, cfg: AdversarialConfig) -> tuple[NDArray
 
 def _legs(way: _Waypoints) -> list[NDArray]:
     """The waypoints cut at every stop; points within ``_MIN_STEP`` of the previous one are
-    merged into it (a stop there happens at the previous point)."""
+    merged into it (a stop there happens at the previous point). A merge can leave a turn
+    sharper than any arc rounds (:data:`bioslam.sim.route.SHARPEST_ROUNDED`) where the walk
+    had two gentler ones (a roadmap edge of a few centimetres between two corners of a map's
+    corridor: the ring floor plan's route of seed 155 went back the way it came there): it is
+    cut there too, a turn on the spot."""
     legs, current = [], [way.points[0]]
     for point, stop in zip(way.points[1:], way.stop[1:], strict=True):
         if np.hypot(*(point - current[-1])) > _MIN_STEP:
+            if len(current) > 1 and _turn(current[-2], current[-1], point) > SHARPEST_ROUNDED:
+                legs.append(np.array(current))
+                current = [current[-1]]
             current.append(point)
         if stop and len(current) > 1:
             legs.append(np.array(current))
@@ -224,6 +232,11 @@ def _legs(way: _Waypoints) -> list[NDArray]:
     if len(current) > 1:
         legs.append(np.array(current))
     return legs
+
+
+def _turn(a: NDArray, b: NDArray, c: NDArray) -> float:
+    """The absolute heading change at ``b`` on the way ``a -> b -> c``, radians."""
+    return turn_angle(np.array([a, b, c]), 0, 1, 2)
 
 
 def _drive_leg(

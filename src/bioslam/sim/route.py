@@ -154,6 +154,8 @@ def turn_angle(nodes: NDArray, a: int, b: int, c: int) -> float:
 
 #: A turn sharper than this (radians) doubles back: :func:`rounded_polyline` cannot round it.
 U_TURN = math.radians(170.0)
+#: ... and sharper than this it refuses to (an arc's tangent length grows without bound).
+SHARPEST_ROUNDED = math.radians(178.0)
 
 
 class CoverageWalker:
@@ -249,7 +251,7 @@ def rounded_polyline(points: NDArray, slack: NDArray, radius: float, step: float
         u, v = u / lu, v / lv
         phi = float(np.arctan2(u[0] * v[1] - u[1] * v[0], u @ v))
         half = 0.5 * abs(phi)
-        if half > np.deg2rad(89.0):
+        if 2.0 * half > SHARPEST_ROUNDED:
             raise ValueError(f"the route turns back at {p.tolist()}: cannot round a U-turn")
         r = min(
             radius,
