@@ -47,7 +47,7 @@ from bioslam.geometry import between, wrap_angle
 from bioslam.odometry import LidarOdometry
 from bioslam.pipeline import warm_up
 from bioslam.scan import LaserScan
-from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world, simulate_scans
+from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world, people_on_roadmap, simulate_scans
 from bioslam.slam import BioSLAM
 from bioslam.trajectory import Trajectory
 
@@ -78,12 +78,15 @@ DEFAULT_CASES = (
 
 
 def simulate(
-    case: SimCase, duration: float, seed: int, thin: int = 1
+    case: SimCase, duration: float, seed: int, thin: int = 1, people: int = 0
 ) -> tuple[list, Trajectory]:
-    """The case's scans (every ``thin``-th, as a log thinned for size) and ground truth."""
+    """The case's scans (every ``thin``-th, as a log thinned for size) and ground truth, with
+    ``people`` walking the corridors as ``bioslam sim --people`` has them."""
     world = load_world(case.world)
     route = ROUTES[case.route](world, duration=duration, seed=seed)
-    pairs = list(simulate_scans(world, LIDAR_PRESETS[case.lidar], route, seed=seed))[::thin]
+    walkers = people_on_roadmap(world, people, seed=seed) if people else []
+    lidar = LIDAR_PRESETS[case.lidar]
+    pairs = list(simulate_scans(world, lidar, route, seed=seed, obstacles=walkers))[::thin]
     scans = [scan for scan, _ in pairs]
     return scans, Trajectory(np.array([s.stamp for s in scans]), np.array([p for _, p in pairs]))
 
@@ -239,9 +242,10 @@ def revisit_stages(
 
 
 def report(
-    case: SimCase, duration: float, seed: int, gap: float, config: SLAMConfig, thin: int = 1
+    case: SimCase, duration: float, seed: int, gap: float, config: SLAMConfig, thin: int = 1,
+    people: int = 0,
 ) -> str:
-    scans, gt = simulate(case, duration, seed, thin)
+    scans, gt = simulate(case, duration, seed, thin, people)
     slam, full_ms, odo_ms = timed_run(scans, config)
     errors = closure_errors(slam, gt)
     true = [e for e in errors if e[2] <= TRUE_DISTANCE and e[3] <= math.degrees(TRUE_ANGLE)]
@@ -263,6 +267,7 @@ def report(
     )
     lines = [
         f"{case.name} ({len(scans)} scans, {duration:g} s, seed {seed}"
+        + (f", {people} people" if people else "")
         + (f", every {thin}th scan)" if thin > 1 else ")"),
         f"  checks: {', '.join(f'{k} {v}' for k, v in sorted(by.items()))}",
         f"  accepted {len(errors)}, false {len(errors) - len(true)}, precision "
@@ -392,6 +397,8 @@ def main() -> None:
     ap.add_argument("--gap", type=float, default=10.0, help="metres of travel before a revisit")
     ap.add_argument("--thin", type=int, default=1,
                     help="keep every n-th scan only (a thinned log: the odometry's steps grow)")
+    ap.add_argument("--people", type=int, default=0,
+                    help="people walking the corridors (as bioslam sim --people)")
     ap.add_argument("--log", action="append", default=[],
                     help="also a real log: against its corrected poses (e.g. freiburg-079), "
                          "or by its loop gap when it has none (exp1.dat, the ROS 1 bag)")
@@ -410,7 +417,10 @@ def main() -> None:
     for name in args.cases.split(",") if args.cases else ():
         world, lidar, route = name.rsplit("-", 2)  # the world may be a map YAML's path
         case = SimCase(world, lidar, route)
-        print(report(case, args.duration, args.seed, args.gap, config, args.thin), flush=True)
+        print(
+            report(case, args.duration, args.seed, args.gap, config, args.thin, args.people),
+            flush=True,
+        )
 
 
 if __name__ == "__main__":
