@@ -85,7 +85,8 @@ def test_a_step_kept_only_by_the_map_s_veto_of_a_better_turned_match_is_flagged(
     the one kept, its endpoints in free space counted, but too many of them lie where the map
     saw free space (a quarter, above ``recovery_free_fraction``). The odometry
     keeps its step (the veto stands) and flags it ``vetoed``, which breaks its chain for the
-    closures; a turned match that fits worse leaves the step unflagged."""
+    closures where the step turns away from the motion; a turned match that fits worse
+    leaves the step unflagged."""
     from bioslam.closure import odometry_broke
     from bioslam.config import LoopClosureConfig
 
@@ -95,5 +96,8 @@ def test_a_step_kept_only_by_the_map_s_veto_of_a_better_turned_match_is_flagged(
     pose, report = odo._sparse_choice(pool, np.zeros(3), (3.0, math.pi))
     assert pose is kept[0] and not report.broken
     assert report.vetoed is vetoed
-    step = np.array([0.5, 0.0, 0.0])
-    assert odometry_broke(report, step, step, 1.0, LoopClosureConfig()) is vetoed
+    # against a motion turning the other way the kept step is a break where it was vetoed;
+    # kept with the motion (a scanner at its rate spinning on the spot), it is none
+    step, turning = np.array([0.5, 0.0, 0.0]), np.array([0.5, 0.0, math.radians(-60.0)])
+    assert odometry_broke(report, step, turning, 1.0, LoopClosureConfig()) is vetoed
+    assert not odometry_broke(report, step, step, 1.0, LoopClosureConfig())

@@ -88,13 +88,18 @@ def odometry_broke(
     simulated maze the odometry jumped 0.5 m along corridors (SICK) and 1.9 m (URG-04LX),
     and closures then confirmed the jump. A step along a direction the scan does not
     constrain (``report.degenerate``) faster than ``max_speed`` (m/s) is a break too, and
-    so is a step the odometry reports it cannot vouch for (``report.broken``) or kept only
-    by the map's veto of a better match turned the other way (``report.vetoed``: a thinned
+    so is a step the odometry reports it cannot vouch for (``report.broken``) or one that
+    turns away from the motion kept only by the map's veto of a better match turned the
+    other way (``report.vetoed``: a thinned
     SICK spinning in a ring corridor's office took a 120° turn for a true -60° the map
     rejected, and turned back 180° two seconds later; closures to the place made between
     the two then confirmed it, 1.5-2.4 m and 180° off)."""
-    if report.predicted_only or report.broken or report.vetoed:
+    if report.predicted_only or report.broken:
         return True  # no match, or one the odometry itself cannot vouch for
+    if report.vetoed and _departure(step, expected)[1] > config.break_angle:
+        # the veto kept a turn the motion does not bear out (kept with the motion, as by a
+        # 10 Hz scanner spinning on the spot between look-alike matches, it is no break)
+        return True
     if report.degenerate and math.hypot(step[0], step[1]) > max_speed * dt:
         # blind along a corridor, the odometry ran faster than the robot can move (URG-04LX
         # maze: 2.9 m/s backwards while the robot drove on at 0.5 m/s)
