@@ -90,8 +90,10 @@ def return_misfit(
         return {"misfit_m": float("nan"), "misfit_deg": float("nan"), "score": float("nan")}
     step = np.hypot(*np.diff(traj.poses[:, :2], axis=0).T)
     travelled = np.concatenate([[0.0], np.cumsum(step)])
-    members = [int(i) for i in np.flatnonzero(travelled <= cfg.start_m) if i < j]
-    payloads = [scans[i].endpoints() for i in range(j)]
+    members = [int(i) for i in np.flatnonzero(travelled[:j] <= cfg.start_m)]
+    payloads: list[np.ndarray | None] = [None] * j  # only the start's scans are read
+    for i in members:
+        payloads[i] = scans[i].endpoints()
     poses = traj.poses[:j]
     closure = LoopClosureConfig(min_score=cfg.min_score)
     reference = fuse_submap(poses, payloads, 0, members, closure.submap_spacing)

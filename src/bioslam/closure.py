@@ -90,10 +90,9 @@ def odometry_broke(
     constrain (``report.degenerate``) faster than ``max_speed`` (m/s) is a break too, and
     so is a step the odometry reports it cannot vouch for (``report.broken``) or one that
     turns away from the motion kept only by the map's veto of a better match turned the
-    other way (``report.vetoed``: a thinned
-    SICK spinning in a ring corridor's office took a 120° turn for a true -60° the map
-    rejected, and turned back 180° two seconds later; closures to the place made between
-    the two then confirmed it, 1.5-2.4 m and 180° off)."""
+    other way (``report.vetoed``: a thinned SICK spinning in a ring corridor's office took
+    a 120° turn for a true -60° the map rejected, and turned back 180° two seconds later;
+    closures to the place made between the two then confirmed it, 1.5-2.4 m and 180° off)."""
     if report.predicted_only or report.broken:
         return True  # no match, or one the odometry itself cannot vouch for
     if report.vetoed and _departure(step, expected)[1] > config.break_angle:

@@ -74,8 +74,9 @@ class MatchReport:
         vetoed: on sparse scans, a match turned the other way (``break_turn``) fits better,
             step cost included, but the map's free space rejected it: the step kept rests
             on that veto alone, which a map fused from a few sparse scans, some misplaced,
-            does not make sure. The odometry keeps its choice; its chain is broken there for
-            the closures (:func:`bioslam.closure.odometry_broke`).
+            does not make sure. The odometry keeps its choice; where the step turns away
+            from the motion, its chain is broken there for the closures
+            (:func:`bioslam.closure.odometry_broke`).
         covariance: 3x3 covariance of (x, y, theta) in the map frame from the scan alone
             (:func:`match_covariance`); NaN where no match was made. Along a direction the
             scan does not constrain it is large: there the pose kept the motion prior.

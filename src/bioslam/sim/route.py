@@ -250,9 +250,9 @@ def rounded_polyline(points: NDArray, slack: NDArray, radius: float, step: float
         lu, lv = np.hypot(*u), np.hypot(*v)
         u, v = u / lu, v / lv
         phi = float(np.arctan2(u[0] * v[1] - u[1] * v[0], u @ v))
-        half = 0.5 * abs(phi)
-        if 2.0 * half > SHARPEST_ROUNDED:
+        if abs(phi) > SHARPEST_ROUNDED:
             raise ValueError(f"the route turns back at {p.tolist()}: cannot round a U-turn")
+        half = 0.5 * abs(phi)
         r = min(
             radius,
             0.5 * min(lu, lv) / np.tan(half),
