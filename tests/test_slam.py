@@ -684,3 +684,23 @@ def test_the_first_scan_of_a_sweeping_scanner_is_kept_for_no_closure(ring_drive)
     assert kept.cognitive_map.payloads[0] is not None
     unswept = [dataclasses.replace(s, time_increment=0.0) for s in scans[:30]]
     assert run(unswept, SLAMConfig()).cognitive_map.payloads[0] is not None
+
+
+def test_a_search_turning_away_soon_after_a_break_is_a_break_too():
+    """The odometry turning back into the frame it left at a break: within ``break_echo``
+    scans of a break, a search's step that departs from the motion by more than the
+    odometry's ``break_turn`` breaks the chain; later, or taken from the motion model, it
+    does not."""
+    from bioslam.odometry import MatchReport
+    from bioslam.slam import SelfMotion
+
+    motion = SelfMotion(SLAMConfig())
+    spinning = np.array([0.0, 0.0, np.radians(-37.0)])
+    back = np.array([0.8, 0.0, np.radians(136.0)])
+    searched = MatchReport(recovered=True)
+    motion._since_break = 3
+    assert motion._turned_after_break(searched, back, spinning)
+    assert not motion._turned_after_break(searched, spinning, spinning)
+    assert not motion._turned_after_break(MatchReport(), back, spinning)
+    motion._since_break = 4
+    assert not motion._turned_after_break(searched, back, spinning)

@@ -136,6 +136,10 @@ class LoopClosureConfig:
             odometry step is a break when it departs from the last step's velocity by more
             than this (m, rad) plus half this acceleration (m/s², rad/s²) times the time
             since the last scan squared (:func:`bioslam.closure.odometry_broke`).
+        break_echo: within this many scans after a break, a search's step that turns away
+            from the motion by more than the odometry's ``break_turn`` is a break too: the
+            odometry turning back into the frame it left at the break
+            (:meth:`bioslam.slam.SelfMotion._turned_after_break`).
         min_seen: the score counts only the points of the current scan where the submap's
             scans looked (a robot off the old centre-line sees what they never saw), but at
             least this share of the points (the unseen ones then as misses).
@@ -234,6 +238,7 @@ class LoopClosureConfig:
     break_angle: float = math.radians(10.0)
     break_acceleration: float = 2.0
     break_angular_acceleration: float = 10.0
+    break_echo: int = 3
     consistency: bool = True
     weigh_jumps: bool = True
     bridge_returns: bool = True

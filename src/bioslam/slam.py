@@ -59,7 +59,7 @@ from bioslam.cognitive_map import (
     registration_shape,
 )
 from bioslam.config import SLAMConfig
-from bioslam.geometry import Pose2D, between, compose, inverse
+from bioslam.geometry import Pose2D, between, compose, inverse, wrap_angle
 from bioslam.growing import GrowingArray, RowsFactory
 from bioslam.link_noise import LinkNoiseEstimator
 from bioslam.occupancy_grid import NORMAL_MAX_GAP, NORMAL_RADIUS, scan_normals, subsample_by_spacing
@@ -219,6 +219,8 @@ class SelfMotion:
         self.slide = ""
         self._steady = np.zeros(3)
         self._steady_dt = 0.0
+        #: scans since the last break (:meth:`_turned_after_break`)
+        self._since_break = math.inf
 
     def step(self, scan: LaserScan) -> FloatArray:
         """The motion since the previous scan, in the previous robot frame."""
@@ -230,9 +232,11 @@ class SelfMotion:
                 expected = self._last_step * min(dt / self._last_dt, 1e3)
                 report = self.odometry.last_report
                 self.doubts += int(odometry_doubted(report))
+                self._since_break += 1
                 if odometry_broke(
                     report, dp, expected, dt, self.closure, self.odometry.config.max_speed
-                ):
+                ) or self._turned_after_break(report, dp, expected):
+                    self._since_break = 0
                     self.breaks += 1
                     extent = break_extent(dp, expected, dt, self.closure)
                     self.break_extent += extent
@@ -251,6 +255,20 @@ class SelfMotion:
         self.travelled += math.hypot(dp[0], dp[1])
         self.pose = compose(self.pose, dp)
         return dp
+
+    def _turned_after_break(
+        self, report: MatchReport, dp: FloatArray, expected: FloatArray
+    ) -> bool:
+        """Whether ``dp``, a search's step within ``break_echo`` scans of a break, turns away
+        from the motion by more than the odometry's ``break_turn``: the odometry turning
+        back into a frame it left at the break (a thinned URG-04LX spinning in a symmetric
+        office turned 154° at a break, and 136° for a true -45° three scans later, the
+        match fitting the map it had left; a closure to the place made in between was 1.2 m
+        and 179° off)."""
+        if self._since_break > self.closure.break_echo or not report.recovered:
+            return False
+        turned = abs(float(wrap_angle(float(dp[2] - expected[2]))))
+        return turned > self.odometry.config.break_turn
 
     def _track_slide(self, dp: FloatArray, dt: float) -> None:
         """Whether ``dp`` opens or undoes a slide (:class:`bioslam.closure.SlideReturns`):
