@@ -108,6 +108,25 @@ def odometry_broke(
     return implausible(step, expected, dt, config)
 
 
+def turned_after_break(
+    report: MatchReport,
+    step: FloatArray,
+    expected: FloatArray,
+    scans_since: float,
+    config: LoopClosureConfig,
+    break_turn: float,
+) -> bool:
+    """Whether ``step``, a search's step ``scans_since`` scans after a break (at most
+    ``break_echo``), turns away from the ``expected`` motion by more than ``break_turn``
+    (the odometry's): the odometry turning back into a frame it left at the break (a thinned
+    URG-04LX spinning in a symmetric office turned 154° at a break, and 136° for a true -45°
+    three scans later, the match fitting the map it had left; a closure to the place made
+    in between was 1.2 m and 179° off)."""
+    if scans_since > config.break_echo or not report.recovered:
+        return False
+    return _departure(step, expected)[1] > break_turn
+
+
 def implausible(
     step: FloatArray, expected: FloatArray, dt: float, config: LoopClosureConfig
 ) -> bool:

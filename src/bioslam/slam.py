@@ -44,6 +44,7 @@ from bioslam.closure import (
     submap_anchor,
     submap_span,
     thin_points,
+    turned_after_break,
     unbroken,
     verify,
     weak_modes,
@@ -59,7 +60,7 @@ from bioslam.cognitive_map import (
     registration_shape,
 )
 from bioslam.config import SLAMConfig
-from bioslam.geometry import Pose2D, between, compose, inverse, wrap_angle
+from bioslam.geometry import Pose2D, between, compose, inverse
 from bioslam.growing import GrowingArray, RowsFactory
 from bioslam.link_noise import LinkNoiseEstimator
 from bioslam.occupancy_grid import NORMAL_MAX_GAP, NORMAL_RADIUS, scan_normals, subsample_by_spacing
@@ -220,7 +221,7 @@ class SelfMotion:
         self._steady = np.zeros(3)
         self._steady_dt = 0.0
         #: scans since the last break (:meth:`_turned_after_break`)
-        self._since_break = math.inf
+        self._since_break: float = math.inf
 
     def step(self, scan: LaserScan) -> FloatArray:
         """The motion since the previous scan, in the previous robot frame."""
@@ -259,16 +260,11 @@ class SelfMotion:
     def _turned_after_break(
         self, report: MatchReport, dp: FloatArray, expected: FloatArray
     ) -> bool:
-        """Whether ``dp``, a search's step within ``break_echo`` scans of a break, turns away
-        from the motion by more than the odometry's ``break_turn``: the odometry turning
-        back into a frame it left at the break (a thinned URG-04LX spinning in a symmetric
-        office turned 154° at a break, and 136° for a true -45° three scans later, the
-        match fitting the map it had left; a closure to the place made in between was 1.2 m
-        and 179° off)."""
-        if self._since_break > self.closure.break_echo or not report.recovered:
-            return False
-        turned = abs(float(wrap_angle(float(dp[2] - expected[2]))))
-        return turned > self.odometry.config.break_turn
+        """:func:`bioslam.closure.turned_after_break` for this step."""
+        return turned_after_break(
+            report, dp, expected, self._since_break, self.closure,
+            self.odometry.config.break_turn,
+        )  # fmt: skip
 
     def _track_slide(self, dp: FloatArray, dt: float) -> None:
         """Whether ``dp`` opens or undoes a slide (:class:`bioslam.closure.SlideReturns`):
