@@ -581,3 +581,33 @@ def test_hit_shares_are_map_hits_of_each_group_of_points():
         expected, _, expected_count = map_hits(grid, world[group], extent, 0.5)
         assert (share, count) == (expected, expected_count)
     assert 0.0 < shares[0][0] < 1.0 and shares[0][1] < 300
+
+
+def test_a_person_standing_elsewhere_does_not_slide_a_closure_along_a_corridor():
+    """A corridor with one door jamb; when the place was learned a person stood at x = -1,
+    now another stands 0.2 m further west. Shifted 0.2 m along the corridor the scan puts
+    the person onto the old one and loses only the jamb: it fits a few per cent better than
+    where the robot is, inside the rival distance. A correction that size must beat the
+    prediction refined by ``prior_margin``, not by the tie's hair: refused, not moved."""
+
+    def line(x0, y0, x1, y1):
+        n = round(math.hypot(x1 - x0, y1 - y0) / 0.02)
+        return np.column_stack([np.linspace(x0, x1, n), np.linspace(y0, y1, n)])
+
+    def person(x, y):
+        a = np.linspace(0.0, 2.0 * np.pi, 40, endpoint=False)
+        return np.column_stack([x + 0.2 * np.cos(a), y + 0.2 * np.sin(a)])
+
+    jamb = line(1.0, 2.0, 1.0, 1.8)
+    submap = np.vstack([line(-4.0, 0.0, 4.0, 0.0), line(-4.0, 2.0, 4.0, 2.0), jamb,
+                        person(-1.0, 1.0)])  # fmt: skip
+    query = np.vstack([line(-3.5, 0.0, 3.5, 0.0), line(-3.5, 2.0, 3.5, 2.0), jamb,
+                       person(-1.2, 1.0)])  # fmt: skip
+    predicted = np.array([0.02, 0.01, 0.0])
+    verdict = verify(submap, query, predicted, (0.5, 0.1), LoopClosureConfig())
+    err = math.hypot(verdict.pose[0], verdict.pose[1])
+    assert not verdict.accepted or err < 0.1, (verdict.reason, verdict.pose)
+    # with the tie alone deciding up to the rival distance, the slide was accepted
+    loose = LoopClosureConfig(tie_distance=0.5, tie_angle=math.radians(20.0))
+    slid = verify(submap, query, predicted, (0.5, 0.1), loose)
+    assert slid.accepted and math.hypot(slid.pose[0], slid.pose[1]) > 0.15, slid

@@ -604,6 +604,9 @@ def verify(
         # then another point of the same plateau (along a corridor), not a measured
         # correction, and moving the map there would inject its error.
         pose, fit, report = kept, kept_fit, kept_report
+    # near enough to the prediction refined that the tie above decided; farther, though
+    # within the rival distance, a correction must earn the margin as a distinct one does
+    tied = within(between(kept, pose), config.tie_distance, config.tie_angle)
     score = seen_hit_fraction(judge, pose, query, reg.hit_level, seen, config.min_seen)
     kept_score = seen_hit_fraction(judge, kept, query, reg.hit_level, seen, config.min_seen)
     slid = not within(between(found.pose, pose), 2.0 * found.resolution, config.rival_angle)
@@ -614,13 +617,13 @@ def verify(
         reason = "degenerate"
     elif (
         found.ambiguity >= config.max_ambiguity
-        or (not agree and kept_fit >= fit - config.prior_margin)
+        or (not tied and kept_fit >= fit - config.prior_margin)
         # ... and where the submap looked: a 180° scanner passing the other way sees beyond
         # what the old pass saw, and on every point a pose 1.3-1.5 m along a corridor that
         # puts those points onto the submap's walls outscored the prediction refined, 1-3 cm
         # from the truth, by more than the margin, while where the submap looked it fitted
         # within 0.01-0.03 of it (maze, SICK scanner, weaving route)
-        or (not agree and kept_score >= score - config.prior_margin)
+        or (not tied and kept_score >= score - config.prior_margin)
         # the prediction fits better where the submap looked, the chosen pose on every
         # point: what the submap saw does not decide between them (freiburg-079: a 1.4 m
         # slide along a corridor)
