@@ -1,4 +1,4 @@
-"""A ring-corridor floor as a map_server map (PNG + YAML), a world none of the defaults were
+"""A ring-corridor floor as a map_server map (PGM + YAML), a world none of the defaults were
 tuned on: a 40 m x 28 m floor whose 2.2 m corridor runs round a solid core, sixteen identical
 offices off its long sides (a cabinet at the same place in each, a chair where it falls), a
 2 m corridor cut diagonally through the core at 28° (off the axes the others run along, its
@@ -17,11 +17,10 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from office_floor_plan import write_floor_plan
+from office_floor_plan import FREE, OCCUPIED, write_floor_plan
 
 RESOLUTION = 0.05  # metres per pixel
 WIDTH, HEIGHT = 40.0, 28.0
-FREE, OCCUPIED = 254, 0
 RING = (5.0, 5.0, 35.0, 23.0)  # the corridor's outer edge (x0, y0, x1, y1)
 CORE = (7.2, 7.2, 32.8, 20.8)  # its inner edge
 OFFICE = 4.0  # office pitch along the corridor; 3.85 m inside

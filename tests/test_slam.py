@@ -691,16 +691,19 @@ def test_a_search_turning_away_soon_after_a_break_is_a_break_too():
     scans of a break, a search's step that departs from the motion by more than the
     odometry's ``break_turn`` breaks the chain; later, or taken from the motion model, it
     does not."""
-    from bioslam.odometry import MatchReport
-    from bioslam.slam import SelfMotion
+    from functools import partial
 
-    motion = SelfMotion(SLAMConfig())
+    from bioslam.closure import turned_after_break
+    from bioslam.odometry import MatchReport
+
+    config = SLAMConfig()
+    judge = partial(
+        turned_after_break, config=config.loop_closure, break_turn=config.odometry.break_turn
+    )
     spinning = np.array([0.0, 0.0, np.radians(-37.0)])
     back = np.array([0.8, 0.0, np.radians(136.0)])
     searched = MatchReport(recovered=True)
-    motion._since_break = 3
-    assert motion._turned_after_break(searched, back, spinning)
-    assert not motion._turned_after_break(searched, spinning, spinning)
-    assert not motion._turned_after_break(MatchReport(), back, spinning)
-    motion._since_break = 4
-    assert not motion._turned_after_break(searched, back, spinning)
+    assert judge(searched, back, spinning, 3)
+    assert not judge(searched, spinning, spinning, 3)
+    assert not judge(MatchReport(), back, spinning, 3)
+    assert not judge(searched, back, spinning, 4)

@@ -144,7 +144,7 @@ class LoopClosureConfig:
         break_echo: within this many scans after a break, a search's step that turns away
             from the motion by more than the odometry's ``break_turn`` is a break too: the
             odometry turning back into the frame it left at the break
-            (:meth:`bioslam.slam.SelfMotion._turned_after_break`).
+            (:func:`bioslam.closure.turned_after_break`).
         min_seen: the score counts only the points of the current scan where the submap's
             scans looked (a robot off the old centre-line sees what they never saw), but at
             least this share of the points (the unseen ones then as misses).

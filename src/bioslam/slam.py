@@ -220,7 +220,7 @@ class SelfMotion:
         self.slide = ""
         self._steady = np.zeros(3)
         self._steady_dt = 0.0
-        #: scans since the last break (:meth:`_turned_after_break`)
+        #: scans since the last break (:func:`bioslam.closure.turned_after_break`)
         self._since_break: float = math.inf
 
     def step(self, scan: LaserScan) -> FloatArray:
@@ -236,7 +236,10 @@ class SelfMotion:
                 self._since_break += 1
                 if odometry_broke(
                     report, dp, expected, dt, self.closure, self.odometry.config.max_speed
-                ) or self._turned_after_break(report, dp, expected):
+                ) or turned_after_break(
+                    report, dp, expected, self._since_break, self.closure,
+                    self.odometry.config.break_turn,
+                ):  # fmt: skip
                     self._since_break = 0
                     self.breaks += 1
                     extent = break_extent(dp, expected, dt, self.closure)
@@ -256,15 +259,6 @@ class SelfMotion:
         self.travelled += math.hypot(dp[0], dp[1])
         self.pose = compose(self.pose, dp)
         return dp
-
-    def _turned_after_break(
-        self, report: MatchReport, dp: FloatArray, expected: FloatArray
-    ) -> bool:
-        """:func:`bioslam.closure.turned_after_break` for this step."""
-        return turned_after_break(
-            report, dp, expected, self._since_break, self.closure,
-            self.odometry.config.break_turn,
-        )  # fmt: skip
 
     def _track_slide(self, dp: FloatArray, dt: float) -> None:
         """Whether ``dp`` opens or undoes a slide (:class:`bioslam.closure.SlideReturns`):
