@@ -49,6 +49,10 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
 - ``typicalsteprplidar``: the RPLIDAR preset (360°, 12 m, sweeping at 7 Hz) on the four
   worlds, both routes, seeds 2-7 (2 and 3 until the sweep's turn was measured), thinned to
   a scan per 1 m / 0.6 rad.
+- ``mounted``: the SICK preset mounted facing forward, backwards (180°) and sideways (90°)
+  on the robot (``LidarModel.mount_yaw``: the robot drives backwards or sideways in the
+  scan's frame), on the four worlds, tour and adversarial route, seeds 2 and 3, a third of
+  the run's duration, thinned to a scan per 1 m / 0.6 rad and as scanned.
 - ``typicalstepreversing``: the ``reversing`` route (the tour, backing up 12 s along its
   own path every 45 s) on the four worlds, SICK and URG-04LX, seeds 2-7, thinned to a
   scan per 1 m / 0.6 rad: steps a metre behind the robot.
@@ -703,6 +707,16 @@ def main() -> None:
             for seed in range(2, 5)
         ],
         "typicalsteprplidar": lambda: thinned_worlds("rplidar", range(2, 8)),
+        "mounted": lambda: [
+            sim_case(f"{world} {route} sick mounted at {yaw} deg{label}, seed {seed}",
+                     dataclasses.replace(LIDAR_PRESETS["sick"], mount_yaw=math.radians(yaw)),
+                     duration / 3, world=world, seed=seed, thin=thin, route=route)
+            for world in ("rooms", "warehouse", "maze", "hall")
+            for route in ("tour", "adversarial")
+            for yaw in (0, 180, 90)
+            for label, thin in ((", a scan per 1 m / 0.6 rad", (1.0, 0.6)), ("", None))
+            for seed in (2, 3)
+        ],
         "typicalstepreversing": lambda: [
             sim_case(f"{world} reversing {lidar}, a scan per 1 m / 0.6 rad, seed {seed}",
                      LIDAR_PRESETS[lidar], duration / 3, world=world, seed=seed,

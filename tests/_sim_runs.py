@@ -15,13 +15,15 @@ def odometry_run(
     elsewhere, and the true poses. ``start`` "origin" starts the odometry at the origin;
     otherwise at the true first pose plus ``offset`` (x, y, theta). ``thin`` (metres,
     radians or None) keeps a scan per distance or angle along the true path
-    (:func:`bioslam.thinning.thin_indices`)."""
+    (:func:`bioslam.thinning.thin_indices`). ``lidar``: a preset's name or a
+    :class:`~bioslam.sim.LidarModel`."""
     from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world, simulate_scans
     from bioslam.thinning import thin_indices
 
     world = load_world(world_name)
     route = ROUTES[route_name](world, duration=duration, seed=seed)
-    items = list(simulate_scans(world, LIDAR_PRESETS[lidar], route, seed=seed))
+    model = LIDAR_PRESETS[lidar] if isinstance(lidar, str) else lidar
+    items = list(simulate_scans(world, model, route, seed=seed))
     if thin is not None:
         items = [items[k] for k in thin_indices(np.array([t for _, t in items]), *thin)]
     truth = np.array([pose for _, pose in items])

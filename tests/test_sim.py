@@ -316,6 +316,23 @@ def test_scan_endpoints_land_on_the_walls_seen_from_the_true_pose():
         assert world.distance_to_walls(world_xy).max() < 1e-5  # float32 ranges
 
 
+def test_a_scanner_mounted_facing_backwards_sees_the_same_world_turned_round():
+    """A 360° scanner mounted at 180° on the robot measures, beam for beam, what the forward
+    one measures half a turn of beams on, and its ground truth is the scanner's pose: the
+    robot's turned round (a LiDAR-only SLAM estimates the scanner's)."""
+    world = maze_world()
+    route = make_route(world, duration=5.0, seed=2)
+    forward = replace(LIDAR_PRESETS["rplidar"], noise_sigma=0.0, sweep=False)
+    backward = replace(forward, mount_yaw=np.pi)
+    for (ahead, robot), (behind, scanner) in zip(
+        simulate_scans(world, forward, route), simulate_scans(world, backward, route), strict=True
+    ):
+        np.testing.assert_allclose(scanner[:2], robot[:2])
+        assert abs(np.angle(np.exp(1j * (scanner[2] - robot[2] - np.pi)))) < 1e-9
+        half = forward.beams // 2
+        np.testing.assert_allclose(behind.ranges, np.roll(ahead.ranges, -half), rtol=1e-5)
+
+
 def test_route_config_limits_are_kept_unless_overridden():
     from bioslam.sim import RouteConfig
 

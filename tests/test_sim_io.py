@@ -120,6 +120,17 @@ def test_sim_command_writes_bag_ground_truth_and_figure(tmp_path):
     assert again["scans"] == 10
 
 
+def test_sim_command_writes_the_ground_truth_of_a_scanner_mounted_sideways(tmp_path):
+    out = tmp_path / "run"
+    run_cli("--duration", "2", "--seed", "1", "--out", str(out))
+    robot = read_tum(out / "gt.tum")
+    run_cli("--duration", "2", "--seed", "1", "--mount-yaw", "90", "--out", str(out), "--force")
+    scanner = read_tum(out / "gt.tum")
+    np.testing.assert_allclose(scanner.poses[:, :2], robot.poses[:, :2])
+    turned = np.angle(np.exp(1j * (scanner.poses[:, 2] - robot.poses[:, 2])))
+    np.testing.assert_allclose(turned, np.pi / 2, atol=1e-5)  # TUM stores float text
+
+
 def test_sim_command_rejects_unknown_world(tmp_path):
     with pytest.raises(ValueError, match="maze"):
         run_cli("--world", "plan.txt", "--out", str(tmp_path))

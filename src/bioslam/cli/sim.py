@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import shutil
 import sys
 import time
@@ -58,6 +59,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--noise", type=float, help="range noise sigma in metres (preset default)")
     p.add_argument("--dropout", type=float, help="probability a beam returns nothing (NaN)")
     p.add_argument("--no-sweep", action="store_true", help="cast all beams of a scan from one pose")
+    p.add_argument(
+        "--mount-yaw",
+        type=float,
+        default=0.0,
+        help="the scanner's heading on the robot, degrees from its forward axis (180: facing "
+        "backwards); the ground truth is the scanner's pose",
+    )
     p.add_argument("--max-speed", type=float, help="m/s (default 0.5)")
     p.add_argument("--max-yaw-rate", type=float, help="rad/s (default 0.8)")
     p.add_argument(
@@ -157,12 +165,18 @@ def run(args: argparse.Namespace) -> dict:
 
     from bioslam.io.bag_writer import ScanBagWriter
     from bioslam.io.tum import write_tum
-    from bioslam.sim import load_world, people_on_roadmap, scan_stamps, simulate_scans
+    from bioslam.sim import (
+        load_world,
+        people_on_roadmap,
+        scan_stamps,
+        scanner_trajectory,
+        simulate_scans,
+    )
 
     started = time.perf_counter()
     world = load_world(args.world)
     lidar = LIDAR_PRESETS[args.lidar]
-    changes = {"sweep": not args.no_sweep}
+    changes = {"sweep": not args.no_sweep, "mount_yaw": math.radians(args.mount_yaw)}
     if args.noise is not None:
         changes["noise_sigma"] = args.noise
     if args.dropout is not None:
@@ -184,7 +198,7 @@ def run(args: argparse.Namespace) -> dict:
             writer.write(scan)
             writer.write_pose(scan.stamp, pose)
             bar.update()
-    write_tum(out / GT_NAME, route.trajectory(stamps))
+    write_tum(out / GT_NAME, scanner_trajectory(lidar, route, stamps))
     save_world_figure(out / FIGURE_NAME, world, route, people)
     return {
         "world": world.name,

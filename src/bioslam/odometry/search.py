@@ -27,6 +27,7 @@ from bioslam.matching.gauss_newton import (
 from bioslam.motion_model import translation_part
 from bioslam.occupancy_grid import MapPyramid, OccupancyGrid
 from bioslam.odometry_config import OdometryConfig
+from bioslam.step_prior import along_axis
 
 
 def turned_windows(half_width: float) -> list[tuple[float, ...]]:
@@ -70,7 +71,7 @@ class WideSearch:
         constant-velocity prediction, the last step repeated, the typical step forward and
         on sparse scans the step prior's typical steps."""
         c = self.config
-        forward = compose(previous, np.array([self._typical_step, 0.0, 0.0]))
+        forward = compose(previous, self._typical_straight_on(self._typical_step, 0.0))
         motion = (start, predicted, compose(previous, self._last_delta), forward)
         if self._sparse():
             modes = self._step_prior.modes(c.step_modes)
@@ -249,13 +250,20 @@ class WideSearch:
         if length <= 0.0:
             return []
         turn = wrap_angle(float(seed[2] - previous[2]))
-        arc = compose(previous, se2_exp((length, 0.0, turn)))
-        if not self._distinct(arc, compose(previous, np.array([length, 0.0, 0.0]))):
+        arc = compose(previous, self._typical_straight_on(length, turn))
+        if not self._distinct(arc, compose(previous, self._typical_straight_on(length, 0.0))):
             return []  # the cheap test first: it rules out most scans' arcs
         turning = self._step_prior.turning_length(turn)
         if turning is not None and turning < 0.5 * length:
             return []
         return [arc] if all(self._different_start(arc, k) for k in known) else []
+
+    def _typical_straight_on(self, length: float, turn: float) -> FloatArray:
+        """The step of a robot that drives ``length`` metres along the circular arc that
+        turns it by ``turn`` radians, in the scan's frame: along the driving axis the step
+        prior learnt (:attr:`~bioslam.step_prior.StepPrior.axis`, a scanner mounted facing
+        backwards sees the robot drive away from its forward axis)."""
+        return along_axis(se2_exp((length, 0.0, turn)), self._step_prior.axis)
 
     def _typical_window(
         self, forward: FloatArray, distance: float, angle: float

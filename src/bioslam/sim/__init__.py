@@ -26,6 +26,7 @@ if TYPE_CHECKING:
         MovingObstacle,
         people_on_roadmap,
         scan_stamps,
+        scanner_trajectory,
         simulate_scans,
         true_ranges,
     )
@@ -52,6 +53,7 @@ _WHERE = {
     "MovingObstacle": "simulate",
     "people_on_roadmap": "simulate",
     "scan_stamps": "simulate",
+    "scanner_trajectory": "simulate",
     "simulate_scans": "simulate",
     "true_ranges": "simulate",
     "warehouse_world": "warehouse",
@@ -81,6 +83,7 @@ __all__ = [
     "people_on_roadmap",
     "rooms_world",
     "scan_stamps",
+    "scanner_trajectory",
     "simulate_scans",
     "true_ranges",
     "warehouse_world",

@@ -34,6 +34,10 @@ class LidarModel:
         mirror_hz: mirror revolutions per second when they differ from the scan rate (a SICK
             LMS 200 mirror turns at 75 Hz while a serial link delivers 5-10 scans a second);
             ``None`` = one revolution per scan.
+        mount_yaw: the scanner's heading on the robot, radians counter-clockwise from its
+            forward axis (pi: mounted facing backwards, as on a robot whose scanner's frame
+            is turned round): the robot then drives backwards, or sideways, in the scan's
+            own frame, which is the frame a LiDAR-only SLAM estimates.
     """
 
     name: str
@@ -46,6 +50,7 @@ class LidarModel:
     dropout_prob: float = 0.0
     sweep: bool = True
     mirror_hz: float | None = None
+    mount_yaw: float = 0.0
 
     def __post_init__(self) -> None:
         if self.beams < 2:

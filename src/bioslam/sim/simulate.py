@@ -8,11 +8,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from bioslam.geometry import wrap_angle
 from bioslam.scan import LaserScan
 from bioslam.sim.lidar import LidarModel
 from bioslam.sim.raycast import cast_rays
 from bioslam.sim.route import Route
 from bioslam.sim.world import World
+from bioslam.trajectory import Trajectory
 
 # Scans cast together: large enough to amortise the Python overhead, small enough to keep the
 # (chunk x beams) buffers a few megabytes.
@@ -99,6 +101,15 @@ def scan_stamps(lidar: LidarModel, route: Route, start: float = 0.0) -> NDArray[
     return start + np.arange(max(n, 0)) / lidar.rate_hz
 
 
+def scanner_trajectory(lidar: LidarModel, route: Route, stamps: ArrayLike) -> Trajectory:
+    """The scanner's ground truth at ``stamps``: the robot's poses turned by the LiDAR's
+    ``mount_yaw`` (what a LiDAR-only SLAM run on its scans estimates)."""
+    truth = route.trajectory(stamps)
+    if lidar.mount_yaw:
+        truth.poses[:, 2] = wrap_angle(truth.poses[:, 2] + lidar.mount_yaw)
+    return truth
+
+
 def true_ranges(
     world: World,
     lidar: LidarModel,
@@ -107,10 +118,13 @@ def true_ranges(
     obstacles: Sequence[MovingObstacle] = (),
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Exact distances ``(len(stamps), beams)`` (``inf`` = nothing within ``range_max``) and
-    the poses at the stamps. With the sweep on, beam ``k`` is cast from the pose at
-    ``stamp + k * time_increment`` (the sensor sits at the robot's origin, facing forward)."""
+    the scanner's poses at the stamps. With the sweep on, beam ``k`` is cast from the pose at
+    ``stamp + k * time_increment`` (the sensor sits at the robot's origin, turned by the
+    LiDAR's ``mount_yaw`` from its forward axis)."""
     beam_times = stamps[:, None] + lidar.time_increment * np.arange(lidar.beams)
     poses = route.pose_at(beam_times)
+    if lidar.mount_yaw:
+        poses[..., 2] = wrap_angle(poses[..., 2] + lidar.mount_yaw)
     angles = poses[..., 2] + lidar.angles()
     origins = poses[..., :2]
     ranges = cast_rays(world.grid, origins, angles, lidar.range_max)
@@ -131,7 +145,8 @@ def simulate_scans(
 ) -> Iterator[tuple[LaserScan, NDArray[np.float64]]]:
     """Stream ``(scan, true_pose)`` along the route, one scan every ``1 / rate_hz`` seconds.
 
-    ``scan.stamp`` is the time of its first beam and ``true_pose`` the robot's pose then;
+    ``scan.stamp`` is the time of its first beam and ``true_pose`` the scanner's pose then
+    (the robot's, turned by the LiDAR's ``mount_yaw``);
     ranges are float32 with the sensor's noise and dropouts (REP 117 codes, see
     :mod:`bioslam.sim.lidar`). Deterministic for a given seed.
     """
