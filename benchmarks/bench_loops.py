@@ -35,7 +35,7 @@ import math
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
@@ -60,10 +60,13 @@ class SimCase:
     world: str
     lidar: str
     route: str
+    #: the scanner's heading on the robot, degrees (``bioslam sim --mount-yaw``)
+    mount_yaw: float = 0.0
 
     @property
     def name(self) -> str:
-        return f"{self.world}-{self.lidar}-{self.route}"
+        mounted = f" (mounted at {self.mount_yaw:g} deg)" if self.mount_yaw else ""
+        return f"{self.world}-{self.lidar}-{self.route}{mounted}"
 
 
 DEFAULT_CASES = (
@@ -85,7 +88,7 @@ def simulate(
     world = load_world(case.world)
     route = ROUTES[case.route](world, duration=duration, seed=seed)
     walkers = people_on_roadmap(world, people, seed=seed) if people else []
-    lidar = LIDAR_PRESETS[case.lidar]
+    lidar = replace(LIDAR_PRESETS[case.lidar], mount_yaw=math.radians(case.mount_yaw))
     pairs = list(simulate_scans(world, lidar, route, seed=seed, obstacles=walkers))[::thin]
     scans = [scan for scan, _ in pairs]
     return scans, Trajectory(np.array([s.stamp for s in scans]), np.array([p for _, p in pairs]))
@@ -399,6 +402,9 @@ def main() -> None:
                     help="keep every n-th scan only (a thinned log: the odometry's steps grow)")
     ap.add_argument("--people", type=int, default=0,
                     help="people walking the corridors (as bioslam sim --people)")
+    ap.add_argument("--mount-yaw", type=float, default=0.0,
+                    help="the scanner's heading on the robot, degrees (as bioslam sim "
+                         "--mount-yaw; the ground truth is the scanner's pose)")
     ap.add_argument("--log", action="append", default=[],
                     help="also a real log: against its corrected poses (e.g. freiburg-079), "
                          "or by its loop gap when it has none (exp1.dat, the ROS 1 bag)")
@@ -416,7 +422,7 @@ def main() -> None:
         print(report_log(path, config), flush=True)
     for name in args.cases.split(",") if args.cases else ():
         world, lidar, route = name.rsplit("-", 2)  # the world may be a map YAML's path
-        case = SimCase(world, lidar, route)
+        case = SimCase(world, lidar, route, args.mount_yaw)
         print(
             report(case, args.duration, args.seed, args.gap, config, args.thin, args.people),
             flush=True,
