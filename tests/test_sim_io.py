@@ -124,7 +124,10 @@ def test_sim_command_writes_the_ground_truth_of_a_scanner_mounted_sideways(tmp_p
     out = tmp_path / "run"
     run_cli("--duration", "2", "--seed", "1", "--out", str(out))
     robot = read_tum(out / "gt.tum")
-    run_cli("--duration", "2", "--seed", "1", "--mount-yaw", "90", "--out", str(out), "--force")
+    summary = run_cli(
+        "--duration", "2", "--seed", "1", "--mount-yaw", "90", "--out", str(out), "--force"
+    )
+    assert summary["mount_yaw_deg"] == 90.0
     scanner = read_tum(out / "gt.tum")
     np.testing.assert_allclose(scanner.poses[:, :2], robot.poses[:, :2])
     turned = np.angle(np.exp(1j * (scanner.poses[:, 2] - robot.poses[:, 2])))

@@ -278,10 +278,9 @@ class StepPrior:
     def axis(self) -> float:
         """The robot's driving axis in the scan's frame, radians: the direction of the recent
         steps' summed displacement (of those turning less than ``sigma_angle``) where it
-        departs from the forward axis (0) by more than
-        ``axis_tolerance``, is at least ``axis_coherence`` of their summed lengths and longer
-        than ``sigma_distance``, else 0
-        (:class:`StepPriorConfig`)."""
+        departs from the forward axis (0) by more than ``axis_tolerance``, is at least
+        ``axis_coherence`` of their summed lengths and longer than ``sigma_distance``; else
+        0 (:class:`StepPriorConfig`)."""
         if self._axis is None:
             self._axis = self._read_axis()
         return self._axis
@@ -291,7 +290,7 @@ class StepPrior:
         c = self.config
         if len(self._steps) < c.min_steps:
             return 0.0
-        steps = np.array(self._steps)
+        steps = np.array(self._steps)  # not :meth:`_history`, which is made with the axis
         moves = steps[np.abs(steps[:, 2]) < c.sigma_angle, :2]
         total = moves.sum(axis=0)
         direction = math.atan2(total[1], total[0])

@@ -204,6 +204,7 @@ def run(args: argparse.Namespace) -> dict:
         "world": world.name,
         "route": args.route,
         "lidar": lidar.name,
+        "mount_yaw_deg": args.mount_yaw,
         "scans": writer.count,
         "beams": lidar.beams,
         "duration_s": round(float(route.duration), 3),

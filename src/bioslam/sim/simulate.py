@@ -105,9 +105,14 @@ def scanner_trajectory(lidar: LidarModel, route: Route, stamps: ArrayLike) -> Tr
     """The scanner's ground truth at ``stamps``: the robot's poses turned by the LiDAR's
     ``mount_yaw`` (what a LiDAR-only SLAM run on its scans estimates)."""
     truth = route.trajectory(stamps)
-    if lidar.mount_yaw:
-        truth.poses[:, 2] = wrap_angle(truth.poses[:, 2] + lidar.mount_yaw)
+    _turn_to_scanner(lidar, truth.poses)
     return truth
+
+
+def _turn_to_scanner(lidar: LidarModel, poses: NDArray[np.float64]) -> None:
+    """Turn the robot's ``poses`` (..., 3) in place into its scanner's (``mount_yaw``)."""
+    if lidar.mount_yaw:
+        poses[..., 2] = wrap_angle(poses[..., 2] + lidar.mount_yaw)
 
 
 def true_ranges(
@@ -123,8 +128,7 @@ def true_ranges(
     LiDAR's ``mount_yaw`` from its forward axis)."""
     beam_times = stamps[:, None] + lidar.time_increment * np.arange(lidar.beams)
     poses = route.pose_at(beam_times)
-    if lidar.mount_yaw:
-        poses[..., 2] = wrap_angle(poses[..., 2] + lidar.mount_yaw)
+    _turn_to_scanner(lidar, poses)
     angles = poses[..., 2] + lidar.angles()
     origins = poses[..., :2]
     ranges = cast_rays(world.grid, origins, angles, lidar.range_max)
