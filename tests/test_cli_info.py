@@ -25,7 +25,7 @@ def test_info_prints_table_then_json_summary(tmp_path, capsys):
     log.write_text(
         "".join(_flaser(10.0 + 0.2 * k) for k in range(6))
         + "FLASER 181 1 2 3\n"  # line 7: cut short
-        + _flaser(10.5)  # line 8: earlier than the scan before it (within 2 s: reordered)
+        + _flaser(10.5)  # line 8: stamped before the scan ahead of it: repaired, kept last
     )
     code, out, err = _run(capsys, str(log))
     # 7 of 8 scan records read: below the default 90 %, so the command fails unless told
@@ -41,14 +41,14 @@ def test_info_prints_table_then_json_summary(tmp_path, capsys):
     assert summary["scans"] == 7
     assert summary["beams"] == 181
     assert summary["fov_deg"] == pytest.approx(180.0)
-    assert summary["duration_s"] == pytest.approx(1.0)
+    assert summary["duration_s"] == pytest.approx(1.2)  # the last a period after the one before
     assert summary["skipped"] == {"wrong beam count": 1}
     assert summary["scan_records"] == 8 and summary["read_share"] == pytest.approx(7 / 8)
     table = "\n".join(lines[:-1])
     assert "Format:" in table and "carmen" in table
     assert "Scans:             7" in table
     assert "line 7: wrong beam count" in table
-    assert "put back in order" in table
+    assert "1 repaired" in table
 
 
 def test_info_unknown_format_exits_2_listing_formats(tmp_path, capsys):

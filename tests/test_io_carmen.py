@@ -153,12 +153,18 @@ def test_strict_mode_raises_naming_file_and_line(tmp_path):
         list(open_log(log, strict=True))
 
 
-def test_slightly_late_scans_are_put_back_in_order(tmp_path):
-    log = write(tmp_path / "a.log", [flaser([1.0], t) for t in (1.0, 2.0, 1.5, 3.0, 2.9, 4.0)])
+def test_scans_stamped_before_the_one_ahead_keep_their_place(tmp_path):
+    """A scanner delivers in order: of two scans whose stamps disagree with their order one
+    has a wrong stamp, repaired between its neighbours; no scan changes place."""
+    stamps = (1.0, 2.0, 1.5, 3.0, 2.9, 4.0)
+    log = write(tmp_path / "a.log", [flaser([k + 1.0], t) for k, t in enumerate(stamps)])
     source = open_log(log)
-    assert [s.stamp for s in source] == [1.0, 1.5, 2.0, 2.9, 3.0, 4.0]
+    scans = list(source)
+    assert [float(s.ranges[0]) for s in scans] == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]
+    out = np.array([s.stamp for s in scans])
+    assert np.all(np.diff(out) > 0) and np.count_nonzero(out == np.array(stamps)) == 4
     assert source.skipped == {}
-    assert any("2 scan(s)" in note for note in source.info()["notes"])
+    assert any("2 repaired" in note for note in source.info()["notes"])
 
 
 def test_truncated_gzip_keeps_what_was_read(tmp_path):

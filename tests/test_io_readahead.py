@@ -81,8 +81,7 @@ def test_same_scans_and_read_outs_at_every_scan(tmp_path):
     # the log exercised what it was written for
     assert direct.complete and count == 299
     assert set(direct.skipped) == {"wrong beam count", "malformed odometry record"}
-    assert "repaired" in direct.time_source
-    assert any("put back in order" in note for note in direct.notes())
+    assert "repaired" in direct.time_source  # the scans stamped early, too, kept in file order
 
 
 def test_a_run_that_stops_half_way_reports_what_it_took(tmp_path):

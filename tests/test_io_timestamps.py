@@ -45,6 +45,31 @@ def test_slightly_late_records_keep_their_stamps_for_the_reorder():
     assert plan.repaired == 0 and plan.stamps.tobytes() == stamps.tobytes()
 
 
+def test_records_stamped_early_keep_their_place_in_the_file():
+    """Without a reorder window (the readers' default) the same records are stamp errors:
+    each is placed between its neighbours in the file, and every other stamp is kept."""
+    stamps = CLEAN.copy()
+    stamps[[50, 51]] = stamps[[51, 50]]
+    stamps[120] -= 0.8
+    plan = plan_stamps(stamps, window=0.0)
+    assert plan.source == LOG_STAMPS and plan.repaired == 2
+    assert np.all(np.diff(plan.stamps) > 0)
+    kept = plan.stamps == stamps
+    assert np.count_nonzero(~kept) == 2 and not kept[120]
+
+
+def test_a_clock_set_back_keeps_the_logs_own_intervals():
+    """A clock set back 2 s after 300 records of a 10 Hz log: the next 20 records are stamped
+    before the ones around them, which leave them 0.1 s. Placed between those, they would
+    pass in 5 ms each; in record order with the log's own intervals (the one back replaced by
+    the period) every record is 0.1 s after the one before."""
+    stamps = np.concatenate([np.arange(300) * 0.1, 28.0 + np.arange(300) * 0.1])
+    plan = plan_stamps(stamps, window=0.0)
+    assert plan.source == RECORD_ORDER
+    assert "20 records from scan record" in plan.reason and "clock set back" in plan.reason
+    np.testing.assert_allclose(plan.stamps, np.arange(600) * 0.1, atol=1e-9)
+
+
 @pytest.mark.parametrize("index", [0, 1, 150, 298, 299])
 @pytest.mark.parametrize("bad", [np.nan, np.inf, 0.0, -5.0, 3600.0, 1e12])
 def test_an_isolated_bad_stamp_is_interpolated_and_nothing_else_changes(index, bad):
@@ -135,15 +160,28 @@ def _carmen_laser_stamps(lines):
     return [float(line.split()[-3]) for line in lines if line.startswith("FLASER ")]
 
 
-@pytest.mark.parametrize("name", ["intel-corrected.log.gz", "freiburg-079-corrected.log.gz"])
-def test_clean_carmen_logs_keep_their_stamps(name):
+def _carmen_laser_x(lines):
+    return [float(f[2 + int(f[1])]) for f in (line.split() for line in lines) if f[0] == "FLASER"]
+
+
+@pytest.mark.parametrize(
+    ("name", "early"), [("intel-corrected.log.gz", 4), ("freiburg-079-corrected.log.gz", 0)]
+)
+def test_clean_carmen_logs_keep_their_stamps_and_their_order(name, early):
+    """Every scan in file order with its own stamp, but those stamped before the scan
+    written ahead of them (intel: four, 0.1-0.86 s early, whose corrected poses follow the
+    file's order, not the stamps'), which are repaired between their neighbours."""
     path = shared_log(name)
     with gzip.open(path, "rt", encoding="latin-1") as fh:
-        raw = _carmen_laser_stamps(fh)
+        lines = fh.readlines()
+    raw, x = np.array(_carmen_laser_stamps(lines)), np.array(_carmen_laser_x(lines))
     source = open_log(path)
-    stamps = [s.stamp for s in source]
-    assert source.time_source == LOG_STAMPS
-    assert stamps == sorted(raw)  # the log's own stamps, put in order, none changed
+    stamps = np.array([s.stamp for s in source])
+    assert stamps.size == raw.size and np.all(np.diff(stamps) > 0)
+    assert np.count_nonzero(stamps != raw) == early
+    assert source.time_source.startswith(LOG_STAMPS)
+    assert (f"{early} repaired" in source.time_source) == (early > 0)
+    np.testing.assert_array_equal(source.reference.poses[:, 0], x)  # the file's order
 
 
 def test_clean_exp1_and_bag_keep_their_stamps():
@@ -187,9 +225,10 @@ def test_shared_logs_with_a_stamp_defect_are_read_whole(tmp_path, name, defect):
     stamps = np.array([s.stamp for s in scans])
     assert np.all(np.diff(stamps) > 0)
     assert any("time stamps:" in note for note in source.notes())
-    if defect == "one-hour-late":  # only the bad one changes
-        assert source.time_plan.repaired == 1
-        assert source.time_source.startswith("log stamps (1 repaired")
+    if defect == "one-hour-late":  # only the bad one changes (and intel's four early ones)
+        early = 4 if name.startswith("intel") else 0
+        assert source.time_plan.repaired == 1 + early
+        assert source.time_source.startswith(f"log stamps ({1 + early} repaired")
     else:
         assert source.time_source.startswith("record order"), source.time_source
         # the rate comes from the sensor (exp1: URG-04LX 10 Hz) or the stamps themselves

@@ -166,6 +166,25 @@ def test_a_closure_across_a_jump_of_the_odometry_measures_the_jump_or_is_refused
         assert slam.summary()["closure_refused_odometry_broke"] == len(refused)
 
 
+def test_a_jittered_stamp_breaks_nothing_a_jump_still_breaks():
+    """freiburg-079 with its stamps jittered by 0.2 s (scans 0.22 s apart): the motion
+    scaled by a stamp's interval overshoots or falls short of steady steps, and searched
+    steps broke the odometry's chain 147 times (7 of 120 closures left). Judged also against
+    the last step as it was (:func:`bioslam.closure.jumped`), a steady step is none; a jump
+    from both still is."""
+    from bioslam.closure import odometry_broke
+    from bioslam.odometry import MatchReport
+
+    cfg = SLAMConfig().loop_closure
+    last = np.array([0.15, 0.0, 0.05])  # 0.7 m/s, logged 0.22 s after the scan before
+    expected = last * 0.02 / 0.22  # the next stamp jittered to 0.02 s after this one
+    recovered = MatchReport(recovered=True)
+    assert odometry_broke(recovered, last, expected, 0.02, cfg)  # by the scaled motion alone
+    assert not odometry_broke(recovered, last, expected, 0.02, cfg, last=last)
+    jump = last + np.array([0.5, 0.0, 0.0])
+    assert odometry_broke(recovered, jump, expected, 0.02, cfg, last=last)
+
+
 def test_odometry_break_is_a_jump_between_scans_not_a_search_after_a_gap():
     from bioslam.closure import odometry_broke
     from bioslam.odometry import MatchReport

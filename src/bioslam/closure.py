@@ -75,6 +75,7 @@ def odometry_broke(
     dt: float,
     config: LoopClosureConfig,
     max_speed: float = math.inf,
+    last: FloatArray | None = None,
 ) -> bool:
     """Whether the odometry's last ``step`` (robot frame) breaks its chain of relative poses:
     no match was made (the step is a guess), or a search replaced the match from the motion
@@ -105,6 +106,8 @@ def odometry_broke(
         return True
     if not (report.recovered or report.ambiguous):
         return False  # the match from the motion model's own start, kept: no jump
+    if last is not None:
+        return jumped(step, last, expected, dt, config)
     return implausible(step, expected, dt, config)
 
 

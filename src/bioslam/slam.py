@@ -235,7 +235,8 @@ class SelfMotion:
                 self.doubts += int(odometry_doubted(report))
                 self._since_break += 1
                 if odometry_broke(
-                    report, dp, expected, dt, self.closure, self.odometry.config.max_speed
+                    report, dp, expected, dt, self.closure, self.odometry.config.max_speed,
+                    self._last_step,
                 ) or turned_after_break(
                     report, dp, expected, self._since_break, self.closure,
                     self.odometry.config.break_turn,

@@ -99,7 +99,14 @@ class LogSource(ABC):
     #: time): used when the main stamps are unusable.
     alternative_stamps: ClassVar[str] = ""
     #: Seconds a record may arrive late and still be put back in order (see ``_Reorder``).
-    reorder_window_s: float = 2.0
+    #: None by default: a scanner delivers its scans in order and a logger writes them as they
+    #: come, so a scan stamped before the one written ahead of it carries a wrong stamp, which
+    #: is repaired (:func:`bioslam.io.timestamps.plan_stamps`). The Intel log's four such
+    #: scans (0.1-0.86 s early) are in file order by its corrected poses (turns of 30° a scan,
+    #: in sequence); put back in stamp order, the odometry turned 62° and back, and with
+    #: freiburg-079's stamps jittered by 0.2 s the swapped scans broke the odometry's chain
+    #: 147 times and left 7 of its 120 loop closures (``benchmarks/README.md``).
+    reorder_window_s: float = 0.0
 
     def __init__(self, path: str | Path, topic: str | None = None, strict: bool = False) -> None:
         self.path = Path(path)
@@ -459,12 +466,11 @@ def _open_text(path: Path) -> IO[str]:
 
 
 class _Reorder:
-    """Puts records that arrive a little late back in time order.
-
-    Logs written by several processes can hold a scan after one stamped a fraction of a second
-    later (the Intel log has four, at most 0.86 s late). Records are held until every record
-    that may still precede them has arrived: one more than ``window`` seconds earlier than the
-    latest seen is skipped as non-monotonic, as is a repeated stamp.
+    """Puts records that arrive a little late back in time order, for a reader whose format
+    may store a stream's records out of order (``LogSource.reorder_window_s``; none of the
+    readers here: a scan stamped early is a wrong stamp, repaired in its place). Records are
+    held until every record that may still precede them has arrived: one more than ``window``
+    seconds earlier than the latest seen is skipped as non-monotonic, as is a repeated stamp.
     """
 
     def __init__(self, window: float) -> None:

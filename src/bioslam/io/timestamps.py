@@ -7,12 +7,14 @@ concatenated with itself decreases somewhere. :func:`plan_stamps` looks at all t
 log's scan records (file order) and decides, once, which stamp each record gets:
 
 * **log stamps**: the records whose stamps increase with the file (the longest strictly
-  increasing subsequence), plus records a little out of order (within the reorder window, put
-  back in order by the reader) keep their stamps exactly. Records left over (non-finite, far out
-  of order, a repeated stamp) are *repaired*: interpolated by record index between their nearest
-  kept neighbours. Used when at least :data:`MIN_USABLE_SHARE` of the records keep their stamps,
-  the bad ones are isolated (no run longer than :data:`MAX_BAD_RUN_SHARE` of the log) and the
-  median interval of the kept stamps is one a scanner can have.
+  increasing subsequence), plus, for a reader with a reorder window (none by default), records a
+  little out of order (put back in order by the reader) keep their stamps exactly. Records left
+  over (non-finite, out of order, a repeated stamp) are *repaired*: interpolated by record index
+  between their nearest kept neighbours. Used when at least :data:`MIN_USABLE_SHARE` of the
+  records keep their stamps, the bad ones are isolated (no run longer than
+  :data:`MAX_BAD_RUN_SHARE` of the log, and none their neighbours leave no room for: a clock
+  set back, :func:`_squeezed_run`) and the median interval of the kept stamps is one a scanner
+  can have.
 * **record order**: otherwise the stamps cannot be used as they are, and record ``k`` is
   stamped ``t0 + k * period``, with the period the log declares (a sensor's scan time) or, failing
   that, the one its stamps imply (the span of the ordered records over their count, or the
@@ -44,6 +46,8 @@ MAX_STRAY_SHARE = 0.01
 PLAUSIBLE_PERIOD_S = (1e-3, 60.0)
 #: A step between stamps kept in record order lies within this factor of the period.
 STEP_BAND = 20.0
+#: Fewest records a stretch stamped by a clock set back holds (:func:`_squeezed_run`).
+MIN_SQUEEZED_RUN = 3
 #: Period assumed when neither the log nor its stamps give one (10 Hz, the commonest rate).
 DEFAULT_PERIOD_S = 0.1
 
@@ -174,6 +178,33 @@ def _mostly_ordered(usable: NDArray[np.bool_]) -> bool:
     return longest <= max(2.0, MAX_BAD_RUN_SHARE * n)
 
 
+def _squeezed_run(
+    stamps: NDArray[np.float64], anchors: NDArray[np.bool_], bad: NDArray[np.bool_],
+    period: float,
+) -> tuple[int, int] | None:
+    """The first run of at least :data:`MIN_SQUEEZED_RUN` ``bad`` records, stamped at a
+    scanner's intervals among themselves (within :data:`STEP_BAND` of ``period``), whose
+    anchored neighbours leave them less than half a period each, as (first record, records);
+    None if there is none. A clock set back (by a time server, a reboot) stamps a stretch of
+    the log before the records that precede it: placed between its neighbours, a minute of
+    scans would pass in a fraction of a second, and the odometry's motion model with it. Its
+    own intervals still measure time (:func:`record_order_steps`). A few bad stamps side by
+    side (one early, the next repeated) are no such stretch."""
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], bad.astype(np.int8), [0]))))
+    idx = np.flatnonzero(anchors)
+    for start, end in zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True):
+        p = int(np.searchsorted(idx, start))
+        if end - start < MIN_SQUEEZED_RUN or p == 0 or p >= idx.size:
+            continue  # a few records, or at an end (extrapolated by the period)
+        with np.errstate(invalid="ignore"):
+            steps = np.diff(stamps[start:end])
+            regular = np.all((steps >= period / STEP_BAND) & (steps <= period * STEP_BAND))
+        room = stamps[idx[p]] - stamps[idx[p - 1]]
+        if regular and room < 0.5 * period * (idx[p] - idx[p - 1]):
+            return start, end - start
+    return None
+
+
 def _plausible(period: float) -> bool:
     return bool(np.isfinite(period)) and PLAUSIBLE_PERIOD_S[0] <= period <= PLAUSIBLE_PERIOD_S[1]
 
@@ -255,18 +286,25 @@ def plan_stamps(
     usable = anchors | _tolerated(raw, anchors, window, period)
     ordered = _mostly_ordered(usable)
     good = n == 1 or (ordered and _plausible(period))
+    squeezed = None
     if good and n > 1:
         bad = ~usable
         if not bad.any():
             return TimePlan(raw, LOG_STAMPS, 0, period)
-        reason = _repair_reason(raw, bad)
-        return TimePlan(_interpolate(raw, anchors, bad, period), LOG_STAMPS, int(bad.sum()),
-                        period, reason)
+        squeezed = _squeezed_run(raw, anchors, bad, period)
+        if squeezed is None:
+            reason = _repair_reason(raw, bad)
+            return TimePlan(_interpolate(raw, anchors, bad, period), LOG_STAMPS,
+                            int(bad.sum()), period, reason)
     if n == 1:
         if np.isfinite(raw[0]):
             return TimePlan(raw, LOG_STAMPS, 0, float("nan"))
         return TimePlan(np.zeros(1), RECORD_ORDER, 1, DEFAULT_PERIOD_S, "no finite stamp")
-    if ordered:
+    if squeezed is not None:
+        start, count = squeezed
+        why = (f"{count} records from scan record {start + 1} overlap in time with the ones "
+               f"around them (a clock set back), which leave no room for them")
+    elif ordered:
         why = f"median interval {period:.3g} s is not a scanner's (a unit mix-up?)"
     else:
         why = _why_unusable(raw, int(usable.sum()))
