@@ -93,7 +93,10 @@ def odometry_broke(
     turns away from the motion kept only by the map's veto of a better match turned the
     other way (``report.vetoed``: a thinned SICK spinning in a ring corridor's office took
     a 120° turn for a true -60° the map rejected, and turned back 180° two seconds later;
-    closures to the place made between the two then confirmed it, 1.5-2.4 m and 180° off)."""
+    closures to the place made between the two then confirmed it, 1.5-2.4 m and 180° off).
+    ``last``: the step before as it was; given, a searched step must depart from it too
+    (:func:`jumped`): where a log's stamps jitter or repeat, the motion scaled by the interval
+    overshoots or falls short of a steady step (freiburg-079 jittered by 0.2 s: 147 breaks)."""
     if report.predicted_only or report.broken:
         return True  # no match, or one the odometry itself cannot vouch for
     if report.vetoed and _departure(step, expected)[1] > config.break_angle:

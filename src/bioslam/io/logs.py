@@ -99,9 +99,9 @@ class LogSource(ABC):
     #: time): used when the main stamps are unusable.
     alternative_stamps: ClassVar[str] = ""
     #: Seconds a record may arrive late and still be put back in order (see ``_Reorder``).
-    #: None by default: a scanner delivers its scans in order and a logger writes them as they
-    #: come, so a scan stamped before the one written ahead of it carries a wrong stamp, which
-    #: is repaired (:func:`bioslam.io.timestamps.plan_stamps`). The Intel log's four such
+    #: 0 by default, none is: a scanner delivers its scans in order and a logger writes them
+    #: as they come, so a scan stamped before the one written ahead of it carries a wrong
+    #: stamp, repaired in its place (:func:`bioslam.io.timestamps.plan_stamps`). Intel's four such
     #: scans (0.1-0.86 s early) are in file order by its corrected poses (turns of 30° a scan,
     #: in sequence); put back in stamp order, the odometry turned 62° and back, and with
     #: freiburg-079's stamps jittered by 0.2 s the swapped scans broke the odometry's chain
