@@ -2,7 +2,8 @@
 
 Each defect is one way recorders, converters and users have mangled the stamps of public logs:
 all zero, printed with six significant digits, counting down, sign-flipped, one scan an hour
-late, the log concatenated with itself, seconds written where microseconds are expected. The
+late, a clock set back, the log concatenated with itself, seconds written where microseconds
+are expected. The
 functions rewrite a CARMEN or BreezySLAM log's lines; the readers must still get ≥ 99 % of the
 scans out of the result (see ``tests/test_io_timestamps.py``, ``benchmarks/bench_readers.py``).
 """
@@ -36,12 +37,15 @@ STAMP_DEFECTS: dict[str, StampMap] = {
     "decreasing": lambda t: (t.max() + t.min() - t) if t.size else t,
     "negative": lambda t: -t,
     "one-hour-late": lambda t: _one_late(t, t.size // 2),
+    # the clock set back 30 s two thirds of the way through (a time server, a reboot)
+    "set-back": lambda t: t - SET_BACK_S * (np.arange(t.size) >= 2 * t.size // 3),
     # epoch seconds (as most loggers write) printed with %g's six significant digits
     "six-digits": lambda t: t + EPOCH_S,
 }
 #: Defects of the file rather than of its stamps.
 FILE_DEFECTS = ("concatenated",)
 EPOCH_S = 1.134e9
+SET_BACK_S = 30.0
 
 
 def _format_stamp(value: float, defect: str) -> str:

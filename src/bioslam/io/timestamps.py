@@ -183,13 +183,13 @@ def _squeezed_run(
     period: float,
 ) -> tuple[int, int] | None:
     """The first run of at least :data:`MIN_SQUEEZED_RUN` ``bad`` records, stamped at a
-    scanner's intervals among themselves (within :data:`STEP_BAND` of ``period``), whose
-    anchored neighbours leave them less than half a period each, as (first record, records);
-    None if there is none. A clock set back (by a time server, a reboot) stamps a stretch of
-    the log before the records that precede it: placed between its neighbours, a minute of
-    scans would pass in a fraction of a second, and the odometry's motion model with it. Its
-    own intervals still measure time (:func:`record_order_steps`). A few bad stamps side by
-    side (one early, the next repeated) are no such stretch."""
+    scanner's intervals among themselves (within :data:`STEP_BAND` of ``period``, but one),
+    whose anchored neighbours leave them less than half a period each, as (first record,
+    records); None if there is none. A clock set back (by a time server, a reboot) stamps a
+    stretch of the log before the records that precede it: placed between its neighbours, a
+    minute of scans would pass in a fraction of a second, and the odometry's motion model
+    with it. Its own intervals still measure time (:func:`record_order_steps`). A few bad
+    stamps side by side (one early, the next repeated) are no such stretch."""
     edges = np.flatnonzero(np.diff(np.concatenate(([0], bad.astype(np.int8), [0]))))
     idx = np.flatnonzero(anchors)
     for start, end in zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True):
@@ -198,7 +198,10 @@ def _squeezed_run(
             continue  # a few records, or at an end (extrapolated by the period)
         with np.errstate(invalid="ignore"):
             steps = np.diff(stamps[start:end])
-            regular = np.all((steps >= period / STEP_BAND) & (steps <= period * STEP_BAND))
+            off = ~((steps >= period / STEP_BAND) & (steps <= period * STEP_BAND))
+        # the set back itself may lie inside: the longest increasing stamps can take the
+        # stretch after it and leave the end of the one before
+        regular = np.count_nonzero(off) <= 1
         room = stamps[idx[p]] - stamps[idx[p - 1]]
         if regular and room < 0.5 * period * (idx[p] - idx[p - 1]):
             return start, end - start
