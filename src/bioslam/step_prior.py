@@ -222,7 +222,9 @@ class StepPrior:
     def __init__(self, config: StepPriorConfig | None = None) -> None:
         self.config = config or StepPriorConfig()
         self._steps: deque[tuple[float, float, float]] = deque(maxlen=self.config.window)
-        # the recent steps and the same driven backwards, (2, n, 3), made once per new step
+        # the recent steps, (n, 3), and with the same driven backwards, (2, n, 3), made once
+        # per new step
+        self._recent: np.ndarray | None = None
         self._array: np.ndarray | None = None
         self._axis: float | None = None  # :attr:`axis`, made once per new step
         self._extent: tuple[float, float] | None = None
@@ -264,6 +266,7 @@ class StepPrior:
         full = len(self._steps) == self._steps.maxlen
         self._steps.append((dx, dy, dth))
         self._arcs.append(arc_length((dx, dy, dth)))
+        self._recent = None
         self._array = None
         self._axis = None
         self._extent = None
@@ -290,7 +293,7 @@ class StepPrior:
         c = self.config
         if len(self._steps) < c.min_steps:
             return 0.0
-        steps = np.array(self._steps)  # not :meth:`_history`, which is made with the axis
+        steps = self._history()
         moves = steps[np.abs(steps[:, 2]) < c.sigma_angle, :2]
         total = moves.sum(axis=0)
         direction = math.atan2(total[1], total[0])
@@ -325,13 +328,15 @@ class StepPrior:
     def _histories(self) -> np.ndarray:
         """The recent steps and the same :func:`driven_backwards`, (2, n, 3)."""
         if self._array is None:
-            steps = np.array(self._steps).reshape(-1, 3)
+            steps = self._history()
             self._array = np.stack([steps, driven_backwards(steps, self.axis)])
         return self._array
 
     def _history(self) -> np.ndarray:
         """The recent steps as an (n, 3) array."""
-        return self._histories()[0]
+        if self._recent is None:
+            self._recent = np.array(self._steps).reshape(-1, 3)
+        return self._recent
 
     def cost(self, step: ArrayLike, young: bool = True) -> float:
         """``-log((1 - f) * density + f * kinematic)`` with ``f`` the floor and

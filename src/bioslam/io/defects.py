@@ -3,9 +3,9 @@
 Each defect is one way recorders, converters and users have mangled the stamps of public logs:
 all zero, printed with six significant digits, counting down, sign-flipped, one scan an hour
 late, a clock set back, the log concatenated with itself, seconds written where microseconds
-are expected. The
-functions rewrite a CARMEN or BreezySLAM log's lines; the readers must still get ≥ 99 % of the
-scans out of the result (see ``tests/test_io_timestamps.py``, ``benchmarks/bench_readers.py``).
+are expected. The functions rewrite a CARMEN or BreezySLAM log's lines; the readers must still
+get ≥ 99 % of the scans out of the result (see ``tests/test_io_timestamps.py``,
+``benchmarks/bench_readers.py``).
 """
 
 from __future__ import annotations

@@ -173,9 +173,14 @@ def _mostly_ordered(usable: NDArray[np.bool_]) -> bool:
     n = usable.size
     if int(usable.sum()) < max(2.0, MIN_USABLE_SHARE * n):
         return False
-    edges = np.flatnonzero(np.diff(np.concatenate(([0], (~usable).astype(np.int8), [0]))))
-    longest = int(np.max(edges[1::2] - edges[::2])) if edges.size else 0
+    longest = max((end - start for start, end in _runs(~usable)), default=0)
     return longest <= max(2.0, MAX_BAD_RUN_SHARE * n)
+
+
+def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """The runs of consecutive True in ``mask`` as (first index, one past the last)."""
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], mask.astype(np.int8), [0]))))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
 
 
 def _squeezed_run(
@@ -190,9 +195,8 @@ def _squeezed_run(
     minute of scans would pass in a fraction of a second, and the odometry's motion model
     with it. Its own intervals still measure time (:func:`record_order_steps`). A few bad
     stamps side by side (one early, the next repeated) are no such stretch."""
-    edges = np.flatnonzero(np.diff(np.concatenate(([0], bad.astype(np.int8), [0]))))
     idx = np.flatnonzero(anchors)
-    for start, end in zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True):
+    for start, end in _runs(bad):
         p = int(np.searchsorted(idx, start))
         if end - start < MIN_SQUEEZED_RUN or p == 0 or p >= idx.size:
             continue  # a few records, or at an end (extrapolated by the period)
