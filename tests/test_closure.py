@@ -315,7 +315,7 @@ def test_a_scanner_passing_the_other_way_is_not_moved_along_the_corridor(world, 
     assert not verdict.accepted or math.hypot(err[0], err[1]) < 0.1, (verdict, err)
 
 
-def _second_pass(x: float, off: float = 0.0, breaks: int = 0) -> Candidate:
+def _second_pass(x: float, off: float = 0.0, jumps: int = 0) -> Candidate:
     """A closure measured on a second pass 0.2 m beside the first along x, at travel ``x``
     (m): the old pass's odometry runs along the x axis, the robot's in a frame drifted by
     (100 m, 5 m, 0.3 rad); the measurement is the truth, ``off`` metres along the corridor
@@ -325,7 +325,7 @@ def _second_pass(x: float, off: float = 0.0, breaks: int = 0) -> Candidate:
         stamp=x, target=int(x * 10), measured=np.array([off, 0.2, 0.0]),
         odometry=compose(drifted, np.array([x, 0.2, 0.0])),
         target_odometry=np.array([x, 0.0, 0.0]), travelled=50.0 + x, target_travelled=x,
-        breaks=breaks, target_breaks=0,
+        jumps=jumps, target_jumps=0,
     )  # fmt: skip
 
 
@@ -357,7 +357,7 @@ def test_a_closure_off_along_the_corridor_never_finds_a_partner():
 def test_closures_across_an_odometry_break_cannot_confirm_each_other():
     consensus = ClosureConsensus(LoopClosureConfig())
     assert consensus.offer(_second_pass(1.0)) == []
-    assert consensus.offer(_second_pass(2.0, breaks=1)) == []
+    assert consensus.offer(_second_pass(2.0, jumps=1)) == []
     far = ClosureConsensus(LoopClosureConfig(consistency_window=5.0))
     assert far.offer(_second_pass(1.0)) == []
     assert far.offer(_second_pass(7.0)) == []  # beyond the window: the first was dropped

@@ -11,7 +11,7 @@ from loop_world import ring_route, ring_world
 from bioslam.config import LoopClosureConfig, SLAMConfig, config_from_dict
 from bioslam.evaluation import ate
 from bioslam.geometry import between
-from bioslam.sim import LIDAR_PRESETS, simulate_scans
+from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world, simulate_scans
 from bioslam.slam import BioSLAM, thin_points
 from bioslam.trajectory import Trajectory
 
@@ -502,6 +502,47 @@ def test_a_slide_the_odometry_tracked_weakens_its_map_link_so_closures_correct_i
     spread, plain = ate_of(False)
     assert not plain.self_motion.jump_extent.any()
     assert weighed < 0.7 * spread
+
+
+def _weaving_maze_every_tenth_scan(seed: int, until: float) -> tuple[list, Trajectory]:
+    """The maze's weaving route with the UTM-30LX (40 Hz) up to ``until`` seconds, every
+    tenth scan kept: steps of about 12 cm at 4 Hz, where the odometry now and then slides
+    along a corridor without a search (no break)."""
+    world = load_world("maze")
+    route = ROUTES["adversarial"](world, duration=600.0, seed=seed)
+    pairs = []
+    for scan, pose in simulate_scans(world, LIDAR_PRESETS["utm30lx"], route, seed=seed):
+        if scan.stamp > until:
+            break
+        pairs.append((scan, pose))
+    pairs = pairs[::10]
+    stamps = np.array([scan.stamp for scan, _ in pairs])
+    return [scan for scan, _ in pairs], Trajectory(stamps, np.array([p for _, p in pairs]))
+
+
+@pytest.mark.parametrize(
+    ("seed", "until"),
+    [
+        (0, 190.0),  # the robot's own pose slid 1.75 m back in 2 s, then a place was checked
+        (4, 150.0),  # a place was made while the odometry had slid 0.75 m back, then undone
+    ],
+)
+def test_no_closure_confirms_a_slide_the_odometry_made_without_a_break(seed, until):
+    scans, gt = _weaving_maze_every_tenth_scan(seed, until)
+
+    def run_with(distrust: bool) -> tuple[BioSLAM, list[float]]:
+        config = SLAMConfig(loop_closure=LoopClosureConfig(distrust_jumps=distrust))
+        slam = run(scans, config)
+        accepted = [c for c in slam.checks if c.verdict.accepted]
+        return slam, _closure_errors(slam, gt, accepted)
+
+    slam, errors = run_with(True)
+    assert slam.self_motion.jumps > slam.self_motion.breaks  # slides no search flagged
+    assert len(errors) >= 8  # the loops still close ...
+    assert max(errors) < 0.1  # ... and none confirms a slide
+    # trusted across the slides, a closure measured the slide instead of the place
+    _, trusting = run_with(False)
+    assert max(trusting) > 0.5
 
 
 def test_a_jump_departs_from_the_last_step_whatever_the_stamps_say():

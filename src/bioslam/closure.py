@@ -266,10 +266,11 @@ def submap_span(
     return max(reach, min(reach * spacing / step, max_reach)), spacing
 
 
-def unbroken(breaks_at: NDArray[np.int64], anchor: int, members: Sequence[int]) -> list[int]:
-    """The ``members`` of ``anchor``'s submap made with no odometry break between them and
-    the anchor (``breaks_at``: the count of breaks when each experience was made)."""
-    return [m for m in members if breaks_at[m] == breaks_at[anchor]]
+def unbroken(jumps_at: NDArray[np.int64], anchor: int, members: Sequence[int]) -> list[int]:
+    """The ``members`` of ``anchor``'s submap made with no break of the odometry, nor any other
+    step no robot can make, between them and the anchor (``jumps_at``: the count of such
+    steps when each experience was made)."""
+    return [m for m in members if jumps_at[m] == jumps_at[anchor]]
 
 
 def submap_anchor(travelled: FloatArray, anchor: int, step: float) -> int:
@@ -889,8 +890,9 @@ class Candidate:
     ``target``'s frame (``check``: the index of its check among the system's).
     ``odometry`` / ``target_odometry`` are the robot's odometry pose then and when
     ``target`` was made, ``travelled`` / ``target_travelled`` the odometry distance at those
-    times and ``breaks`` / ``target_breaks`` the count of odometry breaks before them: the
-    two chains of relative poses the pairwise test runs along. ``link`` is what enters the
+    times and ``jumps`` / ``target_jumps`` the count of the odometry's breaks and other steps
+    no robot can make before them (:func:`jumped`): the two chains of relative poses the
+    pairwise test runs along. ``link`` is what enters the
     map once confirmed (opaque here)."""
 
     stamp: float
@@ -900,8 +902,8 @@ class Candidate:
     target_odometry: FloatArray
     travelled: float
     target_travelled: float
-    breaks: int
-    target_breaks: int
+    jumps: int
+    target_jumps: int
     link: object = None
     check: int = -1
     entered: bool = False
@@ -924,12 +926,12 @@ def consistent(a: Candidate, b: Candidate, config: LoopClosureConfig) -> bool | 
     """Whether closures ``a`` and ``b`` agree (:func:`pair_residual` within
     ``consistency_distance`` / ``consistency_angle`` plus ``consistency_per_metre`` /
     ``consistency_angle_per_metre`` times the odometry between them on both passes), or
-    None when the pair cannot tell: the odometry relates them only across a break, over
-    more than ``consistency_window`` metres, or they were measured less than
+    None when the pair cannot tell: the odometry relates them only across a break or a
+    jump, over more than ``consistency_window`` metres, or they were measured less than
     ``consistency_separation`` apart (the same view twice, whose errors are one)."""
     robot_span = abs(a.travelled - b.travelled)
     old_span = abs(a.target_travelled - b.target_travelled)
-    if a.breaks != b.breaks or a.target_breaks != b.target_breaks:
+    if a.jumps != b.jumps or a.target_jumps != b.target_jumps:
         return None
     if max(robot_span, old_span) > config.consistency_window:
         return None

@@ -166,6 +166,16 @@ class LoopClosureConfig:
             break, also when the odometry tracked it without a search (it is no break for
             the closures' checks): on the simulated rooms its one-scan slides of 20 cm
             otherwise held the map where a closure would have corrected it.
+        distrust_jumps: such a step no robot can make is also, for the closures, a step the
+            odometry cannot vouch for (:attr:`bioslam.slam.SelfMotion.jumps`; without a
+            search it is no break, and it does not widen the verification's window): the
+            robot's relation to a place made before it is not trusted (a closure needs
+            another to agree with it and is challenged over the whole search window), and no
+            submap fuses scans across it. Without it the maze's UTM-30LX thinned to every
+            tenth scan, weaving route, accepted 5 false closures in seeds 0-4 (0.73-1.75 m
+            off, each confirming a slide of the odometry); with it none, and every other of
+            the seven default cases at those seeds closed the same loops
+            (``benchmarks/README.md``, "Slides the odometry did not flag").
         bridge_returns, return_tolerance, return_reach: a slide the odometry undid (jumps
             whose summed departure from the robot's motion comes back within
             ``return_tolerance`` times the break thresholds, within ``return_reach`` metres
@@ -248,6 +258,7 @@ class LoopClosureConfig:
     break_echo: int = 3
     consistency: bool = True
     weigh_jumps: bool = True
+    distrust_jumps: bool = True
     bridge_returns: bool = True
     return_tolerance: float = 0.3
     return_reach: float = 10.0

@@ -190,6 +190,10 @@ class SelfMotion:
         self._last_dt = 0.0
         #: steps so far that broke the odometry's chain (:func:`bioslam.closure.odometry_broke`)
         self.breaks = 0
+        #: the breaks so far and, with ``distrust_jumps``, the other steps no robot can make
+        #: (:func:`bioslam.closure.jumped`: a slide the odometry tracked without a search):
+        #: across either the odometry's relative poses are no random walk
+        self.jumps = 0
         #: steps so far whose match the odometry itself doubted (blind along some direction,
         #: among look-alikes, or no match): a closure across one needs a second to confirm it
         self.doubts = 0
@@ -243,14 +247,15 @@ class SelfMotion:
                 ):  # fmt: skip
                     self._since_break = 0
                     self.breaks += 1
+                    self.jumps += 1
                     extent = break_extent(dp, expected, dt, self.closure)
                     self.break_extent += extent
                     self.jump_extent += link_extent(extent, self.closure)
-                elif self.closure.weigh_jumps and jumped(
-                    dp, self._last_step, expected, dt, self.closure
-                ):
-                    extent = break_extent(dp, expected, dt, self.closure)
-                    self.jump_extent += link_extent(extent, self.closure)
+                elif jumped(dp, self._last_step, expected, dt, self.closure):
+                    self.jumps += int(self.closure.distrust_jumps)
+                    if self.closure.weigh_jumps:
+                        extent = break_extent(dp, expected, dt, self.closure)
+                        self.jump_extent += link_extent(extent, self.closure)
                 self._track_slide(dp, dt)
             self._last_step, self._last_dt = dp.copy(), dt
             if self.heading_bias:
@@ -324,6 +329,8 @@ class BioSLAM:
         # experience was made: a closure is measured only against a place the odometry
         # relates to the robot without a break
         self._breaks_at = np.empty(1024, dtype=np.int64)
+        # ... and of its breaks and jumps (:attr:`SelfMotion.jumps`)
+        self._jumps_at = np.empty(1024, dtype=np.int64)
         self._extent_at = np.empty((1024, 2))
         # the odometry's pose when each experience was made: the old pass's chain of
         # relative poses for the closures' pairwise test (:class:`bioslam.closure.Candidate`)
@@ -586,8 +593,8 @@ class BioSLAM:
     def _note_made(self, experience_id: int) -> None:
         if experience_id >= self._made_at.size:
             for name in (
-                "_made_at", "_breaks_at", "_extent_at", "_odometry_at", "_doubts_at",
-                "_heading_var_at",
+                "_made_at", "_breaks_at", "_jumps_at", "_extent_at", "_odometry_at",
+                "_doubts_at", "_heading_var_at",
             ):  # fmt: skip
                 column = getattr(self, name)
                 setattr(self, name, np.concatenate([column, np.empty_like(column)]))
@@ -596,6 +603,7 @@ class BioSLAM:
         self._heading_var_at[experience_id] = self.self_motion.heading_var
         self._doubts_at[experience_id] = self.self_motion.doubts
         self._breaks_at[experience_id] = self.self_motion.breaks
+        self._jumps_at[experience_id] = self.self_motion.jumps
         self._extent_at[experience_id] = self.self_motion.break_extent
 
     def _nearby(self, travelled: float, pending: FloatArray | None = None) -> int | None:
@@ -736,17 +744,17 @@ class BioSLAM:
 
     def _learn_noise(self, experience_id: int, registered: FloatArray, pinned: FloatArray) -> None:
         """Refine the map's link noise model (:mod:`bioslam.link_noise`) by an accepted
-        closure to a place the odometry relates to the robot without a break: where the
-        registration put the robot in the place's frame (``registered``, before any
-        correction was taken back to the map's prediction, which would measure the map, not
-        the registration) against where the odometry alone does, over the distance and the
-        heading variance between. The position is compared along the direction the scan
-        pins best (``pinned``, a unit vector in the robot's frame), the one the loop link's
-        ``closure_sigma_m`` stands for (:func:`bioslam.cognitive_map.registration_shape`):
-        along a corridor a registration slides, and its weaker directions are weighed
-        down from that one."""
-        if self.self_motion.breaks != self._breaks_at[experience_id]:
-            return  # a break is no random walk: its links carry it apart
+        closure to a place the odometry relates to the robot without a break or a jump
+        (:attr:`SelfMotion.jumps`): where the registration put the robot in the place's frame
+        (``registered``, before any correction was taken back to the map's prediction, which
+        would measure the map, not the registration) against where the odometry alone does,
+        over the distance and the heading variance between. The position is compared along
+        the direction the scan pins best (``pinned``, a unit vector in the robot's frame),
+        the one the loop link's ``closure_sigma_m`` stands for
+        (:func:`bioslam.cognitive_map.registration_shape`): along a corridor a registration
+        slides, and its weaker directions are weighed down from that one."""
+        if self.self_motion.jumps != self._jumps_at[experience_id]:
+            return  # a break or a jump is no random walk: its links carry it apart
         odometry = between(self._odometry_at[experience_id], self.self_motion.pose)
         residual = between(odometry, registered)
         noise = self.link_noise.add(
@@ -795,7 +803,7 @@ class BioSLAM:
         candidate = Candidate(
             self._stamp, eid, np.asarray(measured.pose, dtype=np.float64),
             self.self_motion.pose.copy(), self._odometry_at[eid].copy(), self._travelled,
-            float(self._made_at[eid]), self.self_motion.breaks, int(self._breaks_at[eid]),
+            float(self._made_at[eid]), self.self_motion.jumps, int(self._jumps_at[eid]),
             link=cmap.loop_link(eid, measured, self._stamp), check=len(self.checks) - 1,
         )  # fmt: skip
         confirmed = self.consensus.offer(candidate, trusted)
@@ -821,7 +829,10 @@ class BioSLAM:
         the shortest chain's, :meth:`_odometry_relation`), and the prediction (the robot in
         ``anchor``'s frame) when it is not the map's. Trusted when the odometry since the
         place was made has neither doubted a step (:func:`bioslam.closure.odometry_doubted`)
-        nor broken, or when a chain of links the odometry never doubted (through earlier
+        nor broken nor made a step no robot can make (:attr:`SelfMotion.jumps`: a slide it
+        tracked; the maze's UTM-30LX thinned to every tenth scan, weaving, seed 0, slid 1.75 m
+        back along a corridor in 2 s without a break, and a closure 3.5 s later, trusted,
+        confirmed the slide), or when a chain of links the odometry never doubted (through earlier
         closures: a weaving route back to a corridor it closed at a loop ago) joins the
         robot to it; the bound is then that chain's, which may be longer than the shortest,
         and the prediction the chain's measurements composed
@@ -835,7 +846,7 @@ class BioSLAM:
         of the truth)."""
         if (
             self.self_motion.doubts == self._doubts_at[experience_id]
-            and self.self_motion.breaks == self._breaks_at[experience_id]
+            and self.self_motion.jumps == self._jumps_at[experience_id]
         ):
             return True, since, None
         cmap = self.cognitive_map
@@ -877,17 +888,24 @@ class BioSLAM:
         anchor, shared by the checks near one old place, :class:`bioslam.closure.SubmapCache`);
         the last ``submap_reach`` metres of travel, which the current scan would match
         trivially, are left out, and so is every scan the odometry relates to the anchor
-        only across a break (:func:`bioslam.closure.unbroken`): fused at a broken relative
-        pose, it would put a wall where the place has none."""
+        only across a break or a jump (:func:`bioslam.closure.unbroken`,
+        :attr:`SelfMotion.jumps`): fused at a broken relative pose, it would put a wall where
+        the place has none. Nor is the anchor one the odometry relates to the candidate only
+        across one: the candidate is then its own anchor. (The same route at seed 4 made a
+        place while the odometry had slid 0.75 m back, three steps before the jump that
+        undid it; fused with the scans from before the slide, its submap put the robot
+        0.73 m off, four times, each closure confirming the others.)"""
         cfg = self.config.loop_closure
         made_at = self._made_at[: len(self.cognitive_map)]
         anchor = submap_anchor(made_at, candidate, cfg.submap_step)
+        if cfg.refuse_broken_odometry and self._jumps_at[anchor] != self._jumps_at[candidate]:
+            anchor = candidate  # the anchor's map pose is off from the candidate's by the jump
         reach, step = submap_span(
             made_at, anchor, cfg.submap_reach, cfg.submap_step, cfg.submap_max_reach
         )
         members = pass_neighbours(made_at, anchor, reach, step, self._travelled - reach)
         if cfg.refuse_broken_odometry:
-            members = unbroken(self._breaks_at, anchor, members)
+            members = unbroken(self._jumps_at, anchor, members)
         return anchor, members
 
     def _refuse(self, experience: Experience, predicted: FloatArray, reason: str) -> None:
