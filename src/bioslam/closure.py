@@ -892,8 +892,8 @@ class Candidate:
     ``target`` was made, ``travelled`` / ``target_travelled`` the odometry distance at those
     times and ``jumps`` / ``target_jumps`` the count of the odometry's breaks and other steps
     no robot can make before them (:func:`jumped`): the two chains of relative poses the
-    pairwise test runs along. ``link`` is what enters the
-    map once confirmed (opaque here)."""
+    pairwise test runs along. ``link`` is what enters the map once confirmed (opaque
+    here)."""
 
     stamp: float
     target: int
