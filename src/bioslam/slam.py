@@ -238,24 +238,18 @@ class SelfMotion:
                 report = self.odometry.last_report
                 self.doubts += int(odometry_doubted(report))
                 self._since_break += 1
-                if odometry_broke(
+                broke = odometry_broke(
                     report, dp, expected, dt, self.closure, self.odometry.config.max_speed,
                     self._last_step,
                 ) or turned_after_break(
                     report, dp, expected, self._since_break, self.closure,
                     self.odometry.config.break_turn,
-                ):  # fmt: skip
-                    self._since_break = 0
-                    self.breaks += 1
-                    self.jumps += 1
-                    extent = break_extent(dp, expected, dt, self.closure)
-                    self.break_extent += extent
-                    self.jump_extent += link_extent(extent, self.closure)
-                elif jumped(dp, self._last_step, expected, dt, self.closure):
-                    self.jumps += int(self.closure.distrust_jumps)
-                    if self.closure.weigh_jumps:
-                        extent = break_extent(dp, expected, dt, self.closure)
-                        self.jump_extent += link_extent(extent, self.closure)
+                )  # fmt: skip
+                # a step no robot can make, short of a break, counts where it is weighed or
+                # distrusted
+                weighed = self.closure.weigh_jumps or self.closure.distrust_jumps
+                if broke or (weighed and jumped(dp, self._last_step, expected, dt, self.closure)):
+                    self._note_jump(dp, expected, dt, broke)
                 self._track_slide(dp, dt)
             self._last_step, self._last_dt = dp.copy(), dt
             if self.heading_bias:
@@ -265,6 +259,20 @@ class SelfMotion:
         self.travelled += math.hypot(dp[0], dp[1])
         self.pose = compose(self.pose, dp)
         return dp
+
+    def _note_jump(self, dp: FloatArray, expected: FloatArray, dt: float, broke: bool) -> None:
+        """Count a step that broke the odometry's chain (``broke``) or that no robot can make
+        (:func:`bioslam.closure.jumped`), with how far it may have put the robot
+        (:func:`bioslam.closure.break_extent`): a break always, a jump as the settings say
+        (``distrust_jumps``, ``weigh_jumps``)."""
+        extent = break_extent(dp, expected, dt, self.closure)
+        if broke:
+            self._since_break = 0
+            self.breaks += 1
+            self.break_extent += extent
+        self.jumps += int(broke or self.closure.distrust_jumps)
+        if broke or self.closure.weigh_jumps:
+            self.jump_extent += link_extent(extent, self.closure)
 
     def _track_slide(self, dp: FloatArray, dt: float) -> None:
         """Whether ``dp`` opens or undoes a slide (:class:`bioslam.closure.SlideReturns`):
