@@ -73,6 +73,34 @@ class OdometryConfig:
             farthest endpoints of a scan taken since fall past that end, whose edge pulls the
             pose back. At least ``insert_distance`` plus the coarsest level's kernel (two of
             its cells): 0.4 m still stalled in the simulated maze with a 5.6 m scanner.
+        grazing_ratio, grazing_gap, grazing_condition: at the scanner's rate, while the
+            last match's conditioning was below ``grazing_condition`` (a corridor pinned
+            along its axis by a few endpoints at its doors: 0.002-0.05 where the pose
+            stalled), an endpoint whose gaps to both neighbours are longer than
+            ``grazing_gap`` metres and than ``grazing_ratio`` times the arc its beams span
+            there (a beam meeting a wall within 9.6° of grazing at 6:
+            :func:`bioslam.matching.registration.grazing_endpoints`) is fused into the map
+            but not matched. Such beams sample a wall ahead metres apart, and the map holds
+            the wall as the dots the last fused scans' beams left, since the robot moves on
+            by less than their spacing between fusions; matched, the few of them pull the
+            pose back to where those scans were taken, the speed carried decays with it,
+            and along a corridor longer than the range the pose stops (a 2 m corridor with
+            a door niche every 4 m, a 181-beam 180° scanner: 4.4 m behind after 40 m; a
+            ring of 100 m corridors, SICK: 18 m ATE). Where the scan pins every direction
+            better they are matched: their pull along the wall is outweighed there, and
+            their lever arm holds the heading (left out on every scan, the maze's UTM-30LX
+            weaving route at 40 Hz turned up to 0.15° a scan more: ATE 0.7 -> 2.5 cm; up
+            to a conditioning of 0.1, a 360° scanner driving the maze's junctions at
+            1.2 m/s jumped 42 cm back). Not on sparse scans:
+            each is fused, a metre or more from the last, and its far endpoints are what
+            its searches and the step chooser weigh (thinned intel: ATE 8.25 -> 13.0 cm
+            with them left out there). ``grazing_gap`` is far beyond the reach of the
+            coarsest level's kernels (0.2 m cells), and a real scan's clutter is sampled
+            closer (left out from 0.1 m, freiburg-079 7.03 -> 7.55 cm). Fewer left out
+            than this (a gap from 0.5 m, a ratio of 4) and the simulated maze and
+            warehouse runs took other turns, a test route among them each time (a SICK
+            among people walking: 4.2 m off at worst; backing up an aisle: 2.8 m). None:
+            every endpoint is matched.
         constrained_ratio, accel_noise, velocity_noise, velocity_spread: the motion model's
             velocity along a scan's weakest direction (:mod:`bioslam.motion_model`): taken
             from the scan as measured at or above ``constrained_ratio`` conditioning, carried
@@ -416,6 +444,9 @@ class OdometryConfig:
     weak_axis_prior: bool = False
     mapped_logodds: float | None = 0.0
     matched_range_margin: float = 0.6
+    grazing_ratio: float | None = 6.0
+    grazing_gap: float = 1.0
+    grazing_condition: float = 0.05
     start_margin: float = 0.1
     subcell_sigma: float | None = 1.0
     free_logodds: float = -1.5
@@ -493,6 +524,12 @@ class OdometryConfig:
             min(objects) >= 0 and self.object_reach >= self.object_still,
             "object_size, object_gap, object_lag and object_still must be non-negative and "
             f"object_reach at least object_still, got {(*objects, self.object_reach)}",
+        )
+        _require(
+            (self.grazing_ratio is None or self.grazing_ratio > 1.0)
+            and min(self.grazing_gap, self.grazing_condition) >= 0,
+            "grazing_ratio must be None or above 1, grazing_gap and grazing_condition "
+            f"non-negative, got {(self.grazing_ratio, self.grazing_gap, self.grazing_condition)}",
         )
         sweep = (self.sweep_turn_rate, self.sweep_refinements, self.sweep_rates)
         _require(

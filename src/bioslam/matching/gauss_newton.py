@@ -550,9 +550,10 @@ def match_scan_to_map(
     last pose (a better start on the coarse level) while the prior stays the motion model's
     prediction; pulled towards a standstill start, the pose stalled in a corridor longer
     than the range. With ``restart``, a descent that ended worse on the finest level than its
-    start is redone there from the start (:func:`_worse_than_start`): for a start that is a
-    trusted prediction; from a search's seed or after a gap the coarse levels' move may be
-    the escape from a wrong start (intel: RPE 13.5 cm with restarts there, 10.5 without).
+    start or the prior's pose is redone there from the cheaper (:func:`_cheaper_start`): for
+    a start that is a trusted prediction; from a search's seed or after a gap the coarse
+    levels' move may be the escape from a wrong start (intel: RPE 13.5 cm with restarts
+    there, 10.5 without).
     With ``prior_information`` (the prior's information along the weak direction in
     endpoints' worth: an endpoint's variance over the prediction's,
     :meth:`bioslam.motion_model.ConstantVelocityModel.prior_information`) the prior is
@@ -604,17 +605,20 @@ def match_scan_to_map(
         )  # fmt: skip
         report.iterations += int(n)
     finest = grid_args(pyramid.finest, subcell_sigma)
+    restart_from = None
     if (
         restart
         and len(pyramid.grids) > 1
         and _may_have_left_basin(
             report.condition, degeneracy_ratio, start, pose, pyramid.finest.resolution, length_scale
         )
-        and _worse_than_start(finest, level_points[0], faces[0], start, cost)
     ):
+        starts = (start,) if prior_pose is None else (start, target)
+        restart_from = _cheaper_start(finest, level_points[0], faces[0], starts, cost)
+    if restart_from is not None:
         # the coarse levels led the finest one out of the basin it started in
         pose, H, mean, n, converged, cost, scan = _gauss_newton_level(
-            finest, level_points[0], faces[0], start, iters[-1],
+            finest, level_points[0], faces[0], restart_from, iters[-1],
             step_tolerance * pyramid.finest.resolution, length_scale, degeneracy_ratio, hold, prior,
         )  # fmt: skip
         report.iterations += int(n)
@@ -720,20 +724,32 @@ def _may_have_left_basin(
     return moved > resolution or turn * length_scale > resolution
 
 
-def _worse_than_start(
-    finest: tuple, points: FloatArray, facing: FloatArray, start: FloatArray, cost: float
-) -> bool:
-    """The finest level's cost Σ (1 - M*)² at ``start`` is below ``cost``, where the pyramid's
-    descent ended (with the motion prior's, which is nil at the start). A coarse level's
+def _cheaper_start(
+    finest: tuple, points: FloatArray, facing: FloatArray, starts: tuple[FloatArray, ...],
+    cost: float,
+) -> FloatArray | None:
+    """Of ``starts`` (the descent's start and the motion prior's pose), the one whose finest
+    level cost Σ (1 - M*)² is lowest, if below ``cost``, where the pyramid's descent ended
+    (the motion prior's included); else None. A coarse level's
     optimum can lie a cell off the true one (in a corridor longer than the range, the coarse
     map's edge ahead pulls the pose back: simulated URG-04LX, a 19 cm slip backwards from a
     start 1 cm off), and the finer levels then converge in a neighbouring basin; matched
-    again from the start on the finest level, the pose can only end better than both
-    (Gauss-Newton with damping never raises the cost). Checked only where
-    :func:`_may_have_left_basin`: on every scan it would cost a dense scan a tenth of its
-    match."""
-    c, s = math.cos(start[2]), math.sin(start[2])
-    return bool(summed_map(finest, points, facing, c, s, start[0], start[1], True) < cost)
+    again on the finest level from the cheaper start, the pose can only end better than
+    both (Gauss-Newton with damping never raises the cost). The prior's pose counts where
+    the descent started elsewhere (:meth:`bioslam.odometry.LidarOdometry._best_start` chose
+    the last pose, standing still, on the coarsest level's cost): along a corridor whose
+    walls the scan sees up to 25 m ahead, the coarsest level's pull of a lone far endpoint
+    chose the standstill, the finest level settled 12 cm behind the prediction, which it
+    scored better, and the speed carried fell from 0.5 m/s to nothing in a second (a ring
+    of 100 m corridors, SICK, seed 3). Checked only where :func:`_may_have_left_basin`: on
+    every scan it would cost a dense scan a tenth of its match."""
+    best, lowest = None, cost
+    for pose in starts:
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        value = summed_map(finest, points, facing, c, s, pose[0], pose[1], True)
+        if value < lowest:
+            best, lowest = pose, value
+    return best
 
 
 def geometric_conditioning(

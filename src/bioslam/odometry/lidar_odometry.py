@@ -32,6 +32,7 @@ from bioslam.matching.gauss_newton import (
     pose_costs,
     summed_map,
 )
+from bioslam.matching.registration import grazing_endpoints
 from bioslam.motion_model import ConstantVelocityModel, translation_part
 from bioslam.occupancy_grid import MapPyramid, OccupancyGrid, subsample_by_spacing, thinned_normals
 from bioslam.odometry.choice import MatchChoice
@@ -165,18 +166,29 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         self, pts: FloatArray, keep: NDArray[np.bool_], scan: LaserScan
     ) -> tuple[FloatArray, NDArray[np.bool_]]:
         """The endpoints (and the kept ones among them) that are matched: those at least
-        :attr:`OdometryConfig.matched_range_margin` short of the usable range. The map holds
+        :attr:`OdometryConfig.matched_range_margin` short of the usable range, and along a
+        corridor none on a wall the beams graze (:meth:`_weakly_pinned`). The map holds
         a wall only as far as earlier scans reached; moved on since the last fusion, the
         scan's farthest endpoints on a wall ahead fall past the map's end, whose edge pulls
         them, and the pose, back. Along a corridor longer than the range nothing else
         fixes the pose, and that pull stalled it (simulated URG-04LX, 5.6 m). All endpoints
         are still fused into the map."""
-        limit = self._usable_range(scan) - self.config.matched_range_margin
-        near = pts[:, 0] ** 2 + pts[:, 1] ** 2 <= limit * limit
-        if near.all():
+        c = self.config
+        limit = self._usable_range(scan) - c.matched_range_margin
+        matched = pts[:, 0] ** 2 + pts[:, 1] ** 2 <= limit * limit
+        if c.grazing_ratio is not None and self._weakly_pinned():
+            matched &= ~grazing_endpoints(pts, c.grazing_ratio, c.grazing_gap)
+        if matched.all():
             return pts, keep
-        pts = kept_rows(pts, near)
-        return pts, subsample_by_spacing(pts, self.config.point_spacing)
+        pts = kept_rows(pts, matched)
+        return pts, subsample_by_spacing(pts, c.point_spacing)
+
+    def _weakly_pinned(self) -> bool:
+        """At the scanner's rate, the last match's conditioning was below
+        ``grazing_condition``: a corridor, where a grazed wall's dots decide the pose along
+        it (``grazing_ratio``)."""
+        weak = self.last_report.condition < self.config.grazing_condition
+        return weak and self._at_scanner_rate()
 
     def _beam_directions(self, angles: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Cosines and sines of the beam angles, kept while the scans' angles stay the same."""
