@@ -6,6 +6,7 @@ taken. Along a corridor longer than the range the pose then stops while the robo
 import math
 
 import numpy as np
+import pytest
 from _scan_world import box, make_scan
 
 from bioslam.matching.gauss_newton import _cheaper_start, grid_args
@@ -126,3 +127,10 @@ def test_grazed_walls_are_left_out_only_where_the_scan_leaves_a_direction_weak()
     assert kept.shape[0] > matched.shape[0]
     near = np.hypot(pts[:, 0], pts[:, 1]) <= 30.0 - OdometryConfig().matched_range_margin
     assert kept.shape[0] == near.sum()
+
+
+def test_grazing_settings_out_of_range_are_refused():
+    for bad in ({"grazing_ratio": 0.5}, {"grazing_gap": -1.0}, {"grazing_condition": -0.1}):
+        with pytest.raises(ValueError, match="grazing_"):
+            OdometryConfig(**bad)
+    assert OdometryConfig(grazing_ratio=None).grazing_ratio is None

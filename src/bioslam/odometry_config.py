@@ -76,9 +76,9 @@ class OdometryConfig:
         grazing_ratio, grazing_gap, grazing_condition: at the scanner's rate, while the
             last match's conditioning was below ``grazing_condition`` (a corridor pinned
             along its axis by a few endpoints at its doors: 0.002-0.05 where the pose
-            stalled), an endpoint whose gaps to both neighbours are longer than
-            ``grazing_gap`` metres and than ``grazing_ratio`` times the arc its beams span
-            there (a beam meeting a wall within 9.6° of grazing at 6:
+            stalled), an endpoint whose gaps to both neighbours continue one line and are
+            longer than ``grazing_gap`` metres and than ``grazing_ratio`` times the arc its
+            beams span there (a beam meeting a wall within 9.6° of grazing at 6:
             :func:`bioslam.matching.registration.grazing_endpoints`) is fused into the map
             but not matched. Such beams sample a wall ahead metres apart, and the map holds
             the wall as the dots the last fused scans' beams left, since the robot moves on
@@ -88,13 +88,13 @@ class OdometryConfig:
             a door niche every 4 m, a 181-beam 180° scanner: 4.4 m behind after 40 m; a
             ring of 100 m corridors, SICK: 18 m ATE). Where the scan pins every direction
             better they are matched: their pull along the wall is outweighed there, and
-            their lever arm holds the heading (left out on every scan, the maze's UTM-30LX
-            weaving route at 40 Hz turned up to 0.15° a scan more: ATE 0.7 -> 2.5 cm; up
-            to a conditioning of 0.1, a 360° scanner driving the maze's junctions at
-            1.2 m/s jumped 42 cm back). Not on sparse scans:
-            each is fused, a metre or more from the last, and its far endpoints are what
-            its searches and the step chooser weigh (thinned intel: ATE 8.25 -> 13.0 cm
-            with them left out there). ``grazing_gap`` is far beyond the reach of the
+            their lever arm holds the heading (left out on every scan at a ratio of 4 and
+            from 0.5 m, the maze's UTM-30LX weaving route at 40 Hz turned up to 0.15° a
+            scan more: ATE 0.7 -> 2.5 cm; up to a conditioning of 0.1, a 360° scanner
+            driving the maze's junctions at 1.2 m/s jumped 42 cm back). Not on sparse
+            scans: each is fused, a metre or more from the last, and its far endpoints are
+            what its searches and the step chooser weigh (thinned intel: ATE 8.25 -> 13.0
+            cm with them left out there). ``grazing_gap`` is far beyond the reach of the
             coarsest level's kernels (0.2 m cells), and a real scan's clutter is sampled
             closer (left out from 0.1 m, freiburg-079 7.03 -> 7.55 cm). Fewer left out
             than this (a gap from 0.5 m, a ratio of 4) and the simulated maze and

@@ -730,12 +730,12 @@ def _cheaper_start(
 ) -> FloatArray | None:
     """Of ``starts`` (the descent's start and the motion prior's pose), the one whose finest
     level cost Σ (1 - M*)² is lowest, if below ``cost``, where the pyramid's descent ended
-    (the motion prior's included); else None. A coarse level's
-    optimum can lie a cell off the true one (in a corridor longer than the range, the coarse
-    map's edge ahead pulls the pose back: simulated URG-04LX, a 19 cm slip backwards from a
-    start 1 cm off), and the finer levels then converge in a neighbouring basin; matched
-    again on the finest level from the cheaper start, the pose can only end better than
-    both (Gauss-Newton with damping never raises the cost). The prior's pose counts where
+    (the motion prior's included); else None. A coarse level's optimum can lie a cell off
+    the true one (in a corridor longer than the range, the coarse map's edge ahead pulls the
+    pose back: simulated URG-04LX, a 19 cm slip backwards from a start 1 cm off), and the
+    finer levels then converge in a neighbouring basin; matched again on the finest level
+    from the cheaper start, the pose can only end better than both (Gauss-Newton with
+    damping never raises the cost). The prior's pose counts where
     the descent started elsewhere (:meth:`bioslam.odometry.LidarOdometry._best_start` chose
     the last pose, standing still, on the coarsest level's cost): along a corridor whose
     walls the scan sees up to 25 m ahead, the coarsest level's pull of a lone far endpoint
