@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from bioslam.geometry import transform_points
+from bioslam.geometry import transform_points, wrap_angle
 from bioslam.matching.correlative import lattice_search
 from bioslam.matching.gauss_newton import (
     FloatArray,
@@ -115,8 +115,7 @@ def straight_gaps(
     n = gap.size
     if angle <= 0.0 or n <= 2 * reach:
         return near
-    heading = np.arctan2(step[:, 1], step[:, 0])
-    bent = np.abs(np.angle(np.exp(1j * np.diff(heading)))) > angle  # turn k: gap k -> k + 1
+    bent = _turns(step) > angle  # turn k: gap k -> k + 1
     bends = np.concatenate([[0], np.cumsum(bent)])
     inner = np.arange(reach, n - reach)
     ok = np.zeros(n, dtype=bool)
@@ -127,6 +126,12 @@ def straight_gaps(
         & (gap[inner] <= longest)
     )
     return near | ok
+
+
+def _turns(step: FloatArray) -> FloatArray:
+    """How far (radians) each gap between consecutive endpoints (the rows of ``step``) turns
+    from the one before: entry k from gap k to gap k + 1."""
+    return np.abs(wrap_angle(np.diff(np.arctan2(step[:, 1], step[:, 0]))))
 
 
 # The largest turn (radians) between an endpoint's two gaps for it to be a sample of one wall
@@ -151,11 +156,9 @@ def grazing_endpoints(points: FloatArray, ratio: float, min_gap: float) -> NDArr
     gap = np.hypot(step[:, 0], step[:, 1])
     ranges = np.hypot(points[:, 0], points[:, 1])
     bearing = np.arctan2(points[:, 1], points[:, 0])
-    spanned = np.abs(np.angle(np.exp(1j * np.diff(bearing))))
-    arc = np.minimum(ranges[:-1], ranges[1:]) * spanned
+    arc = np.minimum(ranges[:-1], ranges[1:]) * np.abs(wrap_angle(np.diff(bearing)))
     sparse = (gap > min_gap) & (gap > ratio * arc)
-    heading = np.arctan2(step[:, 1], step[:, 0])
-    straight = np.abs(np.angle(np.exp(1j * np.diff(heading)))) < GRAZED_TURN
+    straight = _turns(step) < GRAZED_TURN
     return np.r_[True, sparse] & np.r_[sparse, True] & np.r_[True, straight, True]
 
 
