@@ -15,12 +15,11 @@ on it.
 
 from __future__ import annotations
 
-import argparse
 import math
 from pathlib import Path
 
 import numpy as np
-from office_floor_plan import FREE, OCCUPIED, write_floor_plan
+from office_floor_plan import FREE, OCCUPIED, floor_plan_cli, write_floor_plan
 
 RESOLUTION = 0.05  # metres per pixel
 WIDTH, HEIGHT = 44.0, 36.0
@@ -66,11 +65,5 @@ def write_curved(folder: Path) -> Path:
     return write_floor_plan(folder, "curved", floor_plan(), RESOLUTION)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("out", nargs="?", default=".", help="folder to write into")
-    print(write_curved(Path(parser.parse_args().out)))
-
-
 if __name__ == "__main__":
-    main()
+    floor_plan_cli(__doc__, write_curved)

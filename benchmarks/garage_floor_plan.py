@@ -13,11 +13,10 @@ on it.
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
-from office_floor_plan import FREE, OCCUPIED, write_floor_plan
+from office_floor_plan import FREE, OCCUPIED, floor_plan_cli, write_floor_plan
 
 RESOLUTION = 0.05  # metres per pixel
 WIDTH, HEIGHT = 48.0, 32.0
@@ -54,11 +53,5 @@ def write_garage(folder: Path) -> Path:
     return write_floor_plan(folder, "garage", floor_plan(), RESOLUTION)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("out", nargs="?", default=".", help="folder to write into")
-    print(write_garage(Path(parser.parse_args().out)))
-
-
 if __name__ == "__main__":
-    main()
+    floor_plan_cli(__doc__, write_garage)

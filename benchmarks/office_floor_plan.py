@@ -11,8 +11,10 @@ run on it.
 
 from __future__ import annotations
 
+import argparse
 import itertools
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -77,6 +79,15 @@ def write_floor_plan(folder: Path, name: str, image: np.ndarray, resolution: flo
     folder.mkdir(parents=True, exist_ok=True)
     occupancy = np.where(image[::-1] == OCCUPIED, 1.0, 0.0)
     return write_map(folder, OccupancyImage(occupancy, resolution), name=name)[1]
+
+
+def floor_plan_cli(doc: str, write: Callable[[Path], Path]) -> None:
+    """A floor plan script's command line: ``write`` the floor into the folder given (default
+    the current one) and print the YAML's path; ``doc`` the script's docstring, whose first
+    paragraph is the help."""
+    parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    parser.add_argument("out", nargs="?", default=".", help="folder to write into")
+    print(write(Path(parser.parse_args().out)))
 
 
 def write_office(folder: Path) -> Path:
