@@ -559,6 +559,48 @@ def test_a_jump_departs_from_the_last_step_whatever_the_stamps_say():
     assert jumped(np.array([0.1, 0.0, np.radians(40.0)]), last, last, 0.1, cfg)
 
 
+
+class _ScriptedOdometry:
+    """An odometry whose steps are given: ``update`` returns the next one, every match
+    reported as the motion model's own (no search, no break)."""
+
+    def __init__(self, steps: list[tuple[float, float, float]]) -> None:
+        from bioslam.odometry import MatchReport, OdometryConfig
+
+        self.config = OdometryConfig()
+        self.last_report = MatchReport()
+        self._steps = iter(steps)
+
+    def update(self, scan: object) -> np.ndarray:
+        return np.array(next(self._steps), dtype=float)
+
+
+def _jumps_counted(steps: list[tuple[float, float, float]], **settings: bool) -> int:
+    from types import SimpleNamespace
+
+    from bioslam.slam import SelfMotion
+
+    motion = SelfMotion(SLAMConfig(loop_closure=LoopClosureConfig(**settings)))
+    motion.odometry = _ScriptedOdometry(steps)
+    for k in range(len(steps)):
+        motion.step(SimpleNamespace(stamp=0.1 * k))
+    return motion.jumps
+
+
+def test_steps_that_carry_a_jumped_motion_on_are_distrusted_until_it_comes_back():
+    # at 10 Hz, 5 cm a scan ahead; the odometry jumps to 10 cm a scan back and carries that
+    # on for three scans (each as the one before: no jump by itself, but 15 cm from the
+    # robot's steady motion, more than the 11 cm a robot can change it in 0.1 s), then
+    # comes back: the jump and the return are jumps either way, the three only as slides
+    steady = [(0.05, 0.0, 0.0)] * 10
+    slid = [(-0.10, 0.0, 0.0)] * 4
+    steps = steady + slid + steady
+    assert _jumps_counted(steps, distrust_slides=False) == 2
+    assert _jumps_counted(steps) == 5
+    # a robot speeding up at 1 m/s² departs from its steady motion by 1 cm a scan: no slide
+    speeding = [(0.05 + 0.01 * k, 0.0, 0.0) for k in range(1, 10)]
+    assert _jumps_counted(steady + speeding) == 0
+
 def test_checks_across_doubted_odometry_steps_are_challenged_from_outside_their_window(
     ring_drive, monkeypatch
 ):

@@ -248,9 +248,12 @@ class SelfMotion:
                 # a step no robot can make, short of a break, counts where it is weighed or
                 # distrusted
                 weighed = self.closure.weigh_jumps or self.closure.distrust_jumps
-                if broke or (weighed and jumped(dp, self._last_step, expected, dt, self.closure)):
+                departed = self._track_slide(dp, dt) and self.closure.distrust_slides
+                if broke or (
+                    weighed
+                    and (departed or jumped(dp, self._last_step, expected, dt, self.closure))
+                ):
                     self._note_jump(dp, expected, dt, broke)
-                self._track_slide(dp, dt)
             self._last_step, self._last_dt = dp.copy(), dt
             if self.heading_bias:
                 dp[2] += self.heading_bias * dt
@@ -274,23 +277,26 @@ class SelfMotion:
         if broke or self.closure.weigh_jumps:
             self.jump_extent += link_extent(extent, self.closure)
 
-    def _track_slide(self, dp: FloatArray, dt: float) -> None:
+    def _track_slide(self, dp: FloatArray, dt: float) -> bool:
         """Whether ``dp`` opens or undoes a slide (:class:`bioslam.closure.SlideReturns`):
         its departure from the robot's steady motion, the last step that departed from the
         one before by no more than a robot can change its motion. (Against the step just
         before, the first ordinary step after a slide departs from the slide's own motion
-        as much as the slide did, and would pass for its undoing.)"""
+        as much as the slide did, and would pass for its undoing.) Returns whether ``dp``
+        departs from the steady motion both as scaled by the stamps and as it was (where
+        the stamps jitter, freiburg-079, the scaled one alone overshoots a steady step)."""
         if self._steady_dt <= 0.0:
             self._steady, self._steady_dt = dp.copy(), dt
-            return
+            return False
         steady = self._steady * min(dt / self._steady_dt, 1e3)
         if not implausible(dp, steady, dt, self.closure):
             self._steady, self._steady_dt = dp.copy(), dt
-            return
+            return False
         c, s = math.cos(self.pose[2]), math.sin(self.pose[2])
         dx, dy = dp[0] - steady[0], dp[1] - steady[1]
         departure = (c * dx - s * dy, s * dx + c * dy, dp[2] - steady[2])
         self.slide = self.slides.jump(departure, self.travelled)
+        return implausible(dp, self._steady, dt, self.closure)
 
     def _step_heading_var(self, dp: FloatArray) -> float:
         """The heading variance (rad²) of the last step: its match's, or the model's where
