@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -11,8 +12,9 @@ from loop_world import ring_route, ring_world
 from bioslam.config import LoopClosureConfig, SLAMConfig, config_from_dict
 from bioslam.evaluation import ate
 from bioslam.geometry import between
+from bioslam.odometry import MatchReport, OdometryConfig
 from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world, simulate_scans
-from bioslam.slam import BioSLAM, thin_points
+from bioslam.slam import BioSLAM, SelfMotion, thin_points
 from bioslam.trajectory import Trajectory
 
 
@@ -559,14 +561,11 @@ def test_a_jump_departs_from_the_last_step_whatever_the_stamps_say():
     assert jumped(np.array([0.1, 0.0, np.radians(40.0)]), last, last, 0.1, cfg)
 
 
-
 class _ScriptedOdometry:
     """An odometry whose steps are given: ``update`` returns the next one, every match
     reported as the motion model's own (no search, no break)."""
 
     def __init__(self, steps: list[tuple[float, float, float]]) -> None:
-        from bioslam.odometry import MatchReport, OdometryConfig
-
         self.config = OdometryConfig()
         self.last_report = MatchReport()
         self._steps = iter(steps)
@@ -576,10 +575,7 @@ class _ScriptedOdometry:
 
 
 def _jumps_counted(steps: list[tuple[float, float, float]], **settings: bool) -> int:
-    from types import SimpleNamespace
-
-    from bioslam.slam import SelfMotion
-
+    """The steps no robot can make that :class:`SelfMotion` counts along ``steps`` at 10 Hz."""
     motion = SelfMotion(SLAMConfig(loop_closure=LoopClosureConfig(**settings)))
     motion.odometry = _ScriptedOdometry(steps)
     for k in range(len(steps)):
@@ -600,6 +596,7 @@ def test_steps_that_carry_a_jumped_motion_on_are_distrusted_until_it_comes_back(
     # a robot speeding up at 1 m/s² departs from its steady motion by 1 cm a scan: no slide
     speeding = [(0.05 + 0.01 * k, 0.0, 0.0) for k in range(1, 10)]
     assert _jumps_counted(steady + speeding) == 0
+
 
 def test_checks_across_doubted_odometry_steps_are_challenged_from_outside_their_window(
     ring_drive, monkeypatch
