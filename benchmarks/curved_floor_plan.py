@@ -19,9 +19,15 @@ import math
 from pathlib import Path
 
 import numpy as np
-from office_floor_plan import FREE, OCCUPIED, floor_plan_cli, write_floor_plan
+from office_floor_plan import (
+    FREE,
+    OCCUPIED,
+    RESOLUTION,
+    floor_plan_cli,
+    pixel_centres,
+    write_floor_plan,
+)
 
-RESOLUTION = 0.05  # metres per pixel
 WIDTH, HEIGHT = 44.0, 36.0
 CENTRE = (22.0, 18.0)
 SEMI_AXES = (17.0, 13.0)  # of the corridor's centre line
@@ -32,9 +38,8 @@ HALL = (40.0, 18.0, 3.5)  # centre and radius
 
 def floor_plan(seed: int = 5) -> np.ndarray:
     """The occupancy image, row 0 at the top (y = ``HEIGHT``)."""
-    rows, cols = round(HEIGHT / RESOLUTION), round(WIDTH / RESOLUTION)
-    img = np.full((rows, cols), OCCUPIED, np.uint8)
-    y, x = (np.mgrid[0:rows, 0:cols] + 0.5) * RESOLUTION
+    x, y = pixel_centres(WIDTH, HEIGHT)
+    img = np.full(x.shape, OCCUPIED, np.uint8)
     dx, dy = x - CENTRE[0], y - CENTRE[1]
     # the ellipse's normalised radius; its width there is about CORRIDOR metres
     radius = np.hypot(dx / SEMI_AXES[0], dy / SEMI_AXES[1])

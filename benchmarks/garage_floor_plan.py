@@ -13,12 +13,20 @@ on it.
 
 from __future__ import annotations
 
+from functools import partial
 from pathlib import Path
 
 import numpy as np
-from office_floor_plan import FREE, OCCUPIED, floor_plan_cli, write_floor_plan
+from office_floor_plan import (
+    FREE,
+    OCCUPIED,
+    RESOLUTION,
+    box_mask,
+    floor_plan_cli,
+    pixel_centres,
+    write_floor_plan,
+)
 
-RESOLUTION = 0.05  # metres per pixel
 WIDTH, HEIGHT = 48.0, 32.0
 PILLAR = 0.5
 PITCH = (7.5, 5.5)
@@ -29,13 +37,9 @@ STAIRS = (20.0, 14.0, 28.0, 18.0)
 
 def floor_plan(seed: int = 3) -> np.ndarray:
     """The occupancy image, row 0 at the top (y = ``HEIGHT``)."""
-    rows, cols = round(HEIGHT / RESOLUTION), round(WIDTH / RESOLUTION)
-    y, x = (np.mgrid[0:rows, 0:cols] + 0.5) * RESOLUTION
-    img = np.full((rows, cols), FREE, np.uint8)
-
-    def box(x0: float, y0: float, x1: float, y1: float) -> np.ndarray:
-        return (x >= x0) & (x < x1) & (y >= y0) & (y < y1)
-
+    x, y = pixel_centres(WIDTH, HEIGHT)
+    img = np.full(x.shape, FREE, np.uint8)
+    box = partial(box_mask, x, y)
     img[~box(0.3, 0.3, WIDTH - 0.3, HEIGHT - 0.3)] = OCCUPIED
     rng = np.random.default_rng(seed)
     for px in np.arange(6.0, WIDTH - 3.0, PITCH[0]):

@@ -81,6 +81,23 @@ def write_floor_plan(folder: Path, name: str, image: np.ndarray, resolution: flo
     return write_map(folder, OccupancyImage(occupancy, resolution), name=name)[1]
 
 
+def pixel_centres(
+    width: float, height: float, resolution: float = RESOLUTION
+) -> tuple[np.ndarray, np.ndarray]:
+    """x and y (metres) of the centre of every pixel of a ``width`` x ``height`` floor, row 0
+    at y = 0 (the image is flipped to row 0 at the top before it is written)."""
+    rows, cols = round(height / resolution), round(width / resolution)
+    y, x = (np.mgrid[0:rows, 0:cols] + 0.5) * resolution
+    return x, y
+
+
+def box_mask(
+    x: np.ndarray, y: np.ndarray, x0: float, y0: float, x1: float, y1: float
+) -> np.ndarray:
+    """The pixels (centres ``x``, ``y``, :func:`pixel_centres`) inside [x0, x1) x [y0, y1)."""
+    return (x >= x0) & (x < x1) & (y >= y0) & (y < y1)
+
+
 def floor_plan_cli(doc: str, write: Callable[[Path], Path]) -> None:
     """A floor plan script's command line: ``write`` the floor into the folder given (default
     the current one) and print the YAML's path; ``doc`` the script's docstring, whose first

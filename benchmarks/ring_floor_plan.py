@@ -17,12 +17,19 @@ from __future__ import annotations
 
 import argparse
 import math
+from functools import partial
 from pathlib import Path
 
 import numpy as np
-from office_floor_plan import FREE, OCCUPIED, write_floor_plan
+from office_floor_plan import (
+    FREE,
+    OCCUPIED,
+    RESOLUTION,
+    box_mask,
+    pixel_centres,
+    write_floor_plan,
+)
 
-RESOLUTION = 0.05  # metres per pixel
 WIDTH, HEIGHT = 40.0, 28.0
 RING = (5.0, 5.0, 35.0, 23.0)  # the corridor's outer edge (x0, y0, x1, y1)
 CORE = (7.2, 7.2, 32.8, 20.8)  # its inner edge
@@ -35,13 +42,9 @@ def floor_plan(seed: int = 7, width: float = WIDTH, height: float = HEIGHT) -> n
     from the floor's edges, the core its 2.2 m from the corridor's."""
     ring = (RING[0], RING[1], width - (WIDTH - RING[2]), height - (HEIGHT - RING[3]))
     core = (CORE[0], CORE[1], width - (WIDTH - CORE[2]), height - (HEIGHT - CORE[3]))
-    rows, cols = round(height / RESOLUTION), round(width / RESOLUTION)
-    img = np.full((rows, cols), OCCUPIED, np.uint8)
-    y, x = (np.mgrid[0:rows, 0:cols] + 0.5) * RESOLUTION
-
-    def box(x0: float, y0: float, x1: float, y1: float) -> np.ndarray:
-        return (x >= x0) & (x < x1) & (y >= y0) & (y < y1)
-
+    x, y = pixel_centres(width, height)
+    img = np.full(x.shape, OCCUPIED, np.uint8)
+    box = partial(box_mask, x, y)
     img[box(*ring) & ~box(*core)] = FREE
     rng = np.random.default_rng(seed)
     sides = (

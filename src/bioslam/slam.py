@@ -246,7 +246,7 @@ class SelfMotion:
                     self.odometry.config.break_turn,
                 )  # fmt: skip
                 # a step no robot can make, short of a break, counts where it is weighed or
-                # distrusted
+                # distrusted, and so does one that carries such a slide on
                 weighed = self.closure.weigh_jumps or self.closure.distrust_jumps
                 departed = self._track_slide(dp, dt) and self.closure.distrust_slides
                 if broke or (
@@ -278,13 +278,14 @@ class SelfMotion:
             self.jump_extent += link_extent(extent, self.closure)
 
     def _track_slide(self, dp: FloatArray, dt: float) -> bool:
-        """Whether ``dp`` opens or undoes a slide (:class:`bioslam.closure.SlideReturns`):
+        """Note whether ``dp`` opens or undoes a slide (:class:`bioslam.closure.SlideReturns`):
         its departure from the robot's steady motion, the last step that departed from the
         one before by no more than a robot can change its motion. (Against the step just
         before, the first ordinary step after a slide departs from the slide's own motion
         as much as the slide did, and would pass for its undoing.) Returns whether ``dp``
-        departs from the steady motion both as scaled by the stamps and as it was (where
-        the stamps jitter, freiburg-079, the scaled one alone overshoots a steady step)."""
+        departs from the steady motion both as scaled by the stamps and as it was, as
+        :func:`bioslam.closure.jumped` judges a step against the last one (where the stamps
+        jitter, freiburg-079, the scaled one alone overshoots a steady step)."""
         if self._steady_dt <= 0.0:
             self._steady, self._steady_dt = dp.copy(), dt
             return False
