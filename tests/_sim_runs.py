@@ -9,13 +9,14 @@ from bioslam.odometry import LidarOdometry
 
 def odometry_run(
     world_name, route_name, lidar, seed, duration, start=None, offset=(0, 0, 0), config=None,
-    thin=None,
+    thin=None, every=1,
 ):
     """(estimate, truth): the odometry's poses, moved onto the true start where it started
     elsewhere, and the true poses. ``start`` "origin" starts the odometry at the origin;
     otherwise at the true first pose plus ``offset`` (x, y, theta). ``thin`` (metres,
     radians or None) keeps a scan per distance or angle along the true path
-    (:func:`bioslam.thinning.thin_indices`). ``lidar``: a preset's name or a
+    (:func:`bioslam.thinning.thin_indices`); ``every`` keeps every n-th scan (a log thinned
+    by count). ``lidar``: a preset's name or a
     :class:`~bioslam.sim.LidarModel`."""
     from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world, simulate_scans
     from bioslam.thinning import thin_indices
@@ -23,7 +24,7 @@ def odometry_run(
     world = load_world(world_name)
     route = ROUTES[route_name](world, duration=duration, seed=seed)
     model = LIDAR_PRESETS[lidar] if isinstance(lidar, str) else lidar
-    items = list(simulate_scans(world, model, route, seed=seed))
+    items = list(simulate_scans(world, model, route, seed=seed))[::every]
     if thin is not None:
         items = [items[k] for k in thin_indices(np.array([t for _, t in items]), *thin)]
     truth = np.array([pose for _, pose in items])
