@@ -108,8 +108,7 @@ class PredictionGuards:
         off for the closures)."""
         if not _contradicted_where_constrained(option[1]):
             return option
-        repeated = compose(previous, self._last_delta)
-        for other in (predicted, repeated):
+        for other in (predicted, self._step_repeated(previous)):
             if np.array_equal(other, start):
                 continue
             alternative = self._option(level_pts, other, normals, weight, target, True, held)

@@ -576,7 +576,7 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         tens of degrees from the time-based model alone. An alternative must beat the
         prediction clearly (``start_margin``), so that where the scan cannot tell the
         candidates apart (a featureless corridor) the prediction is kept."""
-        candidates = np.array([predicted, compose(previous, self._last_delta), previous])
+        candidates = np.array([predicted, self._step_repeated(previous), previous])
         grid = grid_args(self.pyramid.grids[-1], self.config.subcell_sigma)
         facing = self._facing_of(coarse_pts)
         costs = pose_costs(grid, coarse_pts, facing, candidates)
@@ -584,6 +584,11 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         if costs[best] < (1.0 - self.config.start_margin) * costs[0]:
             return candidates[best]
         return predicted
+
+    def _step_repeated(self, previous: FloatArray) -> FloatArray:
+        """The last step repeated from ``previous``: a motion hypothesis that, unlike the
+        time-based prediction, survives jittered stamps and a turn that just stopped."""
+        return compose(previous, self._last_delta)
 
     def _axis_offset(self) -> tuple[FloatArray | None, float]:
         """For the motion model's filter along the weak direction

@@ -72,7 +72,7 @@ class WideSearch:
         on sparse scans the step prior's typical steps."""
         c = self.config
         forward = compose(previous, self._typical_straight_on(self._typical_step, 0.0))
-        motion = (start, predicted, compose(previous, self._last_delta), forward)
+        motion = (start, predicted, self._step_repeated(previous), forward)
         if self._sparse():
             modes = self._step_prior.modes(c.step_modes)
             motion += tuple(compose(previous, m) for m in modes)
