@@ -363,6 +363,7 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "odometry.point_spacing": (0.0, 10.0, False),
     "odometry.recovery_free_fraction": (0.0, 1.0, True),
     "odometry.recovery_score_ratio": (0.0, 1.0, True),
+    "odometry.search_free_fraction": (0.0, 1.0, True),
     "boundary.cells_per_ring": (1, 3600, True),
     "views.ds": (0.0, 1e3, False),
     "pose_cells.cell_size_xy": (0.0, 1e3, False),

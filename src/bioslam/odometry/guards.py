@@ -15,7 +15,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from bioslam.geometry import compose, inverse
+from bioslam.geometry import compose, inverse, transform_points
 from bioslam.matching.gauss_newton import FloatArray, MatchReport, levels_up_to
 from bioslam.motion_model import translation_part
 from bioslam.occupancy_grid import MapPyramid
@@ -265,6 +265,24 @@ class PredictionGuards:
         return c.contradiction_factor > 0.0 and report.free_fraction > 0.0 and (
             report.free_fraction >= c.contradiction_factor * self._typical_free
             and not self._stray(report)
+        )
+
+    def _walls_contradict(self, pose: FloatArray, report: MatchReport, points: FloatArray) -> bool:
+        """With ``search_contradicted``, the match at ``pose`` of a scan that constrains every
+        direction is contradicted (:meth:`_contradicted`), with at least
+        ``search_free_fraction`` of its endpoints in known free space, even without the
+        endpoints (``points``, the finest level's) of the objects that moved
+        (:meth:`_moving_objects`): people walking put endpoints where the map saw free
+        space at the right pose too, a wrong match puts walls there."""
+        c = self.config
+        if not c.search_contradicted or report.degenerate or not self._contradicted(report):
+            return False
+        world = transform_points(pose, points)
+        free = ~self.pyramid.finest.above_near(world, c.free_logodds)
+        free &= ~self._moving_objects(pose, points)
+        share = float(np.mean(free))
+        return share >= c.search_free_fraction and self._contradicted(
+            replace(report, free_fraction=share)
         )
 
     def _contradiction_explained(

@@ -397,10 +397,12 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         motion: tuple[FloatArray, ...] = (start,)  # only compared when the search ran
         jump = self._jump_limits()
         # a trusted prediction's match that jumped is searched as an untrusted one is: in a
-        # spin its Gauss-Newton can slide into a look-alike basin tens of centimetres off
+        # spin its Gauss-Newton can slide into a look-alike basin tens of centimetres off;
+        # so is one the walls contradict, lagging along a corridor behind a robot that sped up
         searched = c.search_distance > 0 and (
             self._untrusted(options[0][2], dt, previous, start)
             or self._is_jump(options[0][0], start, jump)
+            or self._walls_contradict(options[0][0], options[0][1], level_pts[0])
         )
         self._count_searched(searched)
         as_sparse = self._as_sparse()
