@@ -234,8 +234,9 @@ class OdometryConfig:
             where the map saw free space at the right pose too: searched, the match followed
             a look-alike (the maze's weaving route, SICK, three people: 4.4 m off). Good
             matches leave 1 % there on freiburg-079 at the median and 4 % at the 90th
-            percentile; searched from 3 endpoints and 1.8 times the typical share on, a
-            search replaced 432 of its matches (30 without).
+            percentile: searched from 3 endpoints and 1.8 times the typical share on, with no
+            such floor, its matches were replaced by a search's 432 times (30 without the
+            search of contradicted matches, 120 with the floor).
         rival_ratio: the search's rival is matched only if it scores at least this fraction
             of the winner on the search's grid.
         jump_distance, jump_angle, overwhelming_ratio: a match farther than this from the
