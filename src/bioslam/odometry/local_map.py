@@ -137,7 +137,9 @@ class LocalMap:
         trail the scans were then matched onto, and the odometry followed them (a SICK at
         10 Hz in the maze with three people walking: lost on four routes of four). A post
         or a box stays where it was, whatever face of it the scan sees; an object seen for
-        the first time is fused."""
+        the first time is fused, unless it is within ``object_near`` of the scanner: a
+        person walking up beside the robot (static things that near were seen from
+        farther away first)."""
         c = self.config
         moving = np.zeros(pts.shape[0], dtype=bool)
         latest = self._object_track[-1][0] if self._object_track else math.inf
@@ -145,12 +147,15 @@ class LocalMap:
             (seen for stamp, seen in reversed(self._object_track)
              if stamp <= latest - c.object_lag), None,
         )  # fmt: skip
-        if before is None or not before.shape[0]:
+        if before is None:
             return moving
         runs, centres = self._objects(pose, pts)
-        for (first, last), centre in zip(runs.tolist(), centres, strict=True):
-            nearest = float(np.min(np.hypot(*(before - centre).T)))
-            moving[first : last + 1] = c.object_still < nearest <= c.object_reach
+        near = np.hypot(*(centres - pose[:2]).T) <= c.object_near
+        for (first, last), centre, close in zip(runs.tolist(), centres, near, strict=True):
+            nearest = float(np.min(np.hypot(*(before - centre).T))) if len(before) else math.inf
+            moving[first : last + 1] = c.object_still < nearest and (
+                nearest <= c.object_reach or close
+            )
         return moving
 
     def _fill_angle(self) -> float:
