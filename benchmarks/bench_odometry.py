@@ -124,6 +124,7 @@ from bioslam.sim import (
     make_route,
     maze_world,
     people_on_roadmap,
+    people_on_route,
     simulate_scans,
 )
 from bioslam.thinning import thin_indices
@@ -264,16 +265,6 @@ def office_world() -> str:
     from office_floor_plan import write_office
 
     return _written_world(write_office, "bioslam-office-")
-
-
-def people_on_route(route) -> list[MovingObstacle]:
-    """Three people walking back and forth along stretches of the robot's own route."""
-    d = route.duration
-    spans = [(0.15, 0.2), (0.45, 0.5), (0.75, 0.8)]
-    return [
-        MovingObstacle(tuple(route.pose_at(a * d)[:2]), tuple(route.pose_at(b * d)[:2]), 1.2)
-        for a, b in spans
-    ]
 
 
 def people_crossing(route, count: int = 6, half_width: float = 1.0) -> list[MovingObstacle]:

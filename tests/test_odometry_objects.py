@@ -68,16 +68,11 @@ def _tour_with_people_on_its_own_route(object_near: float, until: float) -> tupl
     """The maze's tour, UTM-30LX, 120 s, seed 0, with three people walking stretches of the
     robot's own route back and forth (at 15-20 %, 45-50 % and 75-80 % of it): the largest
     position error up to ``until`` seconds, and the error then."""
-    from bioslam.sim import LIDAR_PRESETS, MovingObstacle, load_world, make_route, simulate_scans
+    from bioslam.sim import LIDAR_PRESETS, load_world, make_route, people_on_route, simulate_scans
 
     world = load_world("maze")
     route = make_route(world, duration=120.0, seed=0, fast_turns=False)
-    spans = [(0.15, 0.2), (0.45, 0.5), (0.75, 0.8)]
-    d = route.duration
-    people = [
-        MovingObstacle(tuple(route.pose_at(a * d)[:2]), tuple(route.pose_at(b * d)[:2]), 1.2)
-        for a, b in spans
-    ]
+    people = people_on_route(route)
     odo = LidarOdometry(OdometryConfig(object_near=object_near), initial_pose=route.pose_at(0.0))
     errors = []
     scans = simulate_scans(world, LIDAR_PRESETS["utm30lx"], route, seed=0, obstacles=people)

@@ -275,7 +275,14 @@ class PredictionGuards:
         (:meth:`_moving_objects`): people walking put endpoints where the map saw free
         space at the right pose too, a wrong match puts walls there."""
         c = self.config
-        if not c.search_contradicted or report.degenerate or not self._contradicted(report):
+        # the share counted without the moving objects is at most the report's: most
+        # contradictions end here, before the objects are looked for
+        if (
+            not c.search_contradicted
+            or report.degenerate
+            or report.free_fraction < c.search_free_fraction
+            or not self._contradicted(report)
+        ):
             return False
         world = transform_points(pose, points)
         free = ~self.pyramid.finest.above_near(world, c.free_logodds)

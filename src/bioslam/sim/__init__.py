@@ -25,6 +25,7 @@ if TYPE_CHECKING:
     from bioslam.sim.simulate import (
         MovingObstacle,
         people_on_roadmap,
+        people_on_route,
         scan_stamps,
         scanner_trajectory,
         simulate_scans,
@@ -52,6 +53,7 @@ _WHERE = {
     "make_route": "route",
     "MovingObstacle": "simulate",
     "people_on_roadmap": "simulate",
+    "people_on_route": "simulate",
     "scan_stamps": "simulate",
     "scanner_trajectory": "simulate",
     "simulate_scans": "simulate",
@@ -81,6 +83,7 @@ __all__ = [
     "make_route",
     "maze_world",
     "people_on_roadmap",
+    "people_on_route",
     "rooms_world",
     "scan_stamps",
     "scanner_trajectory",

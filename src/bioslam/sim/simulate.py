@@ -79,6 +79,21 @@ def people_on_roadmap(
     return people
 
 
+def people_on_route(
+    route: Route,
+    spans: Sequence[tuple[float, float]] = ((0.15, 0.2), (0.45, 0.5), (0.75, 0.8)),
+    speed: float = 1.2,
+) -> list[MovingObstacle]:
+    """People walking back and forth along stretches of the robot's own ``route``, one per
+    span (fractions of its duration, start and end): they walk its centre-line, so the
+    robot meets them head-on, follows them and passes close beside them."""
+    d = route.duration
+    return [
+        MovingObstacle(tuple(route.pose_at(a * d)[:2]), tuple(route.pose_at(b * d)[:2]), speed)  # type: ignore[arg-type]
+        for a, b in spans
+    ]
+
+
 def ray_circle_distance(
     origins: NDArray, angles: NDArray, centres: NDArray, radius: float
 ) -> NDArray[np.float64]:
