@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -177,9 +178,10 @@ def test_half_a_metre_sideways_what_the_old_pass_never_saw_is_not_held_against_i
     predicted = compose(truth, (0.15, -0.1, math.radians(4.0)))
     query = _points(CORRIDOR_ROOM, robot, fov=360.0)
     config = LoopClosureConfig()
-    assert not verify(submap, query, predicted, (0.5, 0.3), config).accepted
+    everywhere = verify(submap, query, predicted, (0.5, 0.3), config)
+    assert not everywhere.accepted or everywhere.needs_partner  # it does not stand alone
     verdict = verify(submap, query, predicted, (0.5, 0.3), config, seen)
-    assert verdict.accepted, verdict.reason
+    assert verdict.accepted and not verdict.needs_partner, verdict.reason
     err = between(truth, verdict.pose)
     assert math.hypot(err[0], err[1]) < 0.03 and abs(err[2]) < math.radians(0.5)
 
@@ -611,3 +613,37 @@ def test_a_person_standing_elsewhere_does_not_slide_a_closure_along_a_corridor()
     loose = LoopClosureConfig(tie_distance=0.5, tie_angle=math.radians(20.0))
     slid = verify(submap, query, predicted, (0.5, 0.1), loose)
     assert slid.accepted and math.hypot(slid.pose[0], slid.pose[1]) > 0.15, slid
+
+
+def _cluttered(points: np.ndarray, share: float, seed: int = 0) -> np.ndarray:
+    """``points`` with a ``share`` of them pulled 20-60 % nearer the scanner: chairs and
+    boxes the old pass did not see, where its scans looked through free space."""
+    rng = np.random.default_rng(seed)
+    out = points.copy()
+    moved = rng.random(len(out)) < share
+    out[moved] *= rng.uniform(0.4, 0.8, (int(moved.sum()), 1))
+    return out
+
+
+@pytest.mark.parametrize("share", [0.0, 0.2, 0.45])
+def test_a_cluttered_scan_that_fits_less_well_is_accepted_only_to_wait_for_a_partner(share):
+    around = [(5.0 + 0.5 * k, 1.5, 0.0) for k in range(5)]
+    submap, seen = _submap(HALL, 2, around)
+    robot = _offset(around[2], 0.3, math.radians(10.0))
+    truth = between(around[2], robot)
+    predicted = compose(truth, (0.1, -0.1, math.radians(3.0)))
+    query = _cluttered(_points(HALL, robot), share)
+    cfg = LoopClosureConfig()
+    verdict = verify(submap, query, predicted, (0.5, 0.3), cfg, seen)
+    if share == 0.0:  # a clean scan fits as a simulated wall does: a closure alone
+        assert verdict.accepted and not verdict.needs_partner, verdict.reason
+    elif share == 0.2:  # fits 0.7-0.9, as a cluttered room does: right, but needs a partner
+        assert cfg.partner_score <= verdict.score < cfg.min_score
+        assert verdict.accepted and verdict.needs_partner, verdict.reason
+        off = dataclasses.replace(cfg, partner_score=cfg.min_score)
+        assert verify(submap, query, predicted, (0.5, 0.3), off, seen).reason == "score"
+    else:  # fits less than the partner score asks
+        assert not verdict.accepted and verdict.reason == "score"
+    if verdict.accepted:
+        err = between(truth, verdict.pose)
+        assert math.hypot(err[0], err[1]) < 0.03 and abs(err[2]) < math.radians(0.5)

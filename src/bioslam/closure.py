@@ -534,7 +534,9 @@ class Verdict:
     refused ('' when accepted); ``prior_score`` the score of the map's prediction refined
     where it stands; ``covariance`` the registration's own 3x3 covariance of ``pose`` in the
     frame it was registered in (the submap's, :attr:`MatchReport.covariance`; NaN when the
-    match had too few points), from which the loop link's information is made.
+    match had too few points), from which the loop link's information is made;
+    ``needs_partner`` whether an accepted one scored below ``min_score`` (at least
+    ``partner_score``) and so is a closure only once another agrees with it.
 
     The covariance follows the scan's fit to the submap: along a corridor, where the match
     slides, it is large, across it small (maze, SICK scanner: closures 7-10 cm off along a
@@ -547,6 +549,7 @@ class Verdict:
     reason: str = ""
     prior_score: float = float("nan")
     covariance: FloatArray = field(default_factory=lambda: np.full((3, 3), np.nan))
+    needs_partner: bool = False
 
 
 def verify(
@@ -566,8 +569,9 @@ def verify(
     :mod:`bioslam.matching.branch_and_bound`), which also reports the best distinct rival;
     Gauss-Newton refines the winner on the points that land where the submap looked
     (:func:`refine_where_seen`). Accepted only when the result fits (``min_score`` of the
-    points land on the submap), is constrained in every direction (not degenerate), and no
-    distinct pose in the window fits nearly as well (``rival / best < max_ambiguity``): in a
+    points land on the submap; from ``partner_score`` up it is accepted needing a partner,
+    :attr:`Verdict.needs_partner`), is constrained in every direction (not degenerate), and
+    no distinct pose in the window fits nearly as well (``rival / best < max_ambiguity``): in a
     corridor or among identical rooms the scan alone cannot say where it is, and a false
     closure bends the whole map. Likewise the map's own prediction, refined where it stands,
     is a rival: a best pose away from it must score more than ``prior_margin`` above it, and
@@ -618,7 +622,7 @@ def verify(
     kept_score = seen_hit_fraction(judge, kept, query, reg.hit_level, seen, config.min_seen)
     slid = not within(between(found.pose, pose), 2.0 * found.resolution, config.rival_angle)
     reason = ""
-    if score < config.min_score:
+    if score < min(config.min_score, config.partner_score):
         reason = "score"
     elif config.reject_degenerate and report.degenerate:
         reason = "degenerate"
@@ -646,8 +650,9 @@ def verify(
     ):
         reason = "ambiguous"
     return Verdict(
-        not reason, pose, score, found.ambiguity, reason, kept_score, report.covariance.copy()
-    )
+        not reason, pose, score, found.ambiguity, reason, kept_score, report.covariance.copy(),
+        needs_partner=score < config.min_score,
+    )  # fmt: skip
 
 
 @dataclass(frozen=True)
