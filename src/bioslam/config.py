@@ -137,17 +137,26 @@ class LoopClosureConfig:
             one beyond the rival distance must (the ``prior_tie`` alone let a registration
             slide 0.39 m along a corridor with people in it, 0.948 against 0.893: a closure
             0.40 m off on the simulated rooms, SICK, 5 people, seed 171).
-        refuse_broken_odometry: distrust the odometry across its breaks (a step without a
-            match, or a jump no robot can make between two scans:
-            :func:`bioslam.closure.odometry_broke`). The map's prediction of where the robot
-            is relative to a place made before a break is off by as much as the breaks
-            since (:func:`bioslam.closure.break_extent`), so the verification's window is
-            widened by that, and a closure is refused when it exceeds the search window;
-            no scan is fused into a submap across a break. A registration within the
-            unwidened window only confirms the break (a corridor seen along its axis fits
-            anywhere along it). Refusing every closure across a break instead cost the
-            maze's URG-04LX tour 0.61 -> 0.08 of its revisits and freiburg-079 10 closures
-            and 1.4 cm of ATE (``benchmarks/README.md``).
+        refuse_broken_odometry: distrust the odometry across its breaks (a step without a match,
+            or a jump no robot can make between two scans: :func:`bioslam.closure.odometry_broke`).
+            The map's prediction of where the robot is relative to a place made before a break is
+            off by as much as the breaks since (:func:`bioslam.closure.break_extent`), so the
+            verification's window is widened by that, and a closure is refused when one of the
+            breaks departed from the robot's motion by more than the search window
+            (:func:`bioslam.closure.break_departure`; their summed extent may be larger after gaps
+            in a log); no scan is fused into a submap across a break. A registration within the
+            unwidened window only confirms the break (a corridor seen along its axis fits anywhere
+            along it). Refusing every closure across a break instead cost the maze's URG-04LX tour
+            0.61 -> 0.08 of its revisits and freiburg-079 10 closures and 1.4 cm of ATE
+            (``benchmarks/README.md``).
+        outside_rival_distance, outside_rival_angle: how far (m, rad) from the map's
+            prediction a check across breaks is challenged by poses outside its window
+            (:func:`bioslam.closure.outside_rival`): as far as the breaks widened the
+            window, up to this (at least the search window, the cap of a check across
+            doubted steps). The odometry's own search reaches its window from its
+            prediction, so a jump to a look-alike leaves the true place within about twice
+            that. Challenged only within the search window, a simulated ring corridor's
+            odometry made to jump 3 m had two closures confirm the jump, 3 m off.
         break_distance, break_angle, break_acceleration, break_angular_acceleration: an
             odometry step is a break when it departs from the last step's velocity by more
             than this (m, rad) plus half this acceleration (m/s², rad/s²) times the time
@@ -272,6 +281,8 @@ class LoopClosureConfig:
     tie_angle: float = math.radians(5.0)
     min_seen: float = 0.6
     refuse_broken_odometry: bool = True
+    outside_rival_distance: float = 3.0
+    outside_rival_angle: float = math.radians(90.0)
     break_distance: float = 0.1
     break_angle: float = math.radians(10.0)
     break_acceleration: float = 2.0

@@ -30,6 +30,7 @@ from bioslam.closure import (
     Submap,
     SubmapCache,
     Verdict,
+    break_departure,
     break_extent,
     implausible,
     jumped,
@@ -200,6 +201,9 @@ class SelfMotion:
         #: the summed (m, rad) by which those breaks may have put the robot off
         #: (:func:`bioslam.closure.break_extent`)
         self.break_extent = np.zeros(2)
+        #: each break's departure (m, rad) from the robot's motion
+        #: (:func:`bioslam.closure.break_departure`), in the order they came
+        self.break_departures: list[tuple[float, float]] = []
         #: the same summed over the breaks and every other step no robot can make
         #: (:func:`bioslam.closure.jumped`: a slide, and the return to the robot's motion
         #: after it), each at most what a closure can measure
@@ -273,6 +277,7 @@ class SelfMotion:
             self._since_break = 0
             self.breaks += 1
             self.break_extent += extent
+            self.break_departures.append(break_departure(dp, expected, self._last_step))
         self.jumps += int(broke or self.closure.distrust_jumps)
         if broke or self.closure.weigh_jumps:
             self.jump_extent += link_extent(extent, self.closure)
@@ -688,10 +693,9 @@ class BioSLAM:
             drift, drift_angle = drift + broken[0], drift_angle + broken[1]
         if np.hypot(predicted[0], predicted[1]) > cfg.recognition_radius + drift:
             return None
-        if broken is not None and (
-            broken[0] > cfg.search_distance or broken[1] > cfg.search_angle
-        ):
-            # farther off than the verification searches: it could only confirm the break
+        if broken is not None and self._jumped_beyond_search(min(anchor, experience.id)):
+            # a break since departed from the robot's motion by more than the verification
+            # searches: a look-alike the odometry jumped to, which a check could only confirm
             self._last_registration = self._travelled
             self._refuse(experience, predicted, "odometry broke")
             return None
@@ -713,7 +717,7 @@ class BioSLAM:
         mapped = between(poses[submap.anchor], self.cognitive_map.pose())
         verdict = verify(
             submap.points, points, mapped, (drift, drift_angle), cfg, submap.seen,
-            submap.pyramid, None if trusted else (cfg.search_distance, cfg.search_angle),
+            submap.pyramid, None if trusted else self._rival_window(drift, drift_angle, broken),
         )  # fmt: skip
         pts = np.ascontiguousarray(points, dtype=np.float64)
         ratio = self.config.cognitive_map.closure_shape_ratio
@@ -901,6 +905,31 @@ class BioSLAM:
         if not within(between(mapped, predicted), cfg.link_floor, cfg.link_angle_floor):
             return False, since, None
         return True, span, predicted
+
+    def _jumped_beyond_search(self, experience_id: int) -> bool:
+        """Whether a break since ``experience_id`` was made departed from the robot's motion
+        (:func:`bioslam.closure.break_departure`) by more than the verification's search
+        window. The breaks' summed extent may exceed it without any such jump: after a gap
+        of seconds a break's extent is what a robot could have done meanwhile, and one gap
+        refused every later closure to the places before it (intel: 165-210 of its
+        245-287 checks, its 23 breaks all true steps)."""
+        cfg = self.config.loop_closure
+        since = self.self_motion.break_departures[int(self._breaks_at[experience_id]) :]
+        return any(m > cfg.search_distance or a > cfg.search_angle for m, a in since)
+
+    def _rival_window(
+        self, drift: float, drift_angle: float, broken: FloatArray | None
+    ) -> tuple[float, float]:
+        """How far (m, rad) from the map's prediction an untrusted check's accepted pose is
+        challenged (:func:`bioslam.closure.outside_rival`): the search window, and across
+        breaks the window they widened (``drift``, ``drift_angle``; capped at
+        ``outside_rival_distance``, ``outside_rival_angle``). The breaks may have left the
+        true place outside the search window, where only a wider search finds that it fits
+        as well as a look-alike inside."""
+        cfg = self.config.loop_closure
+        if broken is None:
+            return cfg.search_distance, cfg.search_angle
+        return max(drift, cfg.search_distance), max(drift_angle, cfg.search_angle)
 
     def _break_since(self, experience_id: int) -> FloatArray | None:
         """The summed extent (m, rad) of the odometry breaks since ``experience_id`` was
