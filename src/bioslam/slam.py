@@ -739,6 +739,14 @@ class BioSLAM:
             verdict = dataclasses.replace(verdict, pose=settled)
         registered = verdict.pose  # in the submap anchor's frame
         verdict = dataclasses.replace(verdict, pose=compose(anchor_in_experience, verdict.pose))
+        alone = trusted and cfg.consistency
+        if verdict.accepted and verdict.needs_partner and not alone:
+            # a registration that fits less well than a place alone must, where the
+            # odometry cannot vouch for the prediction either (or no partner is sought):
+            # nothing says it is the place and not a look-alike the odometry's own error
+            # put there (a thinned RPLIDAR lost 8.4 m and 180 degrees: two such closures
+            # agreed, each as far off)
+            verdict = dataclasses.replace(verdict, accepted=False, reason="score")
         self._note_check(experience, verdict)
         if not verdict.accepted:
             return None
@@ -754,7 +762,7 @@ class BioSLAM:
                 else None  # (only that weighting reads it)
             )
             measured = Measurement(verdict.pose, shape, doubted=chained, covariance=covariance)
-        if not self._confirmed(experience, measured, submap.anchor, verdict.needs_partner):
+        if not self._confirmed(experience, measured, alone and not verdict.needs_partner):
             return None
         if self.config.cognitive_map.learn_noise:
             unsettled_in_place = compose(anchor_in_experience, unsettled)
@@ -806,41 +814,24 @@ class BioSLAM:
         pinned = (v * w) @ v.T
         return np.array([pinned[0, 0], pinned[0, 1], pinned[1, 1]])
 
-    def _confirmed(
-        self, experience: Experience, measured: Measurement, anchor: int, needs_partner: bool
-    ) -> bool:
+    def _confirmed(self, experience: Experience, measured: Measurement, alone: bool) -> bool:
         """Whether a verified closure enters the map now: at once without the pairwise
-        test, or when the odometry relates the robot to the place without a step it doubted
-        (:func:`bioslam.closure.odometry_doubted`) or a break and the registration scored
-        ``min_score`` (not ``needs_partner``); else once another closure agrees with it
-        (:class:`bioslam.closure.ClosureConsensus`). One that ``needs_partner`` where the
-        odometry is not trusted, or without the pairwise test, is refused for its score.
-        The waiting closures a closure confirms enter the map here, their checks then
-        counting as accepted; one left waiting is recorded as refused ('unconfirmed') until
-        then."""
-        cmap, eid = self.cognitive_map, experience.id
-        consistency = self.config.loop_closure.consistency
-        # the measurement relates the robot to the submap's ``anchor``, and the map the
-        # anchor to the experience: both through the odometry since the earlier of them
-        trusted = consistency and self._trust(min(anchor, eid), 0.0, anchor)[0]
-        if needs_partner and not trusted:
-            # a registration that fits less well than a place alone must, where the
-            # odometry cannot vouch for the prediction either: nothing says it is the place
-            # and not a look-alike the odometry's own error put there (a thinned RPLIDAR
-            # lost 8.4 m and 180 degrees: two such closures agreed, each as far off)
-            check = self.checks[-1]
-            refused = dataclasses.replace(check.verdict, accepted=False, reason="score")
-            self.checks[-1] = dataclasses.replace(check, verdict=refused)
-            return False
-        if not consistency:
+        test, or when it may stand ``alone`` (the odometry relates the robot to the place
+        without a step it doubted, :func:`bioslam.closure.odometry_doubted`, or a break, and
+        the registration scored ``min_score``); else once another closure agrees with it
+        (:class:`bioslam.closure.ClosureConsensus`). The waiting closures a closure
+        confirms enter the map here, their checks then counting as accepted; one left
+        waiting is recorded as refused ('unconfirmed') until then."""
+        if not self.config.loop_closure.consistency:
             return True
+        cmap, eid = self.cognitive_map, experience.id
         candidate = Candidate(
             self._stamp, eid, np.asarray(measured.pose, dtype=np.float64),
             self.self_motion.pose.copy(), self._odometry_at[eid].copy(), self._travelled,
             float(self._made_at[eid]), self.self_motion.jumps, int(self._jumps_at[eid]),
             link=cmap.loop_link(eid, measured, self._stamp), check=len(self.checks) - 1,
         )  # fmt: skip
-        confirmed = self.consensus.offer(candidate, trusted and not needs_partner)
+        confirmed = self.consensus.offer(candidate, alone)
         check = self.checks[candidate.check]
         if not confirmed:
             waiting = dataclasses.replace(check.verdict, accepted=False, reason="unconfirmed")

@@ -15,7 +15,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from bioslam.geometry import compose, inverse, transform_points
+from bioslam.geometry import compose, inverse
 from bioslam.matching.gauss_newton import FloatArray, MatchReport, levels_up_to
 from bioslam.motion_model import translation_part
 from bioslam.occupancy_grid import MapPyramid
@@ -284,8 +284,7 @@ class PredictionGuards:
             or not self._contradicted(report)
         ):
             return False
-        world = transform_points(pose, points)
-        free = ~self.pyramid.finest.above_near(world, c.free_logodds)
+        free = ~self._not_in_known_free_space(pose, points)
         free &= ~self._moving_objects(pose, points)
         share = float(np.mean(free))
         return share >= c.search_free_fraction and self._contradicted(
