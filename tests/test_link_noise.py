@@ -42,6 +42,21 @@ def test_residuals_that_do_not_grow_with_the_span_give_no_drift(seed):
     assert floor == pytest.approx(2e-5, rel=0.6)
 
 
+@pytest.mark.parametrize("count", [2, 5])
+def test_closures_all_a_loop_away_that_disagree_with_the_odometry_measure_its_drift(count):
+    # The first closures of a run often come at the end of one long loop: every residual
+    # over the same span, so the data alone cannot tell a drift from a registration floor.
+    # A quarter of a metre after 70 m is the odometry's drift, not registrations that err by
+    # that much where the prior puts them at 2 cm (intel with a heading drift injected:
+    # taking it for the registrations' error made every closure too weak to move the map).
+    rng = np.random.default_rng(count)
+    spans = rng.uniform(69.0, 73.0, count)
+    r = rng.choice([-1.0, 1.0], count) * rng.uniform(0.1, 0.4, count)
+    rate, floor = fit_random_walk(spans, r**2, (1e-4, 4e-4), 1.0)
+    assert rate * 70.0 > 10.0 * floor  # the residual is the odometry's
+    assert rate * 70.0 == pytest.approx(np.mean(r**2), rel=0.5)
+
+
 def test_a_few_false_closures_do_not_inflate_the_fit():
     spans, r = residuals(rate=2e-6, floor=5e-5, n=300, seed=4)
     r[:6] = 1.0  # six closures a metre off

@@ -158,7 +158,7 @@ def _closure_errors(slam: BioSLAM, gt: Trajectory, checks: list) -> list[float]:
     return errors
 
 
-@pytest.mark.parametrize("jump", [0.6, 2.0])
+@pytest.mark.parametrize("jump", [0.6, 1.9, 3.0])
 def test_a_closure_across_a_jump_of_the_odometry_measures_the_jump_or_is_refused(
     ring_drive, jump
 ):
@@ -847,21 +847,27 @@ def test_a_search_turning_away_soon_after_a_break_is_a_break_too():
     assert not judge(searched, back, spinning, 4)
 
 
-def test_intels_closures_in_a_cluttered_lab_take_out_an_injected_heading_drift():
-    """The thinned intel log (SICK, a cluttered lab) with a gyro-like heading drift of
-    0.0002 rad/s injected into the odometry (31 degrees over the run): correct registrations
-    there fit 0.7-0.9 of their points, under ``min_score``, and enter as closures where the
-    odometry vouches for the prediction and another closure agrees (``partner_score``).
-    Asking 0.9 alone, 13 closures left 131.6 cm of the odometry's 144.2 cm ATE; with the
-    partners, 23 (9 of them partnered, within 5.4 cm of the reference) left 105.6 cm, and
-    with the breaks after its gaps no longer refusing every check across them, 28 (10
-    partnered) 87.6 cm."""
+@pytest.mark.parametrize("bias", [0.0002, 0.0005])
+def test_intels_closures_in_a_cluttered_lab_take_out_an_injected_heading_drift(bias):
+    """The thinned intel log (SICK, a cluttered lab) with a gyro-like heading drift injected
+    into the odometry (0.0002 rad/s: 31 degrees over the run, 144 cm ATE; 0.0005 rad/s: 76
+    degrees, 365 cm): correct registrations there fit 0.7-0.9 of their points, under
+    ``min_score``, and enter as closures where the odometry vouches for the prediction and
+    another closure agrees (``partner_score``). At 0.0002, asking 0.9 alone, 13 closures
+    left 131.6 cm; with the partners, 23 left 105.6 cm, and with the breaks after its gaps
+    no longer refusing every check across them, 28 (10 partnered) 87.6 cm. Those closures
+    all came a loop (70 m) after their places, 0.2-0.4 m off the odometry: the link noise
+    fit put that down to registrations 24 cm off, and no closure could move the map; taken
+    for the odometry's drift, 66 closures leave 23.3 cm. At 0.0005 the map's prediction is
+    1.5-2.1 m off a loop later: a verification that searched 1.5 m (the drift bound allows
+    2 m) found the place only by sliding out of its window, refused, and the full system
+    ended at the odometry's error (363 cm); searching the drift bound's 2 m, 52.1 cm."""
     source = open_log(shared_log("intel-corrected.log.gz"))
-    slam = run(list(source), config_from_dict({"heading_bias": 0.0002}))
+    slam = run(list(source), config_from_dict({"heading_bias": bias}))
     full = ate(slam.trajectory(), source.reference)["rmse"]
     odometry = ate(slam.odometry_trajectory(), source.reference)["rmse"]
     assert odometry > 1.0, "the drift injected is what the closures must take out"
-    assert full < 0.8 * odometry, (full, odometry)
+    assert full < 0.3 * odometry, (full, odometry)
     partnered = [c for c in slam.checks if c.verdict.accepted and c.verdict.needs_partner]
     assert len(partnered) >= 5 and slam.summary()["closures_partnered"] == len(partnered)
 
