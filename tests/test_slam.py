@@ -158,7 +158,7 @@ def _closure_errors(slam: BioSLAM, gt: Trajectory, checks: list) -> list[float]:
     return errors
 
 
-@pytest.mark.parametrize("jump", [0.6, 1.9, 3.0])
+@pytest.mark.parametrize("jump", [0.6, 2.8, 4.0])
 def test_a_closure_across_a_jump_of_the_odometry_measures_the_jump_or_is_refused(
     ring_drive, jump
 ):
@@ -861,7 +861,8 @@ def test_intels_closures_in_a_cluttered_lab_take_out_an_injected_heading_drift(b
     for the odometry's drift, 66 closures leave 23.3 cm. At 0.0005 the map's prediction is
     1.5-2.1 m off a loop later: a verification that searched 1.5 m (the drift bound allows
     2 m) found the place only by sliding out of its window, refused, and the full system
-    ended at the odometry's error (363 cm); searching the drift bound's 2 m, 52.1 cm."""
+    ended at the odometry's error (363 cm); searching the drift bound's 2 m, 52.1 cm, and
+    with both at 3 m, 37.6 cm (at 0.0002 rad/s 21.2 cm)."""
     source = open_log(shared_log("intel-corrected.log.gz"))
     slam = run(list(source), config_from_dict({"heading_bias": bias}))
     full = ate(slam.trajectory(), source.reference)["rmse"]

@@ -120,7 +120,8 @@ class LoopClosureConfig:
             searches around the map's prediction; within them the window is the drift bound.
             The distance is the drift bound's own cap (``max_drift``): searching less, a
             place the bound allows is found only by sliding out of the window, and refused
-            (intel with 0.0005 rad/s of heading drift: a loop later the map is 1.5-2.1 m off).
+            (intel with 0.0005 rad/s of heading drift: a loop later the map is 1.5-2.1 m off,
+            two loops later 3 m).
         search_level: the pyramid level (0 finest) whose grid the wide-basin search runs on;
             Gauss-Newton then refines on every level.
         rival_distance, rival_angle: a rival pose must lie farther than this from the best
@@ -256,7 +257,7 @@ class LoopClosureConfig:
     drift_per_metre: float = 0.02
     drift_angle_floor: float = 0.1
     drift_angle_per_metre: float = 0.005
-    max_drift: float = 2.0
+    max_drift: float = 3.0
     max_drift_angle: float = 0.5
     link_floor: float = 0.05
     link_angle_floor: float = 0.03
@@ -272,7 +273,7 @@ class LoopClosureConfig:
     submap_step: float = 0.5
     submap_max_reach: float = 4.0
     submap_spacing: float = 0.03
-    search_distance: float = 2.0
+    search_distance: float = 3.0
     search_angle: float = math.radians(45.0)
     search_level: int = 1
     rival_distance: float = 0.5
