@@ -199,9 +199,9 @@ def fit_random_walk(
     two are compared with their priors' penalties above the settings (:func:`_posterior_cost`):
     where every closure spans the same loop the residuals alone cannot tell a drift from a
     registration floor, and a floor decades above the registrations' prior is the less
-    likely of the two (intel with a heading drift
-    injected: its first closures, all 70 m of odometry away and 0.2-0.4 m off it, were put
-    down to registrations 24 cm off, and no closure could move the map)."""
+    likely of the two (intel with a heading drift injected: its first closures, all 70 m of
+    odometry away and 0.2-0.4 m off it, were put down to registrations 24 cm off, and no
+    closure could move the map)."""
     centre = np.log10(np.maximum(np.asarray(prior, dtype=np.float64), 1e-300))
     spans = np.asarray(spans, dtype=np.float64)
     squared = np.asarray(squared, dtype=np.float64)
