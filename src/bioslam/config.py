@@ -159,8 +159,10 @@ class LoopClosureConfig:
             window, up to this (at least the search window, the cap of a check across
             doubted steps). The odometry's own search reaches its window from its
             prediction, so a jump to a look-alike leaves the true place within about twice
-            that. Challenged only within the search window, a simulated ring corridor's
-            odometry made to jump 3 m had two closures confirm the jump, 3 m off.
+            that. Challenged only within a 1.5 m search window, a simulated ring corridor's
+            odometry made to jump 3 m had two closures confirm the jump, 3 m off. With the
+            search window at 3 m, as by default, the distance adds nothing to it and only
+            the angle widens the challenge (90° against the search's 45°).
         break_distance, break_angle, break_acceleration, break_angular_acceleration: an
             odometry step is a break when it departs from the last step's velocity by more
             than this (m, rad) plus half this acceleration (m/s², rad/s²) times the time
