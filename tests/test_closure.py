@@ -214,6 +214,51 @@ def test_what_the_old_pass_never_saw_does_not_pull_the_registration():
     assert not verdict.accepted and verdict.reason == "degenerate"
 
 
+# A hall with an 8 cm partition across its middle: thinner than the 10 cm cells the score
+# is judged on, so its two faces fall within a cell of each other.
+PARTITION_HALL = [*box(0.0, 0.0, 12.0, 8.0), *box(6.0, 2.0, 6.08, 6.0)]
+
+
+def test_a_partitions_far_face_does_not_pull_the_registration_onto_its_near_face():
+    # The old pass drove west of the partition facing east with a 180 deg scanner and saw
+    # its west face; the robot comes back east of it facing west and sees its east face.
+    # Judged as a face of the submap, the east face's points pulled Gauss-Newton 8 cm west
+    # from the truth itself, and the truth fitted worse than the pose that put one face on
+    # the other (identical cubicles, SICK scanner: closures 6-12 cm off at fits 0.90-0.97).
+    from bioslam.closure import _submap_pyramid, refine_where_seen
+    from bioslam.geometry import transform_points
+    from bioslam.matching.branch_and_bound import refine
+    from bioslam.matching.gauss_newton import levels_up_to
+
+    around = [(3.5 + 0.5 * k, 4.0, 0.0) for k in range(5)]
+    submap, seen = _submap(PARTITION_HALL, 2, around, fov=180.0)
+    robot = (7.0, 4.3, math.pi)
+    truth = np.array(between(around[2], robot))
+    query = _points(PARTITION_HALL, robot, fov=180.0)
+    world = transform_points(truth, query)
+    far_face = np.abs(world[:, 0] - (6.08 - around[2][0])) < 0.02
+    assert far_face.sum() > 20
+    away = seen.faces_away(world, truth)
+    assert away[far_face].mean() > 0.8  # all but those at its ends, whose normals turn
+    # the hall's walls both passes saw from inside are judged as before
+    assert not away[np.abs(world[:, 1]) > 3.9].any()
+    config = LoopClosureConfig()
+    pyramid = _submap_pyramid(submap, config.registration)
+    iterations = levels_up_to(config.registration.max_iterations, 0)
+    covered = seen.covers(world)
+    pulled, _ = refine(pyramid, truth, query[covered], iterations)
+    assert between(truth, pulled)[0] > 0.04  # onto the west face, robot-forward
+    kept, _ = refine_where_seen(pyramid, truth, query, iterations, seen)
+    assert math.hypot(*between(truth, kept)[:2]) < 0.015
+    judge = _judge_grid(submap)
+    reg = config.registration
+    scores = [
+        seen_hit_fraction(judge, pose, query, reg.hit_level, seen, config.min_seen)
+        for pose in (truth, pulled)
+    ]
+    assert scores[0] >= scores[1] - 0.01, scores
+
+
 def test_points_put_in_space_the_old_pass_saw_free_still_count_as_misses():
     around = [(5.0 + 0.5 * k, 1.0, 0.0) for k in range(5)]
     submap, seen = _submap(CORRIDOR_ROOM, 2, around, fov=180.0)
