@@ -259,6 +259,28 @@ def test_a_partitions_far_face_does_not_pull_the_registration_onto_its_near_face
     assert scores[0] >= scores[1] - 0.01, scores
 
 
+def test_a_closure_is_pinned_only_where_the_points_it_matched_pin_it():
+    # Back the other way east of the partition, the robot's scan has walls across its
+    # forward axis (the partition's east face, the hall's west wall), but the old pass saw
+    # the one only from its other side and the other not at all: what was matched, the
+    # hall's north and south walls, pins the robot across the hall and not along it.
+    from bioslam.closure import judged_shape
+    from bioslam.cognitive_map import registration_shape
+    from bioslam.occupancy_grid import NORMAL_MAX_GAP, NORMAL_RADIUS, scan_normals
+
+    around = [(3.5 + 0.5 * k, 4.0, 0.0) for k in range(5)]
+    _, seen = _submap(PARTITION_HALL, 2, around, fov=180.0)
+    robot = (7.0, 4.3, math.pi)
+    truth = np.array(between(around[2], robot))
+    query = _points(PARTITION_HALL, robot, fov=180.0)
+    ratio = 100.0
+    whole = registration_shape(query, scan_normals(query, NORMAL_RADIUS, NORMAL_MAX_GAP), ratio)
+    judged = judged_shape(query, truth, seen, ratio)
+    # robot frame: x forward (along the hall, across the partition), y across the hall
+    assert whole[0] > 0.5
+    assert judged[0] < 0.05 and judged[2] > 0.9
+
+
 def test_points_put_in_space_the_old_pass_saw_free_still_count_as_misses():
     around = [(5.0 + 0.5 * k, 1.0, 0.0) for k in range(5)]
     submap, seen = _submap(CORRIDOR_ROOM, 2, around, fov=180.0)

@@ -31,6 +31,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
+from bioslam.cognitive_map import registration_shape
 from bioslam.config import LoopClosureConfig
 from bioslam.geometry import between, compose, inverse, transform_points, wrap_angle
 from bioslam.matching.branch_and_bound import WideBasinConfig, WideBasinMatcher, refine
@@ -46,6 +47,9 @@ from bioslam.occupancy_grid import (
 )
 
 FloatArray = NDArray[np.float64]
+
+#: Fewest judged points a registration's weak modes are taken from (:func:`judged_shape`).
+MIN_JUDGED = 20
 
 
 def thin_points(points: FloatArray, spacing: float) -> NDArray[np.float32]:
@@ -815,6 +819,23 @@ def refine_where_seen(
         if np.count_nonzero(covered) >= 3:
             query = query[covered]
     return refine(pyramid, start, query, iterations)
+
+
+def judged_shape(points: FloatArray, pose: FloatArray, seen: SeenArea, ratio: float) -> FloatArray:
+    """The constraint shape (:func:`bioslam.cognitive_map.registration_shape`) of the points
+    of the scan judged at ``pose`` in the submap's frame: where the submap's scans looked,
+    and not on a face they saw only from its other side (:meth:`SeenArea.faces_away`); of
+    every point when fewer than ``MIN_JUDGED`` are. What the registration matched is what
+    pins it: a robot back the other way along a row of cubicles sees partitions across the
+    row, but the old pass saw only their other faces, and the closures slid 7-10 cm along
+    the row while the whole scan's shape said they were pinned there, so that
+    :func:`settle_weak_direction` kept the slide."""
+    normals = scan_normals(points, NORMAL_RADIUS, NORMAL_MAX_GAP)
+    world = transform_points(pose, points)
+    judged = seen.covers(world) & ~seen.faces_away(world, pose)
+    if np.count_nonzero(judged) >= MIN_JUDGED:
+        points, normals = points[judged], normals[judged]
+    return registration_shape(points, normals, ratio)
 
 
 def _submap_pyramid(reference: FloatArray, reg: RegistrationConfig) -> MapPyramid:
