@@ -219,6 +219,17 @@ def test_what_the_old_pass_never_saw_does_not_pull_the_registration():
 PARTITION_HALL = [*box(0.0, 0.0, 12.0, 8.0), *box(6.0, 2.0, 6.08, 6.0)]
 
 
+def _partition_revisit() -> tuple[np.ndarray, SeenArea, np.ndarray, np.ndarray]:
+    """The old pass west of the partition facing east with a 180 deg scanner (its submap and
+    where it looked, in the frame of its middle pose), and the robot back east of the
+    partition facing west: its true pose in that frame and its scan."""
+    around = [(3.5 + 0.5 * k, 4.0, 0.0) for k in range(5)]
+    submap, seen = _submap(PARTITION_HALL, 2, around, fov=180.0)
+    robot = (7.0, 4.3, math.pi)
+    truth = np.array(between(around[2], robot))
+    return submap, seen, truth, _points(PARTITION_HALL, robot, fov=180.0)
+
+
 def test_a_partitions_far_face_does_not_pull_the_registration_onto_its_near_face():
     # The old pass drove west of the partition facing east with a 180 deg scanner and saw
     # its west face; the robot comes back east of it facing west and sees its east face.
@@ -230,13 +241,9 @@ def test_a_partitions_far_face_does_not_pull_the_registration_onto_its_near_face
     from bioslam.matching.branch_and_bound import refine
     from bioslam.matching.gauss_newton import levels_up_to
 
-    around = [(3.5 + 0.5 * k, 4.0, 0.0) for k in range(5)]
-    submap, seen = _submap(PARTITION_HALL, 2, around, fov=180.0)
-    robot = (7.0, 4.3, math.pi)
-    truth = np.array(between(around[2], robot))
-    query = _points(PARTITION_HALL, robot, fov=180.0)
+    submap, seen, truth, query = _partition_revisit()
     world = transform_points(truth, query)
-    far_face = np.abs(world[:, 0] - (6.08 - around[2][0])) < 0.02
+    far_face = np.abs(world[:, 0] - (6.08 - 4.5)) < 0.02  # in the old pass's middle frame
     assert far_face.sum() > 20
     away = seen.faces_away(world, truth)
     assert away[far_face].mean() > 0.8  # all but those at its ends, whose normals turn
@@ -268,11 +275,7 @@ def test_a_closure_is_pinned_only_where_the_points_it_matched_pin_it():
     from bioslam.cognitive_map import registration_shape
     from bioslam.occupancy_grid import NORMAL_MAX_GAP, NORMAL_RADIUS, scan_normals
 
-    around = [(3.5 + 0.5 * k, 4.0, 0.0) for k in range(5)]
-    _, seen = _submap(PARTITION_HALL, 2, around, fov=180.0)
-    robot = (7.0, 4.3, math.pi)
-    truth = np.array(between(around[2], robot))
-    query = _points(PARTITION_HALL, robot, fov=180.0)
+    _, seen, truth, query = _partition_revisit()
     ratio = 100.0
     whole = registration_shape(query, scan_normals(query, NORMAL_RADIUS, NORMAL_MAX_GAP), ratio)
     judged = judged_shape(query, truth, seen, ratio)
