@@ -511,7 +511,8 @@ class SubmapCache:
 
 def _submap_bytes(submap: Submap) -> int:
     pyramid = submap.pyramid.nbytes if submap.pyramid is not None else 0
-    return pyramid + submap.points.nbytes + submap.seen.mask.nbytes
+    seen = submap.seen.mask.nbytes + submap.seen.facing.nbytes
+    return pyramid + submap.points.nbytes + seen
 
 
 def _same_layout(a: FloatArray, b: FloatArray, tolerance: float) -> bool:
