@@ -277,8 +277,9 @@ def test_a_closure_is_pinned_only_where_the_points_it_matched_pin_it():
 
     _, seen, truth, query = _partition_revisit()
     ratio = 100.0
-    whole = registration_shape(query, scan_normals(query, NORMAL_RADIUS, NORMAL_MAX_GAP), ratio)
-    judged = judged_shape(query, truth, seen, ratio)
+    normals = scan_normals(query, NORMAL_RADIUS, NORMAL_MAX_GAP)
+    whole = registration_shape(query, normals, ratio)
+    judged = judged_shape(query, normals, truth, seen, ratio)
     # robot frame: x forward (along the hall, across the partition), y across the hall
     assert whole[0] > 0.5
     assert judged[0] < 0.05 and judged[2] > 0.9

@@ -33,7 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from bioslam.cognitive_map import registration_shape
 from bioslam.config import LoopClosureConfig
-from bioslam.geometry import between, compose, inverse, transform_points, wrap_angle
+from bioslam.geometry import between, compose, inverse, rotation, transform_points, wrap_angle
 from bioslam.matching.branch_and_bound import WideBasinConfig, WideBasinMatcher, refine
 from bioslam.matching.gauss_newton import MatchReport, levels_up_to
 from bioslam.matching.registration import RegistrationConfig, densify_scan, hit_shares
@@ -377,20 +377,16 @@ class SeenArea:
             self.mask = np.zeros((1, 1), dtype=bool)
             self.facing = np.zeros((1, 1, 2), dtype=np.float32)
             return
-        steps = np.arange(1, math.ceil(self.BEHIND / resolution) + 1) * resolution
+        # the endpoint itself, then a wall's thickness behind it
+        offsets = np.arange(0, math.ceil(self.BEHIND / resolution) + 1) * resolution
         behind, towards = [], []
         for rel, pts in scans:
             ranges = np.maximum(np.hypot(pts[:, 0], pts[:, 1]), 1e-9)[None, :, None]
-            # the endpoint itself, then a wall's thickness behind it
-            offsets = np.concatenate([[0.0], steps])
             beyond = pts[None, :, :] * (1.0 + offsets[:, None, None] / ranges)
             behind.append(transform_points(rel, beyond.reshape(-1, 2)))
-            c, n = math.cos(rel[2]), math.sin(rel[2])
             # the walls' normals, towards the sensor that saw them (zero where none)
             normal = scan_normals(np.ascontiguousarray(pts), NORMAL_RADIUS, NORMAL_MAX_GAP)
-            back = np.column_stack(
-                [c * normal[:, 0] - n * normal[:, 1], n * normal[:, 0] + c * normal[:, 1]]
-            )
+            back = normal @ rotation(float(rel[2])).T
             towards.append(np.broadcast_to(back, (offsets.size, *back.shape)).reshape(-1, 2))
         corners = np.concatenate([*behind, *(rel[None, :2] for rel, _ in scans)])
         lo, hi = corners.min(axis=0) - resolution, corners.max(axis=0) + resolution
@@ -423,6 +419,11 @@ class SeenArea:
         out = np.zeros(world.shape[0], dtype=bool)
         out[ok] = self.mask[cells[ok, 1], cells[ok, 0]]
         return out
+
+    def judges(self, world: FloatArray, sensor: FloatArray) -> NDArray[np.bool_]:
+        """Whether each anchor-frame point, seen from ``sensor``, is one the submap can judge:
+        where its scans looked (:meth:`covers`) and not on a far face (:meth:`faces_away`)."""
+        return self.covers(world) & ~self.faces_away(world, sensor)
 
     def faces_away(self, world: FloatArray, sensor: FloatArray) -> NDArray[np.bool_]:
         """Whether each anchor-frame point, seen from ``sensor`` (x, y), lies on a wall (or a
@@ -815,25 +816,24 @@ def refine_where_seen(
     a wall's far face (:meth:`SeenArea.faces_away`): they would pull the pose onto the face
     the old pass saw, a partition's thickness off."""
     if seen is not None:
-        world = transform_points(start, query)
-        covered = seen.covers(world) & ~seen.faces_away(world, start)
+        covered = seen.judges(transform_points(start, query), start)
         if np.count_nonzero(covered) >= 3:
             query = query[covered]
     return refine(pyramid, start, query, iterations)
 
 
-def judged_shape(points: FloatArray, pose: FloatArray, seen: SeenArea, ratio: float) -> FloatArray:
+def judged_shape(
+    points: FloatArray, normals: FloatArray, pose: FloatArray, seen: SeenArea, ratio: float
+) -> FloatArray:
     """The constraint shape (:func:`bioslam.cognitive_map.registration_shape`) of the points
-    of the scan judged at ``pose`` in the submap's frame: where the submap's scans looked,
-    and not on a face they saw only from its other side (:meth:`SeenArea.faces_away`); of
+    of the scan (with their ``normals``, :func:`bioslam.occupancy_grid.scan_normals`) judged
+    at ``pose`` in the submap's frame (:meth:`SeenArea.judges`); of
     every point when fewer than ``MIN_JUDGED`` are. What the registration matched is what
     pins it: a robot back the other way along a row of cubicles sees partitions across the
     row, but the old pass saw only their other faces, and the closures slid 7-10 cm along
     the row while the whole scan's shape said they were pinned there, so that
     :func:`settle_weak_direction` kept the slide."""
-    normals = scan_normals(points, NORMAL_RADIUS, NORMAL_MAX_GAP)
-    world = transform_points(pose, points)
-    judged = seen.covers(world) & ~seen.faces_away(world, pose)
+    judged = seen.judges(transform_points(pose, points), pose)
     if np.count_nonzero(judged) >= MIN_JUDGED:
         points, normals = points[judged], normals[judged]
     return registration_shape(points, normals, ratio)

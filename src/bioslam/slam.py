@@ -727,14 +727,13 @@ class BioSLAM:
         # score; each computed at most once and only where read. (The link weighed by the
         # matched points' shape instead took intel from 8.26 to 8.84 cm against the
         # odometry's 8.25.)
-        scan_shape = functools.cache(
-            lambda: registration_shape(pts, scan_normals(pts, NORMAL_RADIUS, NORMAL_MAX_GAP), ratio)
-        )
-        modes = functools.cache(
-            lambda: weak_modes(judged_shape(pts, unsettled, submap.seen, ratio))
-        )
         # as registered, before a correction along what the scan barely pins is taken back
         unsettled = verdict.pose
+        normals = functools.cache(lambda: scan_normals(pts, NORMAL_RADIUS, NORMAL_MAX_GAP))
+        scan_shape = functools.cache(lambda: registration_shape(pts, normals(), ratio))
+        modes = functools.cache(
+            lambda: weak_modes(judged_shape(pts, normals(), unsettled, submap.seen, ratio))
+        )
         if verdict.accepted and cfg.weak_margin > 0.0:
             # a correction along what the scan barely pins must earn its score
             grids = submap.pyramid.grids
