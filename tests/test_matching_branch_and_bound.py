@@ -74,6 +74,35 @@ def test_branch_and_bound_equals_brute_force_on_random_maps_and_windows():
         assert hinted.rival_score == found.rival_score
 
 
+def test_a_map_pooled_for_a_wide_window_answers_a_narrower_windows_search_as_its_own():
+    """One pooling serves a loop closure's check and the wider search for a rival outside it:
+    a narrower window, which needs fewer pooling levels than were pooled, finds against that
+    map the best pose, rival and scores a matcher pooled for it alone finds."""
+    rng = np.random.default_rng(5)
+    for _ in range(16):
+        res = rng.choice([0.05, 0.1])
+        grid = OccupancyGrid(res, 16.0)
+        mask = rng.random(grid.shape) < rng.uniform(0.01, 0.1)
+        grid.weights[mask] = rng.random(int(mask.sum())).astype(np.float32)
+        points = rng.uniform(-5, 5, (int(rng.integers(5, 80)), 2))
+        centre = np.array([*rng.uniform(-1, 1, 2), rng.uniform(-math.pi, math.pi)])
+        ratio = rng.uniform(0.0, 0.9)
+        wide = WideBasinConfig(distance=rng.uniform(1.0, 2.5), angle=1.0, min_rival_ratio=ratio)
+        narrow = WideBasinConfig(
+            distance=rng.uniform(0.5, 3.4) * res, angle=rng.uniform(0.02, 0.5),
+            min_rival_ratio=ratio,
+        )
+        shared, own = WideBasinMatcher(wide), WideBasinMatcher(narrow)
+        shared.set_map(grid, shared.reach_box(points, [(centre, wide.distance, wide.angle)], res))
+        own.set_map(grid)
+        assert own.depth_for(res) < shared.depth_for(res)  # the narrow one pools fewer levels
+        shared.config = narrow
+        a, b = shared.search(points, centre), own.search(points, centre)
+        assert a.score == b.score and np.array_equal(a.pose, b.pose)
+        assert a.rival_score == b.rival_score
+        assert (a.rival_pose is None) == (b.rival_pose is None)
+
+
 def test_a_map_pooled_over_the_reach_box_alone_gives_the_whole_maps_answers():
     """Searches of the windows a reach box was made for find, against the map pooled over
     that box, the best pose, rival and scores they find against the whole map pooled: no

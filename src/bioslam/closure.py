@@ -656,7 +656,9 @@ def verify(
     distance = min(window[0], config.search_distance)
     angle = min(window[1], config.search_angle)
     pyramid = pyramid or _submap_pyramid(reference, reg)
-    found = _wide_search(pyramid, query, predicted, (distance, angle), config)
+    outside = _outside_window((distance, angle), rival_window, config)
+    searcher = _searcher(pyramid, query, predicted, outside or (distance, angle), config)
+    found = _wide_search(searcher, query, predicted, (distance, angle), config)
     judge = pyramid.grids[reg.score_level]
     # Gauss-Newton from the lattice pose on the searched level and finer only: a coarser
     # level's blur would let it slide along a corridor, away from what the search found.
@@ -710,8 +712,8 @@ def verify(
         reason = "slid"
     elif not within(between(predicted, pose), distance, angle):
         reason = "beyond drift"
-    elif rival_window is not None and outside_rival(
-        pyramid, query, predicted, (distance, angle), rival_window, fit, config, seen
+    elif outside is not None and outside_rival(
+        pyramid, query, predicted, (distance, angle), rival_window, fit, config, seen, searcher
     ):
         reason = "ambiguous"
     return Verdict(
@@ -730,26 +732,62 @@ class _Found:
     resolution: float
 
 
-def _wide_search(
+def _searcher(
     pyramid: MapPyramid,
     query: FloatArray,
     centre: FloatArray,
     window: tuple[float, float],
     config: LoopClosureConfig,
-) -> _Found:
-    """Branch and bound over ``window`` (m, rad) around ``centre`` on the search level."""
-    matcher = WideBasinMatcher(
-        WideBasinConfig(
-            distance=window[0],
-            angle=window[1],
-            rival_distance=config.rival_distance,
-            rival_angle=config.rival_angle,
-            min_rival_ratio=config.max_ambiguity,
-        )
+) -> WideBasinMatcher:
+    """A wide-basin matcher with the search level pooled where ``query``'s points can land
+    from ``window`` (m, rad) around ``centre``: once for every window within it (a check's
+    own and the wider one its rival is sought in), and over that reach alone, which on a
+    large building's submap is a fraction of the grid."""
+    matcher = WideBasinMatcher(_window_config(window, config))
+    grid = pyramid.grids[min(config.search_level, len(pyramid.grids) - 1)]
+    matcher.set_map(grid, matcher.reach_box(query, [(centre, *window)], grid.resolution))
+    return matcher
+
+
+def _window_config(window: tuple[float, float], config: LoopClosureConfig) -> WideBasinConfig:
+    return WideBasinConfig(
+        distance=window[0],
+        angle=window[1],
+        rival_distance=config.rival_distance,
+        rival_angle=config.rival_angle,
+        min_rival_ratio=config.max_ambiguity,
     )
-    matcher.set_map(pyramid.grids[min(config.search_level, len(pyramid.grids) - 1)])
+
+
+def _wide_search(
+    matcher: WideBasinMatcher,
+    query: FloatArray,
+    centre: FloatArray,
+    window: tuple[float, float],
+    config: LoopClosureConfig,
+) -> _Found:
+    """Branch and bound over ``window`` (m, rad) around ``centre`` with ``matcher``, pooled
+    for it or a wider window (:func:`_searcher`)."""
+    matcher.config = _window_config(window, config)
     found = matcher.search(query, centre)
     return _Found(found.pose, found.ambiguity, found.rival_pose, matcher.resolution)
+
+
+def _outside_window(
+    window: tuple[float, float],
+    rival_window: tuple[float, float] | None,
+    config: LoopClosureConfig,
+) -> tuple[float, float] | None:
+    """The window (m, rad) :func:`outside_rival` searches around a check's ``window``, where
+    the map's prediction may be off by ``rival_window`` (capped at ``outside_rival_distance``
+    and ``outside_rival_angle``); None when that reaches no farther than ``window``."""
+    if rival_window is None:
+        return None
+    wide = (
+        max(window[0], min(rival_window[0], config.outside_rival_distance)),
+        max(window[1], min(rival_window[1], config.outside_rival_angle)),
+    )
+    return None if wide[0] <= window[0] and wide[1] <= window[1] else wide
 
 
 def outside_rival(
@@ -761,6 +799,7 @@ def outside_rival(
     fit: float,
     config: LoopClosureConfig,
     seen: SeenArea | None = None,
+    searcher: WideBasinMatcher | None = None,
 ) -> bool:
     """Whether a pose outside ``window`` (m, rad) around ``predicted`` but within ``rival_window``
     (capped at ``outside_rival_distance`` and ``outside_rival_angle``) fits ``query`` as well as the
@@ -772,15 +811,14 @@ def outside_rival(
     its look-alike, whatever the world, and the scan cannot say which it is. A pose outside that
     fits clearly worse is no such place: the window, which the map's prediction favours, keeps its
     fit (with ``prior_margin`` instead, the URG-04LX hall lost half its recognised revisits, 0.327
-    -> 0.163)."""
-    wide = (
-        max(window[0], min(rival_window[0], config.outside_rival_distance)),
-        max(window[1], min(rival_window[1], config.outside_rival_angle)),
-    )
-    if wide[0] <= window[0] and wide[1] <= window[1]:
+    -> 0.163). ``searcher``: the search level already pooled for the wider window
+    (:func:`_searcher`), else pooled here."""
+    wide = _outside_window(window, rival_window, config)
+    if wide is None:
         return False
     reg = config.registration
-    found = _wide_search(pyramid, query, predicted, wide, config)
+    searcher = searcher or _searcher(pyramid, query, predicted, wide, config)
+    found = _wide_search(searcher, query, predicted, wide, config)
     level = min(config.search_level, len(pyramid.grids) - 1)
     iterations = levels_up_to(reg.max_iterations, level)
     judge = pyramid.grids[reg.score_level]

@@ -803,10 +803,14 @@ class WideBasinMatcher:
         return np.array([x + ix * res, y + iy * res, th + j * step])
 
     def _flat_levels(self) -> tuple[FloatArray, tuple[int, int, int]]:
-        """The pooled levels, one flat row each (row stride: the buffer's width), and
-        (rows, cols, stride) of the crop in it."""
+        """The pooled levels the window of :attr:`config` needs, one flat row each (row
+        stride: the buffer's width), and (rows, cols, stride) of the crop in it. A map pooled
+        for a wider window serves a narrower one with its first levels (each level pools
+        level 0 alone), so one pooling serves searches of several windows; a deeper window
+        than pooled is searched from more top nodes, to the same answer."""
         buffer = self._levels
-        flat = buffer.reshape(buffer.shape[0], -1)[: self._depth + 1]
+        depth = min(self.depth_for(self._resolution), self._depth)
+        flat = buffer.reshape(buffer.shape[0], -1)[: depth + 1]
         return flat, (*self._shape, buffer.shape[2])
 
     def search(
