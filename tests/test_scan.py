@@ -1,4 +1,7 @@
+import math
+
 import numpy as np
+import pytest
 
 from bioslam.scan import LaserScan
 
@@ -25,3 +28,19 @@ def test_beam_times_follow_time_increment():
     )
     assert np.allclose(scan.beam_times(), [0.0, 0.02])
     assert scan.fov == 0.2 and scan.num_beams == 3
+
+
+def test_the_sweep_is_the_same_sector_whichever_way_the_beams_count():
+    up = LaserScan.from_angle_min(0.0, np.ones(271), -2.0, math.radians(1.0))
+    down = LaserScan(0.0, up.ranges[::-1].copy(), up.angles[::-1].copy())
+    assert up.sweep == pytest.approx((-2.0, -2.0 + math.radians(270.0)))
+    assert down.sweep == pytest.approx(up.sweep)
+    assert down.fov == pytest.approx(up.fov)
+    # angles wrapped into [-pi, pi): a 240° scanner facing backwards jumps by a turn
+    wrapped = np.mod(math.pi - math.radians(120.0) + np.radians(np.arange(241.0)), 2 * math.pi)
+    wrapped = np.where(wrapped >= math.pi, wrapped - 2 * math.pi, wrapped)
+    back = LaserScan(0.0, np.ones(241), wrapped)
+    first, last = back.sweep
+    assert first == pytest.approx(math.radians(60.0))
+    assert last - first == pytest.approx(math.radians(240.0))
+    assert back.fov == pytest.approx(math.radians(240.0))

@@ -5,6 +5,7 @@ import pytest
 from _views_world import box, cast
 
 from bioslam.boundary import BoundaryCells
+from bioslam.scan import LaserScan
 from bioslam.views import (
     ViewCellConfig,
     ViewCells,
@@ -174,3 +175,17 @@ def test_similarities_above_threshold_are_skipped_but_matches_are_exact():
     assert m.view_id == int(np.argmin(exact)) == 17
     assert m.similarity == pytest.approx(exact.min())
     assert np.allclose(vc.activities(), view_cell_activity(exact, 0.05))
+
+
+def test_a_scanner_whose_angles_count_down_recognises_its_views(bc):
+    """A scanner that reports its beams clockwise (a negative ROS ``angle_increment``, as one
+    mounted upside down does) covers the same sector: its views are compared over it and a
+    place seen again is recognised. Its coverage was read as empty, and every look learned a
+    new view (simulated maze, 200 s: no view cue at all)."""
+    up = cast(WORLD, POSE_A, fov_deg=240.0, beams=683)
+    down = LaserScan(0.0, up.ranges[::-1].copy(), up.angles[::-1].copy(), 0.05, 30.0)
+    assert np.array_equal(bc.coverage(down), bc.coverage(up)) and bc.coverage(up).any()
+    vc = ViewCells(cells_per_ring=bc.config.cells_per_ring)
+    first = vc.observe(bc.activity(down), coverage=bc.coverage(down))
+    again = vc.observe(bc.activity(down), coverage=bc.coverage(down))
+    assert first.is_new and not again.is_new and again.view_id == first.view_id

@@ -264,7 +264,7 @@ class BoundaryCells:
     def coverage(self, scan: LaserScan) -> NDArray[np.bool_]:
         """Which angular bins of a ring the scan's field of view covers (a bin whose centre
         lies within the span of its beams): the sectors two views can be compared over."""
-        return self.coverage_span(float(scan.angles[0]), float(scan.angles[-1]))
+        return self.coverage_span(*scan.sweep)
 
     def coverage_span(self, first: float, last: float) -> NDArray[np.bool_]:
         """``coverage`` for beams swept from ``first`` to ``last`` radians (counter-clockwise)."""

@@ -65,10 +65,25 @@ class LaserScan:
 
     @property
     def fov(self) -> float:
-        """Angular span from the first to the last beam, radians."""
+        """Angular span from the first to the last beam, radians (:attr:`sweep`)."""
         if self.angles.size < 2:
             return 0.0
-        return float(abs(self.angles[-1] - self.angles[0]))
+        first, last = self.sweep
+        return last - first
+
+    @property
+    def sweep(self) -> tuple[float, float]:
+        """The field of view as the angles ``(first, last)``, radians, that it spans
+        counter-clockwise (``last >= first``), whichever way the beams were swept: a scanner
+        whose angles count down (a negative ROS ``angle_increment``, as one mounted upside
+        down reports) covers the same sector from its last beam to its first, and one whose
+        angles were wrapped into a half-open turn jumps by a turn where it crosses it."""
+        first, last = float(self.angles[0]), float(self.angles[-1])
+        if last >= first or self.angles.size < 2:
+            return first, last
+        steps = np.diff(self.angles)
+        turn = float(np.sum(np.mod(steps + np.pi, 2.0 * np.pi) - np.pi))
+        return (first, first + turn) if turn > 0.0 else (last, last - turn)
 
     @property
     def valid_mask(self) -> NDArray[np.bool_]:
