@@ -62,11 +62,14 @@ class SimCase:
     route: str
     #: the scanner's heading on the robot, degrees (``bioslam sim --mount-yaw``)
     mount_yaw: float = 0.0
+    #: the scanner sweeps clockwise, its angles counting down (``bioslam sim --clockwise``)
+    clockwise: bool = False
 
     @property
     def name(self) -> str:
         mounted = f" (mounted at {self.mount_yaw:g} deg)" if self.mount_yaw else ""
-        return f"{self.world}-{self.lidar}-{self.route}{mounted}"
+        swept = " (clockwise)" if self.clockwise else ""
+        return f"{self.world}-{self.lidar}-{self.route}{mounted}{swept}"
 
 
 DEFAULT_CASES = (
@@ -88,7 +91,9 @@ def simulate(
     world = load_world(case.world)
     route = ROUTES[case.route](world, duration=duration, seed=seed)
     walkers = people_on_roadmap(world, people, seed=seed) if people else []
-    lidar = replace(LIDAR_PRESETS[case.lidar], mount_yaw=math.radians(case.mount_yaw))
+    lidar = replace(
+        LIDAR_PRESETS[case.lidar], mount_yaw=math.radians(case.mount_yaw), clockwise=case.clockwise
+    )
     pairs = list(simulate_scans(world, lidar, route, seed=seed, obstacles=walkers))[::thin]
     scans = [scan for scan, _ in pairs]
     return scans, Trajectory(np.array([s.stamp for s in scans]), np.array([p for _, p in pairs]))
@@ -405,6 +410,9 @@ def main() -> None:
     ap.add_argument("--mount-yaw", type=float, default=0.0,
                     help="the scanner's heading on the robot, degrees (as bioslam sim "
                          "--mount-yaw; the ground truth is the scanner's pose)")
+    ap.add_argument("--clockwise", action="store_true",
+                    help="the scanner sweeps clockwise, its angles counting down (as bioslam "
+                         "sim --clockwise)")
     ap.add_argument("--log", action="append", default=[],
                     help="also a real log: against its corrected poses (e.g. freiburg-079), "
                          "or by its loop gap when it has none (exp1.dat, the ROS 1 bag)")
@@ -422,7 +430,7 @@ def main() -> None:
         print(report_log(path, config), flush=True)
     for name in args.cases.split(",") if args.cases else ():
         world, lidar, route = name.rsplit("-", 2)  # the world may be a map YAML's path
-        case = SimCase(world, lidar, route, args.mount_yaw)
+        case = SimCase(world, lidar, route, args.mount_yaw, args.clockwise)
         print(
             report(case, args.duration, args.seed, args.gap, config, args.thin, args.people),
             flush=True,

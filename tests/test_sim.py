@@ -157,6 +157,25 @@ def test_sweep_skew_on_a_turning_robot():
     assert np.abs(swept - frozen).max() > 0.01
 
 
+def test_a_clockwise_scanner_sweeps_its_beams_from_the_last_angle_on_a_turning_robot():
+    """A scanner whose mirror turns clockwise reports its angles counting down, and beam k is
+    still measured ``k * time_increment`` after the stamp: its first beam (the counter-clockwise
+    scanner's last angle) is measured first."""
+    rate = 1.0
+    times = np.linspace(0.0, 2.0, 201)
+    poses = np.column_stack([np.full(201, 2.0), np.full(201, 1.5), rate * times])
+    route = Route(times, poses)
+    lidar = replace(LIDAR_PRESETS["utm30lx"], noise_sigma=0.0, clockwise=True)
+    angles = lidar.angles()
+    assert np.all(np.diff(angles) < 0.0)
+    np.testing.assert_allclose(angles, replace(lidar, clockwise=False).angles()[::-1])
+    swept, pose = true_ranges(box_world(), lidar, route, np.array([0.5]))
+    skew = rate * lidar.time_increment * np.arange(lidar.beams)
+    np.testing.assert_allclose(
+        swept[0], box_distance(np.array([2.0, 1.5]), pose[0, 2] + angles + skew), atol=1e-9
+    )
+
+
 def test_moving_obstacle_is_seen_where_it_walks():
     person = MovingObstacle((3.0, 0.5), (3.0, 2.5), speed=1.0, radius=0.25)
     assert person.position_at([0.0, 1.0, 2.0, 3.0]) == pytest.approx(

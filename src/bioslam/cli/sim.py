@@ -66,6 +66,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="the scanner's heading on the robot, degrees from its forward axis (180: facing "
         "backwards); the ground truth is the scanner's pose",
     )
+    p.add_argument(
+        "--clockwise",
+        action="store_true",
+        help="the scanner sweeps clockwise: its angles count down (a negative angle_increment)",
+    )
     p.add_argument("--max-speed", type=float, help="m/s (default 0.5)")
     p.add_argument("--max-yaw-rate", type=float, help="rad/s (default 0.8)")
     p.add_argument(
@@ -176,7 +181,11 @@ def run(args: argparse.Namespace) -> dict:
     started = time.perf_counter()
     world = load_world(args.world)
     lidar = LIDAR_PRESETS[args.lidar]
-    changes = {"sweep": not args.no_sweep, "mount_yaw": math.radians(args.mount_yaw)}
+    changes = {
+        "sweep": not args.no_sweep,
+        "mount_yaw": math.radians(args.mount_yaw),
+        "clockwise": args.clockwise,
+    }
     if args.noise is not None:
         changes["noise_sigma"] = args.noise
     if args.dropout is not None:
@@ -205,6 +214,7 @@ def run(args: argparse.Namespace) -> dict:
         "route": args.route,
         "lidar": lidar.name,
         "mount_yaw_deg": args.mount_yaw,
+        "clockwise": args.clockwise,
         "scans": writer.count,
         "beams": lidar.beams,
         "duration_s": round(float(route.duration), 3),

@@ -38,6 +38,9 @@ class LidarModel:
             forward axis (pi: mounted facing backwards, as on a robot whose scanner's frame
             is turned round): the robot then drives backwards, or sideways, in the scan's
             own frame, which is the frame a LiDAR-only SLAM estimates.
+        clockwise: the mirror turns clockwise: the beams come from the last angle to the first,
+            so the scan's angles count down (a negative ROS ``angle_increment``, as a scanner
+            mounted upside down or a 360° driver publishing clockwise reports).
     """
 
     name: str
@@ -51,6 +54,7 @@ class LidarModel:
     sweep: bool = True
     mirror_hz: float | None = None
     mount_yaw: float = 0.0
+    clockwise: bool = False
 
     def __post_init__(self) -> None:
         if self.beams < 2:
@@ -86,8 +90,10 @@ class LidarModel:
         return -np.pi if self.full_circle else -0.5 * self.fov
 
     def angles(self) -> NDArray[np.float64]:
-        """Beam angles in the sensor frame, radians, counter-clockwise from forward."""
-        return self.angle_min + self.angle_increment * np.arange(self.beams, dtype=np.float64)
+        """Beam angles in the sensor frame, radians, counter-clockwise from forward, in the
+        order the mirror sweeps them."""
+        angles = self.angle_min + self.angle_increment * np.arange(self.beams, dtype=np.float64)
+        return angles[::-1].copy() if self.clockwise else angles
 
     @property
     def scan_time(self) -> float:
