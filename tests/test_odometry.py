@@ -636,3 +636,19 @@ def test_a_match_that_jumps_from_a_trusted_prediction_is_searched():
     around as after a gap, and the plausible match nearest the prediction kept."""
     estimate, truth = odometry_run("maze", "adversarial", "sick361", 31, 240.0, start="origin")
     assert largest_error(estimate, truth) < 0.3
+
+
+def test_beams_reported_at_the_maximum_range_give_the_odometry_no_points():
+    """A short-range scanner along a corridor: its beams down the corridor meet nothing. Given
+    as the maximum range instead of +inf, they must not become endpoints (a phantom arc the
+    odometry would fuse into its map and the loop closures would register against)."""
+    seen, at_max = LidarOdometry(), LidarOdometry()
+    for k in range(5):
+        pose = (1.0 + 0.1 * k, 0.0, 0.0)
+        scan = make_scan(CORRIDOR, pose, stamp=0.1 * k, max_range=4.0)
+        assert np.isinf(scan.ranges).any()  # the corridor reaches beyond the scanner
+        maxed = np.where(np.isinf(scan.ranges), np.float32(4.0), scan.ranges)
+        seen.update(scan)
+        at_max.update(LaserScan(scan.stamp, maxed, scan.angles, 0.05, 4.0))
+        assert np.array_equal(seen.last_points, at_max.last_points)
+    assert np.array_equal(seen.pose, at_max.pose)

@@ -44,3 +44,13 @@ def test_the_sweep_is_the_same_sector_whichever_way_the_beams_count():
     assert first == pytest.approx(math.radians(60.0))
     assert last - first == pytest.approx(math.radians(240.0))
     assert back.fov == pytest.approx(math.radians(240.0))
+
+
+def test_a_beam_reported_at_the_maximum_range_is_no_return():
+    """Loggers and drivers that do not use +inf report a beam that met nothing as the
+    scanner's maximum range (a float32 of it rounds just below); a wall exactly there is a
+    set of measure zero. Taken for hits, those beams draw an arc round the robot."""
+    ranges = np.array([1.0, 5.6, np.float32(5.6), 5.59, np.inf, 6.0])
+    scan = LaserScan.from_angle_min(0.0, ranges, -0.3, 0.1, range_min=0.02, range_max=5.6)
+    assert scan.valid_mask.tolist() == [True, False, False, True, False, False]
+    assert LaserScan.from_angle_min(0.0, ranges, -0.3, 0.1).valid_mask.sum() == 5  # no maximum

@@ -41,7 +41,7 @@ from bioslam.odometry.local_map import LocalMap
 from bioslam.odometry.search import WideSearch
 from bioslam.odometry.sweep import SweepMotion, sweep_seconds
 from bioslam.odometry_config import OdometryConfig
-from bioslam.scan import LaserScan
+from bioslam.scan import LaserScan, farthest_return
 from bioslam.step_prior import StepPrior
 
 
@@ -160,7 +160,7 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         return usable_endpoints(scan.ranges, cos_a, sin_a, lo, hi, increment, vx, vy, w)
 
     def _usable_range(self, scan: LaserScan) -> float:
-        return min(self.config.max_range, scan.range_max)
+        return min(self.config.max_range, farthest_return(scan.range_max))
 
     def _matched(
         self, pts: FloatArray, keep: NDArray[np.bool_], scan: LaserScan
