@@ -64,12 +64,15 @@ class SimCase:
     mount_yaw: float = 0.0
     #: the scanner sweeps clockwise, its angles counting down (``bioslam sim --clockwise``)
     clockwise: bool = False
+    #: a beam that met nothing reported as the maximum range (``bioslam sim --no-return-as-max``)
+    no_return_as_max: bool = False
 
     @property
     def name(self) -> str:
         mounted = f" (mounted at {self.mount_yaw:g} deg)" if self.mount_yaw else ""
         swept = " (clockwise)" if self.clockwise else ""
-        return f"{self.world}-{self.lidar}-{self.route}{mounted}{swept}"
+        maxed = " (no return as the maximum)" if self.no_return_as_max else ""
+        return f"{self.world}-{self.lidar}-{self.route}{mounted}{swept}{maxed}"
 
 
 DEFAULT_CASES = (
@@ -92,8 +95,9 @@ def simulate(
     route = ROUTES[case.route](world, duration=duration, seed=seed)
     walkers = people_on_roadmap(world, people, seed=seed) if people else []
     lidar = replace(
-        LIDAR_PRESETS[case.lidar], mount_yaw=math.radians(case.mount_yaw), clockwise=case.clockwise
-    )
+        LIDAR_PRESETS[case.lidar], mount_yaw=math.radians(case.mount_yaw),
+        clockwise=case.clockwise, no_return_as_max=case.no_return_as_max,
+    )  # fmt: skip
     pairs = list(simulate_scans(world, lidar, route, seed=seed, obstacles=walkers))[::thin]
     scans = [scan for scan, _ in pairs]
     return scans, Trajectory(np.array([s.stamp for s in scans]), np.array([p for _, p in pairs]))
@@ -413,6 +417,9 @@ def main() -> None:
     ap.add_argument("--clockwise", action="store_true",
                     help="the scanner sweeps clockwise, its angles counting down (as bioslam "
                          "sim --clockwise)")
+    ap.add_argument("--no-return-as-max", action="store_true",
+                    help="a beam that met nothing reported as the maximum range (as bioslam "
+                         "sim --no-return-as-max)")
     ap.add_argument("--log", action="append", default=[],
                     help="also a real log: against its corrected poses (e.g. freiburg-079), "
                          "or by its loop gap when it has none (exp1.dat, the ROS 1 bag)")
@@ -430,7 +437,7 @@ def main() -> None:
         print(report_log(path, config), flush=True)
     for name in args.cases.split(",") if args.cases else ():
         world, lidar, route = name.rsplit("-", 2)  # the world may be a map YAML's path
-        case = SimCase(world, lidar, route, args.mount_yaw, args.clockwise)
+        case = SimCase(world, lidar, route, args.mount_yaw, args.clockwise, args.no_return_as_max)
         print(
             report(case, args.duration, args.seed, args.gap, config, args.thin, args.people),
             flush=True,

@@ -136,6 +136,16 @@ def test_out_of_range_returns_use_rep117_codes():
     assert scan.valid_mask.sum() == inside.sum()
 
 
+def test_a_scanner_that_reports_no_return_as_its_maximum_is_read_as_one_that_reports_inf():
+    lidar = LidarModel("test", np.pi, 181, range_min=1.2, range_max=2.5, rate_hz=10.0)
+    maxed = replace(lidar, no_return_as_max=True)
+    route = static_route((1.0, 1.5, 0.0))
+    scan, other = (next(iter(simulate_scans(box_world(), m, route)))[0] for m in (lidar, maxed))
+    far = np.isposinf(scan.ranges)
+    assert far.any() and np.all(other.ranges[far] == np.float32(2.5))
+    assert np.array_equal(scan.valid_mask, other.valid_mask)
+
+
 def test_sweep_skew_on_a_turning_robot():
     rate = 1.0  # rad/s, the example
     times = np.linspace(0.0, 2.0, 201)

@@ -71,6 +71,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="the scanner sweeps clockwise: its angles count down (a negative angle_increment)",
     )
+    p.add_argument(
+        "--no-return-as-max",
+        action="store_true",
+        help="report a beam that met nothing as range_max instead of +inf (as loggers and "
+        "drivers that do not follow REP 117 do)",
+    )
     p.add_argument("--max-speed", type=float, help="m/s (default 0.5)")
     p.add_argument("--max-yaw-rate", type=float, help="rad/s (default 0.8)")
     p.add_argument(
@@ -185,6 +191,7 @@ def run(args: argparse.Namespace) -> dict:
         "sweep": not args.no_sweep,
         "mount_yaw": math.radians(args.mount_yaw),
         "clockwise": args.clockwise,
+        "no_return_as_max": args.no_return_as_max,
     }
     if args.noise is not None:
         changes["noise_sigma"] = args.noise

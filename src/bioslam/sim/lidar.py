@@ -38,6 +38,8 @@ class LidarModel:
             forward axis (pi: mounted facing backwards, as on a robot whose scanner's frame
             is turned round): the robot then drives backwards, or sideways, in the scan's
             own frame, which is the frame a LiDAR-only SLAM estimates.
+        no_return_as_max: report a beam that met nothing as ``range_max`` instead of +inf, as
+            loggers and drivers that do not follow REP 117 do.
         clockwise: the mirror turns clockwise: the beams come from the last angle to the first,
             so the scan's angles count down (a negative ROS ``angle_increment``, as a scanner
             mounted upside down or a 360° driver publishing clockwise reports).
@@ -55,6 +57,7 @@ class LidarModel:
     mirror_hz: float | None = None
     mount_yaw: float = 0.0
     clockwise: bool = False
+    no_return_as_max: bool = False
 
     def __post_init__(self) -> None:
         if self.beams < 2:
@@ -117,7 +120,7 @@ class LidarModel:
         if self.noise_sigma > 0.0:
             r = r + rng.normal(0.0, self.noise_sigma, size=r.shape)
         out = r.astype(np.float32)
-        out[r > self.range_max] = np.inf
+        out[r > self.range_max] = self.range_max if self.no_return_as_max else np.inf
         out[r < self.range_min] = -np.inf
         if self.dropout_prob > 0.0:
             out[rng.random(size=r.shape) < self.dropout_prob] = np.nan
