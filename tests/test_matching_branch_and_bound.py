@@ -39,15 +39,22 @@ def _brute_force_reference(matcher, points, centre, with_pose=False):
     return (*found, np.array([x + bx * res, y + by * res, th + bj * step])) if with_pose else found
 
 
+def _random_grid(rng: np.random.Generator, resolution: float, size: float) -> OccupancyGrid:
+    """Random cells of random occupancy: the adversarial case for the bounds, no structure to
+    prune on and many near-ties."""
+    grid = OccupancyGrid(resolution, size)
+    mask = rng.random(grid.shape) < rng.uniform(0.01, 0.1)
+    grid.weights[mask] = rng.random(int(mask.sum())).astype(np.float32)
+    return grid
+
+
 def test_branch_and_bound_equals_brute_force_on_random_maps_and_windows():
     # Random cells of random occupancy are the adversarial case for the bounds: no structure
     # to prune on, many near-ties. Best and rival must be the brute force's to the last bit.
     rng = np.random.default_rng(7)
     for _ in range(16):
         res = rng.choice([0.05, 0.1, 0.2])
-        grid = OccupancyGrid(res, 12.0)
-        mask = rng.random(grid.shape) < rng.uniform(0.01, 0.1)
-        grid.weights[mask] = rng.random(int(mask.sum())).astype(np.float32)
+        grid = _random_grid(rng, res, 12.0)
         points = rng.uniform(-5, 5, (int(rng.integers(5, 80)), 2))
         centre = np.array([*rng.uniform(-2, 2, 2), rng.uniform(-math.pi, math.pi)])
         cfg = WideBasinConfig(
@@ -81,9 +88,7 @@ def test_a_map_pooled_for_a_wide_window_answers_a_narrower_windows_search_as_its
     rng = np.random.default_rng(5)
     for _ in range(16):
         res = rng.choice([0.05, 0.1])
-        grid = OccupancyGrid(res, 16.0)
-        mask = rng.random(grid.shape) < rng.uniform(0.01, 0.1)
-        grid.weights[mask] = rng.random(int(mask.sum())).astype(np.float32)
+        grid = _random_grid(rng, res, 16.0)
         points = rng.uniform(-5, 5, (int(rng.integers(5, 80)), 2))
         centre = np.array([*rng.uniform(-1, 1, 2), rng.uniform(-math.pi, math.pi)])
         ratio = rng.uniform(0.0, 0.9)
@@ -111,9 +116,7 @@ def test_a_map_pooled_over_the_reach_box_alone_gives_the_whole_maps_answers():
     rng = np.random.default_rng(11)
     for _ in range(24):
         res = rng.choice([0.05, 0.1])
-        grid = OccupancyGrid(res, 16.0)
-        mask = rng.random(grid.shape) < rng.uniform(0.01, 0.1)
-        grid.weights[mask] = rng.random(int(mask.sum())).astype(np.float32)
+        grid = _random_grid(rng, res, 16.0)
         fov = rng.uniform(0.3, 2 * math.pi)
         bearing = rng.uniform(-fov / 2, fov / 2, int(rng.integers(5, 120)))
         ranges = rng.uniform(0.3, 6.0, bearing.size)
