@@ -388,6 +388,7 @@ RANGES: dict[str, tuple[float, float, bool]] = {
     "odometry.resolution": (1e-3, 10.0, True),
     "odometry.map_size": (1.0, 1e4, True),
     "odometry.max_range": (0.0, 1e4, False),
+    "odometry.body_turn": (0.0, 1e3, False),
     "odometry.levels": (1, 8, True),
     "odometry.point_spacing": (0.0, 10.0, False),
     "odometry.recovery_free_fraction": (0.0, 1.0, True),

@@ -30,6 +30,10 @@ class OdometryConfig:
         max_range: endpoints farther than this are not used, metres (beyond it a 0.25° beam
             spacing leaves gaps of more than a finest cell; also bounded by the window).
         min_range: endpoints closer than this are dropped (the robot's own body), metres.
+        body_reach, body_turn: directions of the scan that the robot's own body blocks are
+            learned and dropped (:mod:`bioslam.odometry.body_hits`): a range shorter than
+            ``body_reach`` metres that stays the same while the robot turns ``body_turn``
+            radians, half of it each way. ``body_reach`` 0 learns none.
         insert_distance, insert_angle: a scan is fused into the map when the pose has moved
             this far (metres, radians) from the last fused pose. Hector fuses at 0.4 m / 0.9
             rad; we fuse more often because a small field of view needs the map refreshed
@@ -446,6 +450,8 @@ class OdometryConfig:
     recenter_distance: float = 10.0
     max_range: float = 30.0
     min_range: float = 0.05
+    body_reach: float = 1.0
+    body_turn: float = math.pi
     insert_distance: float = 0.2
     insert_angle: float = 0.15
     point_spacing: float = 0.05

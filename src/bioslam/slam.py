@@ -414,7 +414,9 @@ class BioSLAM:
         self._scans_since_look += 1
         self._relax_if_due()
         if self._due(dp):
-            self._perceive(scan, self._pending)
+            # the scan as the odometry matched it: the robot's own body left out
+            seen = self.self_motion.odometry.last_scan
+            self._perceive(scan if seen is None else seen, self._pending)
             self._pending = np.zeros(3)
             self._scans_since_look = self._scans_waited = 0
         self._record(scan.stamp)

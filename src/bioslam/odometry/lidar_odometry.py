@@ -35,6 +35,7 @@ from bioslam.matching.gauss_newton import (
 from bioslam.matching.registration import grazing_endpoints
 from bioslam.motion_model import ConstantVelocityModel, translation_part
 from bioslam.occupancy_grid import MapPyramid, OccupancyGrid, subsample_by_spacing, thinned_normals
+from bioslam.odometry.body_hits import BodyHits
 from bioslam.odometry.choice import MatchChoice
 from bioslam.odometry.guards import PredictionGuards
 from bioslam.odometry.local_map import LocalMap
@@ -84,6 +85,10 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         self.pyramid = self._new_pyramid()
         self.last_report = MatchReport()
         self.last_points: FloatArray = np.zeros((0, 2))
+        #: the last scan as matched: the directions the robot's own body blocks left out
+        self.last_scan: LaserScan | None = None
+        self._body = BodyHits(c.body_reach, c.body_turn)
+        self._heading = 0.0  # turns counted: the body's directions are learned as it turns
         self.num_scans = 0
         self.num_predicted_only = 0
         self.num_recovered = 0
@@ -237,6 +242,8 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
     def update(self, scan: LaserScan) -> FloatArray:
         """Match one scan and return Δp (3,) since the previous scan (zeros on the first)."""
         c = self.config
+        measured, scan = scan, self._body.without(scan)
+        self.last_scan = scan
         dt = self._time_step(scan.stamp)
         previous = self.pose.copy()
         predicted = self._motion.predict(previous, dt) if self.num_scans else previous
@@ -286,6 +293,8 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         self._last_stamp = scan.stamp
         self._last_dt = dt
         self._last_delta = between(previous, self.pose)
+        self._heading += float(self._last_delta[2])
+        self._body.observe(measured, self._heading)
         return self._last_delta.copy()
 
     def steps_to_insert(self, step: ArrayLike) -> float:
@@ -307,7 +316,9 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         """Counts over the run: scans, matches recovered by a search, scans with an
         unconstrained direction, scans with too few points (prediction only), scans whose
         search found a look-alike as plausible as the match kept, sparse scans whose match
-        the odometry cannot vouch for (``MatchReport.broken``)."""
+        the odometry cannot vouch for (``MatchReport.broken``), and the directions of the
+        scan (a degree each) learned as blocked by the robot's own body at the end
+        (:mod:`~bioslam.odometry.body_hits`)."""
         return {
             "odometry_scans": self.num_scans,
             "odometry_recovered": self.num_recovered,
@@ -315,6 +326,7 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
             "odometry_predicted_only": self.num_predicted_only,
             "odometry_ambiguous": self.num_ambiguous,
             "odometry_broken": self.num_broken,
+            "odometry_body_directions": int(np.count_nonzero(self._body.blocked)),
         }
 
     def _match_scan(
