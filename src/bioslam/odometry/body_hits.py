@@ -37,6 +37,10 @@ BINS = round(2.0 * math.pi / BIN)
 #: ``RELATIVE`` of it: a few standard deviations of a scanner's noise
 TOLERANCE = 0.05
 RELATIVE = 0.02
+#: scans a direction must hold its range through the turns (the body is in every scan; on a
+#: thinned log, a few scans far apart turned both ways round a direction that happened to
+#: read alike: a lost odometry on the maze's RPLIDAR every 20th scan blocked 7-14)
+MIN_SCANS = 50
 #: scans a blocked direction must read otherwise before it counts as free again
 RELEASE = 20
 #: at most this share of the directions is the body's: more holding their ranges through a
@@ -101,7 +105,11 @@ class BodyHits:
         self._right = np.where(same, np.maximum(self._right, self._high - heading), 0.0)
         self._low = np.where(same, np.minimum(self._low, heading), heading)
         self._high = np.where(same, np.maximum(self._high, heading), heading)
-        turned = same & (np.minimum(self._left, self._right) >= 0.5 * self.turn)
+        turned = (
+            same
+            & (self._count >= MIN_SCANS)
+            & (np.minimum(self._left, self._right) >= 0.5 * self.turn)
+        )
         self._away = np.where(same | ~self.blocked, 0, self._away + 1)
         self.blocked &= self._away < RELEASE
         if np.count_nonzero(self.blocked | turned) <= MAX_SHARE * BINS:
