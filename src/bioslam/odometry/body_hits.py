@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -93,24 +94,56 @@ class BodyHits:
         ``heading`` (radians, the odometry's, turns counted)."""
         if self.reach <= 0.0:
             return
-        ranges = np.where(scan.valid_mask, np.asarray(scan.ranges, dtype=np.float64), np.inf)
-        near = np.full(BINS, np.inf)
-        np.minimum.at(near, self._bins_of(scan.angles), ranges)
-        near[~(near < self.reach)] = np.nan
-        same = np.abs(near - self._held) <= TOLERANCE + RELATIVE * self._held  # NaN: False
-        # a direction whose range changed starts holding the new one from this heading
-        self._count = np.where(same, self._count + 1.0, 1.0)
-        self._held = np.where(same, self._held + (near - self._held) / self._count, near)
-        self._left = np.where(same, np.maximum(self._left, heading - self._low), 0.0)
-        self._right = np.where(same, np.maximum(self._right, self._high - heading), 0.0)
-        self._low = np.where(same, np.minimum(self._low, heading), heading)
-        self._high = np.where(same, np.maximum(self._high, heading), heading)
-        turned = (
-            same
-            & (self._count >= MIN_SCANS)
-            & (np.minimum(self._left, self._right) >= 0.5 * self.turn)
+        near = _nearest_per_direction(
+            np.asarray(scan.ranges), scan.valid_mask, self._bins_of(scan.angles), self.reach
         )
-        self._away = np.where(same | ~self.blocked, 0, self._away + 1)
-        self.blocked &= self._away < RELEASE
+        turned = _hold(
+            near, heading, self._held, self._count, self._low, self._high, self._left,
+            self._right, self._away, self.blocked, 0.5 * self.turn,
+        )  # fmt: skip
         if np.count_nonzero(self.blocked | turned) <= MAX_SHARE * BINS:
             self.blocked |= turned
+
+
+@numba.njit(cache=True)
+def _nearest_per_direction(ranges, valid, bins, reach):
+    """The shortest valid range of each direction's beams, NaN where none is under ``reach``."""
+    near = np.full(BINS, np.inf)
+    for k in range(ranges.shape[0]):
+        if valid[k] and ranges[k] < near[bins[k]]:
+            near[bins[k]] = ranges[k]
+    for b in range(BINS):
+        if not near[b] < reach:
+            near[b] = np.nan
+    return near
+
+
+@numba.njit(cache=True)
+def _hold(near, heading, held, count, low, high, left, right, away, blocked, half_turn):
+    """One scan's update of each direction's held range (``near``, NaN for none): its mean,
+    the scans and the headings it held it through, the turns left and right within them;
+    a blocked direction that reads otherwise long enough is freed. Returns the directions
+    that held theirs through ``half_turn`` each way (which :class:`BodyHits` then blocks
+    unless too many did)."""
+    turned = np.zeros(BINS, dtype=np.bool_)
+    for b in range(BINS):
+        same = abs(near[b] - held[b]) <= TOLERANCE + RELATIVE * held[b]  # NaN: False
+        if same:
+            count[b] += 1.0
+            held[b] += (near[b] - held[b]) / count[b]
+            left[b] = max(left[b], heading - low[b])
+            right[b] = max(right[b], high[b] - heading)
+            low[b] = min(low[b], heading)
+            high[b] = max(high[b], heading)
+            away[b] = 0
+            turned[b] = count[b] >= MIN_SCANS and min(left[b], right[b]) >= half_turn
+        else:
+            # a direction whose range changed starts holding the new one from this heading
+            count[b] = 1.0
+            held[b] = near[b]
+            left[b] = right[b] = 0.0
+            low[b] = high[b] = heading
+            if blocked[b]:
+                away[b] += 1
+                blocked[b] = away[b] < RELEASE
+    return turned
