@@ -16,15 +16,7 @@ from functools import partial
 from pathlib import Path
 
 import numpy as np
-from office_floor_plan import (
-    FREE,
-    OCCUPIED,
-    RESOLUTION,
-    box_mask,
-    floor_plan_cli,
-    pixel_centres,
-    write_floor_plan,
-)
+import office_floor_plan as plan
 
 WIDTH, HEIGHT = 64.0, 48.0
 PITCH = 8.0
@@ -34,14 +26,14 @@ LANE = 1.8  # half-width kept clear either side of the lanes between pillars
 
 def floor_plan(seed: int = 3) -> np.ndarray:
     """The occupancy image, row 0 at the top (y = ``HEIGHT``)."""
-    x, y = pixel_centres(WIDTH, HEIGHT)
-    img = np.full(x.shape, FREE, np.uint8)
-    box = partial(box_mask, x, y)
-    img[~box(0.3, 0.3, WIDTH - 0.3, HEIGHT - 0.3)] = OCCUPIED
+    x, y = plan.pixel_centres(WIDTH, HEIGHT)
+    img = np.full(x.shape, plan.FREE, np.uint8)
+    box = partial(plan.box_mask, x, y)
+    img[~box(0.3, 0.3, WIDTH - 0.3, HEIGHT - 0.3)] = plan.OCCUPIED
     half = PILLAR / 2
     for cx in np.arange(PITCH, WIDTH - 4.0, PITCH):
         for cy in np.arange(PITCH, HEIGHT - 4.0, PITCH):
-            img[box(cx - half, cy - half, cx + half, cy + half)] = OCCUPIED
+            img[box(cx - half, cy - half, cx + half, cy + half)] = plan.OCCUPIED
     rng = np.random.default_rng(seed)
     for _ in range(14):
         px, py = rng.uniform(3.0, WIDTH - 6.0), rng.uniform(3.0, HEIGHT - 6.0)
@@ -50,14 +42,14 @@ def floor_plan(seed: int = 3) -> np.ndarray:
         in_lane_y = abs((py + h / 2) % PITCH - PITCH / 2) < LANE
         if in_lane_x and in_lane_y:
             continue  # a lane crossing stays open
-        img[box(px, py, px + w, py + h)] = OCCUPIED
+        img[box(px, py, px + w, py + h)] = plan.OCCUPIED
     return img[::-1]
 
 
 def write_pillar_hall(folder: Path) -> Path:
     """Write ``pillar_hall.pgm`` and ``pillar_hall.yaml`` into ``folder``; the YAML's path."""
-    return write_floor_plan(folder, "pillar_hall", floor_plan(), RESOLUTION)
+    return plan.write_floor_plan(folder, "pillar_hall", floor_plan(), plan.RESOLUTION)
 
 
 if __name__ == "__main__":
-    floor_plan_cli(__doc__, write_pillar_hall)
+    plan.floor_plan_cli(__doc__, write_pillar_hall)
