@@ -105,6 +105,9 @@ def test_presets_match_their_datasheets():
     # A full circle: evenly spaced, and the last beam does not repeat the first.
     assert np.diff(angles) == pytest.approx(np.full(359, 2 * np.pi / 360))
     assert angles[-1] - angles[0] + spin.angle_increment == pytest.approx(2 * np.pi)
+    lds = LIDAR_PRESETS["lds01"]
+    assert (lds.beams, lds.rate_hz, lds.range_min, lds.range_max) == (360, 5.0, 0.12, 3.5)
+    assert lds.full_circle and np.rad2deg(lds.angle_increment) == pytest.approx(1.0)
 
 
 def test_noise_and_dropout_statistics():

@@ -147,4 +147,9 @@ LIDAR_PRESETS: dict[str, LidarModel] = {
     # The same scanner's 0.5 deg mode (361 beams), which interlaces two mirror revolutions
     # (taken here as one at half speed); 5 Hz as freiburg-079-corrected (about 4 Hz).
     "sick361": LidarModel("sick361", np.pi, 361, 0.1, 80.0, 5.0, 0.01, mirror_hz=37.5),
+    # ROBOTIS LDS-01, the TurtleBot3's: 360 deg at 1 deg (360 beams), 0.12-3.5 m, 300 rpm
+    # (5 Hz); sigma 1.5 cm, the datasheet's +-15 mm below 0.5 m (its +-5 % beyond, a bound that
+    # includes bias, is not modelled by range). The shortest reach of the presets: most of a
+    # hall or an aisle is beyond it.
+    "lds01": LidarModel("lds01", 2.0 * np.pi, 360, 0.12, 3.5, 5.0, 0.015),
 }
