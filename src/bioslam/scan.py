@@ -21,6 +21,14 @@ def farthest_return(range_max: float) -> float:
     return range_max * (1.0 - MAX_RANGE_TOLERANCE)
 
 
+def returns(ranges: NDArray[np.floating], range_min: float, range_max: float) -> NDArray[np.bool_]:
+    """Which beams are returns: finite, above zero, at least ``range_min`` and short of the
+    maximum (:func:`farthest_return`); NaN, the REP 117 codes and zero are not."""
+    r = np.asarray(ranges)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(r) & (r > 0.0) & (r >= range_min) & (r <= farthest_return(range_max))
+
+
 @dataclass(frozen=True, eq=False)
 class LaserScan:
     """One 2D LiDAR scan.
@@ -103,10 +111,7 @@ class LaserScan:
     def valid_mask(self) -> NDArray[np.bool_]:
         """Beams with a usable return: finite, non-zero and within the range limits."""
         if self._valid is None:
-            r = self.ranges
-            with np.errstate(invalid="ignore"):
-                farthest = farthest_return(self.range_max)
-                valid = np.isfinite(r) & (r > 0.0) & (r >= self.range_min) & (r <= farthest)
+            valid = returns(self.ranges, self.range_min, self.range_max)
             object.__setattr__(self, "_valid", valid)
         return self._valid  # type: ignore[return-value]
 

@@ -22,6 +22,7 @@ walking alongside through both turns).
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numba
 import numpy as np
@@ -85,9 +86,7 @@ class BodyHits:
             return scan
         ranges = np.array(scan.ranges, copy=True)
         ranges[hidden] = np.nan
-        return LaserScan(
-            scan.stamp, ranges, scan.angles, scan.range_min, scan.range_max, scan.time_increment
-        )
+        return replace(scan, ranges=ranges)
 
     def observe(self, scan: LaserScan, heading: float) -> None:
         """Learn from ``scan`` (as measured, body hits included) taken at the unwrapped

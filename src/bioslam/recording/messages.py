@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 
 from bioslam.geometry import compose, inverse
 from bioslam.recording.topics import BASE_FRAME, MAP_FRAME, ODOM_FRAME
-from bioslam.scan import farthest_return
+from bioslam.scan import returns
 
 FloatArray = NDArray[np.float64]
 
@@ -89,8 +89,7 @@ def scan_ranges(
     """The ranges with every beam outside ``[range_min, range_max)`` (no return, REP 117
     codes, NaN, a beam reported at the maximum) set to NaN, which viewers leave out; zero is
     never a return."""
-    # NaN compares False
-    valid = (ranges >= max(range_min, 1e-30)) & (ranges <= farthest_return(range_max))
+    valid = returns(ranges, range_min, range_max)
     return np.where(valid, ranges, np.float32(np.nan)).astype(np.float32, copy=False)
 
 
