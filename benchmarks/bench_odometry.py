@@ -14,6 +14,9 @@ Cases (``--only`` picks some, ``--quick`` shortens the simulated runs to 120 s):
   and warehouse's tour (seed 7), and 300 s of the maze's and hall's adversarial and
   reversing routes (seed 8): where a corridor longer than the range is driven on the motion
   model and the few endpoints at its doors and ends.
+- ``lds01``: the TurtleBot3's ROBOTIS LDS-01 (360°, 3.5 m, 5 Hz) on the four worlds, both
+  routes, seeds 0-2: most of an aisle, a hall between its pillars or a room is beyond its
+  reach, and what it matches near the end of that reach holds the pose.
 - ``corridor``: corridors longer than the range, where only the motion model carries the
   pose: the URG-04LX out and back along a closed 24 m corridor (a door niche near each end,
   0.3 m off the centre-line), and the SICK preset along an 80 m corridor with a door every
@@ -623,6 +626,13 @@ def main() -> None:
         "shortrange": lambda: [
             sim_case(f"urg04lx {label} seed {seed}", model, 60.0, seed=seed)
             for label, model in short_range_models()
+            for seed in range(3)
+        ],
+        "lds01": lambda: [
+            sim_case(f"{world} {route} lds01, {duration:.0f} s, seed {seed}",
+                     LIDAR_PRESETS["lds01"], duration, seed=seed, world=world, route=route)
+            for world in ("maze", "rooms", "warehouse", "hall")
+            for route in ("tour", "adversarial")
             for seed in range(3)
         ],
         "shortrangeseeds": lambda: [

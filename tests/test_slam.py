@@ -462,9 +462,15 @@ def test_a_deferred_relaxation_waits_for_a_scan_the_odometry_fuses(ring_drive):
     relaxed_at = np.flatnonzero(rows[:, 0])
     for k in closed_at:
         assert relaxed_at[relaxed_at > k][0] <= k + 1 + config.view_wait
-    # relaxations on scans otherwise fast (neither fused nor looked at)
-    plain, plain_next = (int(np.sum(r[:, 0] & ~r[:, 1] & ~r[:, 2])) for r in (rows, next_scan))
-    assert plain <= plain_next // 2
+    # relaxations on scans otherwise fast (neither fused nor looked at): fewer, and each
+    # where the wait ran out (or a scan before, the proximity cue reading the map); how many
+    # fewer depends on where the closures fall (14 of 33 and 20 of 36 on two odometries)
+    plain = rows[:, 0] & ~rows[:, 1] & ~rows[:, 2]
+    plain_next = next_scan[:, 0] & ~next_scan[:, 1] & ~next_scan[:, 2]
+    assert plain.sum() < plain_next.sum()
+    for r in np.flatnonzero(plain):
+        closure = max(k for k in closed_at if k < r)
+        assert r >= closure + config.view_wait
     at_once, _ = _per_scan_work(scans, dataclasses.replace(config, defer_relaxation=False))
     np.testing.assert_allclose(at_once.trajectory().poses, slam.trajectory().poses, atol=1e-9)
 
