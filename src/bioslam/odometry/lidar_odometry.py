@@ -197,10 +197,10 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
 
     def _fusion_places(self, predicted: FloatArray) -> FloatArray | None:
         """Where the last ``fused_reach_scans`` scans were fused, in the frame of the scan
-        ``predicted`` there; None on sparse scans (:meth:`_at_scanner_rate`): a thinned
-        log's prediction is a guess, and the fusions a few metres back (a URG-04LX thinned
-        to a scan per metre down the maze's corridors, seed 6: two steps 0.3 m off, where
-        none was)."""
+        about to be matched, placed at ``predicted``. None on sparse scans
+        (:meth:`_at_scanner_rate`): a thinned log's prediction is a guess and its fusions
+        lie metres back; with the rule there, a URG-04LX thinned to a scan per metre down
+        the maze's corridors (seed 6) took two steps 0.3 m off, where it had taken none."""
         if not (self._reach_poses and self._at_scanner_rate()):
             return None
         return between(predicted, np.array(self._reach_poses))[:, :2]
@@ -208,10 +208,11 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
     def _within_fused_reach(self, pts: FloatArray, limit: float) -> NDArray[np.bool_]:
         """The endpoints ``pts`` within ``limit`` metres of where one of the last
         ``fused_reach_scans`` scans was fused: inside what that scan's beams mapped."""
-        near = np.zeros(pts.shape[0], dtype=bool)
-        for ox, oy in ([] if self._fusion_origins is None else self._fusion_origins.tolist()):
-            near |= (pts[:, 0] - ox) ** 2 + (pts[:, 1] - oy) ** 2 <= limit * limit
-        return near
+        origins = self._fusion_origins
+        if origins is None:
+            return np.zeros(pts.shape[0], dtype=bool)
+        apart = pts[:, None, :2] - origins[None, :, :]
+        return np.any(np.einsum("ijk,ijk->ij", apart, apart) <= limit * limit, axis=1)
 
     def _weakly_pinned(self) -> bool:
         """At the scanner's rate, the last match's conditioning was below
