@@ -88,15 +88,16 @@ def test_endpoints_near_the_range_are_matched_only_where_a_recent_fusion_mapped_
     scan = make_scan(lane_world(), (2.0, 0.0, 0.0), beams=360, fov=2 * math.pi * 359 / 360,
                      max_range=RANGE)  # fmt: skip
     odo.update(scan)
-    # the last fusions 0.2-1.6 m behind the robot, in its frame
-    odo._fusion_origins = np.column_stack([-0.2 * np.arange(1, 9), np.zeros(8)])
+    # the last fusions 0.2-1.6 m behind the robot, the scan predicted at the origin
+    odo._fusion_frame = np.zeros(3)
+    odo._fused_poses.extend(np.array([-0.2 * k, 0.0, 0.0]) for k in range(8, 0, -1))
     # one point behind and one ahead, both 3.2 m off: past the range rule's 2.9 m; the
     # fusions behind the robot reach the first (2.4 m from the one 1.6 m back), none the second
     pts = np.array([[-2.2, 2.3], [2.2, 2.3], [0.0, 1.0]])
     assert np.hypot(*pts[:2].T).min() > RANGE - OdometryConfig().matched_range_margin
     matched, _ = odo._matched(pts, np.ones(3, dtype=bool), scan)
     assert matched.tolist() == [[-2.2, 2.3], [0.0, 1.0]]
-    odo._fusion_origins = None  # no fusion yet: the range rule alone
+    odo._fusion_frame = None  # a sparse scan: the range rule alone
     matched, _ = odo._matched(pts, np.ones(3, dtype=bool), scan)
     assert matched.tolist() == [[0.0, 1.0]]
 

@@ -121,7 +121,8 @@ class MatchChoice:
         pose where one of the last ``echo_scans`` scans was fused: a scan placed there puts
         its beams where that scan's hit, and on a sparse map (a wall held only where the
         last scans' beams hit it) scores better for it than the true step does."""
-        return any(not self._different_start(pose, f) for f in self._fused_poses)
+        fused = self._last_fused(self.config.echo_scans)
+        return any(not self._different_start(pose, f) for f in fused)
 
     def _choose(
         self, options: list[tuple[FloatArray, MatchReport, bool]],

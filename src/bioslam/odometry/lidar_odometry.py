@@ -7,6 +7,7 @@ No file or terminal I/O here.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections import deque
 from dataclasses import dataclass, replace
@@ -119,18 +120,21 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         self._typical_free = 0.0
         self._num_scores = 0
         self._last_inserted: FloatArray | None = None
-        # where the last scans were fused, and those places in the frame of the scan being
-        # matched (``fused_reach_scans``)
-        self._reach_poses: deque[FloatArray] = deque(maxlen=c.fused_reach_scans)
-        self._fusion_origins: FloatArray | None = None
+        # where the scan being matched is predicted, at the scanner's rate: the frame the
+        # places of the last fusions are seen from (``fused_reach_scans``); None otherwise
+        self._fusion_frame: FloatArray | None = None
         # (pose, endpoints, the straight_angle they were densified with)
         self._first_fused: tuple[FloatArray, FloatArray, float] | None = None
         # the first scan's finest map with its walls on both sides of the cell edges they run
         # along, while a thinned log's second scan is matched (:meth:`_densify_first`)
         self._first_twinned: OccupancyGrid | None = None
         self._step_prior = StepPrior(c.step_prior)
-        # the poses of the last scans fused, whose beam patterns a sparse map echoes
-        self._fused_poses: deque[FloatArray] = deque(maxlen=max(c.echo_scans, 1))
+        # the poses of the last scans fused: those whose beam patterns a sparse map echoes
+        # (``echo_scans``), and whose beams mapped what is near the end of the range
+        # (``fused_reach_scans``)
+        self._fused_poses: deque[FloatArray] = deque(
+            maxlen=max(c.echo_scans, c.fused_reach_scans, 1)
+        )
         self._searched: deque[bool] = deque(maxlen=c.score_window)
         self._num_searched = 0  # of those in _searched
         self._counted_scan = 0  # the scan last counted in _searched
@@ -195,22 +199,21 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         pts = kept_rows(pts, matched)
         return pts, subsample_by_spacing(pts, c.point_spacing)
 
-    def _fusion_places(self, predicted: FloatArray) -> FloatArray | None:
-        """Where the last ``fused_reach_scans`` scans were fused, in the frame of the scan
-        about to be matched, placed at ``predicted``. None on sparse scans
-        (:meth:`_at_scanner_rate`): a thinned log's prediction is a guess and its fusions
-        lie metres back; with the rule there, a URG-04LX thinned to a scan per metre down
-        the maze's corridors (seed 6) took two steps 0.3 m off, where it had taken none."""
-        if not (self._reach_poses and self._at_scanner_rate()):
-            return None
-        return between(predicted, np.array(self._reach_poses))[:, :2]
+    def _last_fused(self, count: int) -> list[FloatArray]:
+        """The poses the last ``count`` scans were fused at (fewer at the start)."""
+        return list(itertools.islice(reversed(self._fused_poses), count))
 
     def _within_fused_reach(self, pts: FloatArray, limit: float) -> NDArray[np.bool_]:
         """The endpoints ``pts`` within ``limit`` metres of where one of the last
-        ``fused_reach_scans`` scans was fused: inside what that scan's beams mapped."""
-        origins = self._fusion_origins
-        if origins is None:
+        ``fused_reach_scans`` scans was fused, seen from the scan's predicted pose: inside
+        what that scan's beams mapped. None on sparse scans (``_fusion_frame`` None): a
+        thinned log's prediction is a guess and its fusions lie metres back; with the rule
+        there, a URG-04LX thinned to a scan per metre down the maze's corridors (seed 6)
+        took two steps 0.3 m off, where it had taken none."""
+        recent = self._last_fused(self.config.fused_reach_scans)
+        if self._fusion_frame is None or not recent:
             return np.zeros(pts.shape[0], dtype=bool)
+        origins = between(self._fusion_frame, np.array(recent))[:, :2]
         apart = pts[:, None, :2] - origins[None, :, :]
         return np.any(np.einsum("ijk,ijk->ij", apart, apart) <= limit * limit, axis=1)
 
@@ -287,7 +290,7 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         else:
             if self._first_fused is not None:
                 self._densify_first(dt)
-            self._fusion_origins = self._fusion_places(predicted)
+            self._fusion_frame = predicted if self._at_scanner_rate() else None
             found = self._match_scan(pts, keep, scan, previous, predicted, dt)
             if self._sweep_unknown(scan, dt):
                 found = self._with_sweep_settled(scan, previous, predicted, dt, found)

@@ -104,7 +104,6 @@ class LocalMap:
         self._fuse(self.pose, pts[still], normals[still])
         self._last_inserted = self.pose.copy()
         self._fused_poses.append(self._last_inserted)
-        self._reach_poses.append(self._last_inserted)
 
     def _objects(self, pose: FloatArray, pts: FloatArray) -> tuple[NDArray[np.int64], FloatArray]:
         """The objects among a scan's endpoints ``pts`` placed at ``pose``: the runs of them
