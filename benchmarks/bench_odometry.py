@@ -199,6 +199,7 @@ def summary(name: str, est: Trajectory, gt: Trajectory, ms: np.ndarray, extra: d
         "recovered": extra["odometry_recovered"],
         "ambiguous": extra["odometry_ambiguous"],
         "broken": extra["odometry_broken"],
+        "map_rebuilds": extra.get("odometry_map_rebuilds", 0),
         "max_error_change_m": round(float(change.max(initial=0.0)), 3),
         "jumps_over_0.3m": int(np.sum(change > 0.3)),
     }

@@ -227,6 +227,9 @@ def test_odometry_break_is_a_jump_between_scans_not_a_search_after_a_gap():
     assert not odometry_broke(MatchReport(), jumped, walking, 0.1, cfg)
     # a step without a match is a guess
     assert odometry_broke(MatchReport(predicted_only=True), walking, walking, 0.1, cfg)
+    # a steady step after which the map was rebuilt: the steps before were matched against
+    # a map found in conflict with the scans
+    assert odometry_broke(MatchReport(rebuilt=True), walking, walking, 0.1, cfg)
     # blind along a corridor, a step faster than any robot (0.29 m in 0.1 s) is no motion
     blind = MatchReport(degenerate=True)
     backwards = np.array([-0.29, 0.0, 0.0])

@@ -100,7 +100,8 @@ def odometry_broke(
     simulated maze the odometry jumped 0.5 m along corridors (SICK) and 1.9 m (URG-04LX),
     and closures then confirmed the jump. A step along a direction the scan does not
     constrain (``report.degenerate``) faster than ``max_speed`` (m/s) is a break too, and
-    so is a step the odometry reports it cannot vouch for (``report.broken``) or one that
+    so is a step the odometry reports it cannot vouch for (``report.broken``), one after which
+    it rebuilt its map, in conflict with the scans (``report.rebuilt``), or one that
     turns away from the motion kept only by the map's veto of a better match turned the
     other way (``report.vetoed``: a thinned SICK spinning in a ring corridor's office took
     a 120° turn for a true -60° the map rejected, and turned back 180° two seconds later;
@@ -108,7 +109,7 @@ def odometry_broke(
     ``last``: the step before as it was; given, a searched step must depart from it too
     (:func:`jumped`): where a log's stamps jitter or repeat, the motion scaled by the interval
     overshoots or falls short of a steady step (freiburg-079 jittered by 0.2 s: 147 breaks)."""
-    if report.predicted_only or report.broken:
+    if report.predicted_only or report.broken or report.rebuilt:
         return True  # no match, or one the odometry itself cannot vouch for
     if report.vetoed and _departure(step, expected)[1] > config.break_angle:
         # the veto kept a turn the motion does not bear out (kept with the motion, as by a

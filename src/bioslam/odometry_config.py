@@ -411,6 +411,20 @@ class OdometryConfig:
             nothing is replaced, and on doubts alone the thinned Intel log lost the revisits
             that keep it precise (its first 200 scans from ten starts: median 5.3 -> 10.6
             cm). ``benchmarks/README.md``, "Submaps on sparse scans".
+        rebuild_scans: on scans without a gap (not a thinned log), once the typical match
+            (the median over ``score_window``) leaves more than ``recovery_free_fraction`` of
+            its endpoints in known free space, the local map is rebuilt from those of the
+            last ``rebuild_scans`` scans fused whose own match did not
+            (:meth:`LidarOdometry._rebuild_on_conflict`; 0: never). Endpoints in known free
+            space are never fused (they are taken for people), so a map whose earlier pass
+            disagrees with the scans for good never learns what they see: pallets set down
+            along an aisle while the robot was at its far end (a 3.5 m 360° scanner: steps
+            0.8-0.9 m wrong on the way back without the rebuild, under 5 cm with it,
+            ``tests/test_odometry_rebuild.py``), or an aisle come back to after the heading
+            drifted 7° (the simulated warehouse, ``benchmarks/README.md``, "A map that
+            disagrees with the scans for good"). Half the window must be in conflict, so a
+            conflict the matches resolve (the map of an earlier pass pulling a drifted pose
+            back onto it, over tens of scans) keeps the map that resolves it.
         echo_prior_weight, echo_scans: on sparse scans a match within a finest cell of a
             pose where one of the last ``echo_scans`` scans was fused (an *echo*: standing
             still, or a step back onto an earlier scan's pose) has its step prior cost
@@ -546,6 +560,7 @@ class OdometryConfig:
     submap_travel: float = 0.0
     submap_doubts: int = 1
     submap_conflict: float = 0.1
+    rebuild_scans: int = 50
     echo_prior_weight: float | None = 0.2
     echo_scans: int = 8
     typical_search_distance: float = 0.5
@@ -578,8 +593,9 @@ class OdometryConfig:
             f"non-negative, got {(self.grazing_ratio, self.grazing_gap, self.grazing_condition)}",
         )
         _require(
-            self.fused_reach_scans >= 0,
-            f"fused_reach_scans must be non-negative, got {self.fused_reach_scans}",
+            min(self.fused_reach_scans, self.rebuild_scans) >= 0,
+            "fused_reach_scans and rebuild_scans must be non-negative, got "
+            f"{(self.fused_reach_scans, self.rebuild_scans)}",
         )
         sweep = (self.sweep_turn_rate, self.sweep_refinements, self.sweep_rates)
         _require(

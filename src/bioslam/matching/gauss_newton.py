@@ -77,6 +77,10 @@ class MatchReport:
             does not make sure. The odometry keeps its choice; where the step turns away
             from the motion, its chain is broken there for the closures
             (:func:`bioslam.closure.odometry_broke`).
+        rebuilt: the local map was rebuilt from the recent scans after this match, its
+            earlier passes in conflict with them (``OdometryConfig.rebuild_scans``): the
+            steps that led here were matched against a map found wrong, a break for the
+            closures (:func:`bioslam.closure.odometry_broke`).
         covariance: 3x3 covariance of (x, y, theta) in the map frame from the scan alone
             (:func:`match_covariance`); NaN where no match was made. Along a direction the
             scan does not constrain it is large: there the pose kept the motion prior.
@@ -98,6 +102,7 @@ class MatchReport:
     recovered: bool = False
     ambiguous: bool = False
     restarted: bool = False
+    rebuilt: bool = False
     broken: bool = False
     vetoed: bool = False
     overruled: bool = False

@@ -150,6 +150,12 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         self._conflict = False  # and the maps disagreed since (:meth:`_maps_disagree`)
         self._matched_levels: tuple[list[FloatArray], FloatArray, list[FloatArray]] | None = None
         self.num_submaps = 0
+        # the last scans fused, as (pose, endpoints, normals, whether the match was in
+        # conflict with the map), that a map in conflict with the scans is rebuilt from
+        self._recent_fusions: deque[tuple[FloatArray, FloatArray, FloatArray, bool]] = deque(
+            maxlen=c.rebuild_scans
+        )
+        self.num_rebuilds = 0
 
     # -- steps of one update ------------------------------------------------------------------
 
@@ -298,6 +304,7 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
             self.last_points = pts
             self.pose, self.last_report = found.pose, found.report
             self._note_match(found, previous)
+            self._rebuild_on_conflict(dt)
             self._first_twinned = None  # the first match is made
             if self._gapless(dt) and not self.last_report.overruled:
                 # after a gap the velocity is measured afresh, and where the map overruled
@@ -346,9 +353,10 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         """Counts over the run: scans, matches recovered by a search, scans with an
         unconstrained direction, scans with too few points (prediction only), scans whose
         search found a look-alike as plausible as the match kept, sparse scans whose match
-        the odometry cannot vouch for (``MatchReport.broken``), and the directions of the
-        scan (a degree each) learned as blocked by the robot's own body at the end
-        (:mod:`~bioslam.odometry.body_hits`)."""
+        the odometry cannot vouch for (``MatchReport.broken``), the directions of the scan
+        (a degree each) learned as blocked by the robot's own body at the end
+        (:mod:`~bioslam.odometry.body_hits`), and the times the local map was rebuilt from
+        the recent scans (``OdometryConfig.rebuild_scans``)."""
         return {
             "odometry_scans": self.num_scans,
             "odometry_recovered": self.num_recovered,
@@ -357,6 +365,7 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
             "odometry_ambiguous": self.num_ambiguous,
             "odometry_broken": self.num_broken,
             "odometry_body_directions": int(np.count_nonzero(self._body.blocked)),
+            "odometry_map_rebuilds": self.num_rebuilds,
         }
 
     def _match_scan(

@@ -104,6 +104,11 @@ class LocalMap:
         self._fuse(self.pose, pts[still], normals[still])
         self._last_inserted = self.pose.copy()
         self._fused_poses.append(self._last_inserted)
+        if self.config.rebuild_scans:
+            conflicted = self.last_report.free_fraction > self.config.recovery_free_fraction
+            self._recent_fusions.append(
+                (self._last_inserted, pts[still], normals[still], conflicted)
+            )
 
     def _objects(self, pose: FloatArray, pts: FloatArray) -> tuple[NDArray[np.int64], FloatArray]:
         """The objects among a scan's endpoints ``pts`` placed at ``pose``: the runs of them
@@ -180,6 +185,29 @@ class LocalMap:
         static = self._not_in_known_free_space(pose, pts)
         for pyramid in self._maps():
             pyramid.insert_scan(pose, pts[static], self.config.max_range, normals[static])
+
+    def _rebuild_on_conflict(self, dt: float) -> None:
+        """On a scan ``dt`` seconds after the last, no gap (:meth:`_gapless`: not a thinned
+        log, whose map is its few last scans), once the typical match (the median of the last
+        ``score_window``) leaves more than ``recovery_free_fraction`` of its endpoints in
+        known free space, the map matched against is rebuilt from the last
+        ``rebuild_scans`` scans fused whose own match did not: the map of an earlier pass,
+        drifted, stands where the scans do not, and has for half the window. Each scan is
+        fused again as it was then (what it saw in known free space kept out again, now by
+        the rebuilt map's rays), and the record of conflicted matches starts afresh."""
+        c = self.config
+        if not (c.rebuild_scans and self._gapless(dt)):
+            return
+        if self._typical_free <= c.recovery_free_fraction:
+            return
+        self.pyramid = self._new_pyramid()
+        for pose, pts, normals, conflicted in self._recent_fusions:
+            if not conflicted:
+                self._fuse(pose, pts, normals)
+        self._frees.clear()
+        self._typical_free = 0.0
+        self.num_rebuilds += 1
+        self.last_report.rebuilt = True
 
     def _maps(self) -> list[MapPyramid]:
         """The map matched against and, on sparse scans, the one that will replace it."""
