@@ -77,8 +77,8 @@ class LocalMap:
     pyramid: MapPyramid
 
     def _should_insert(self) -> bool:
-        if self._last_inserted is None:
-            return True
+        if self._last_inserted is None or self.last_report.rebuilt:
+            return True  # a rebuilt map takes the scan at once: it may hold little else
         d = between(self._last_inserted, self.pose)
         c = self.config
         return bool(math.hypot(d[0], d[1]) >= c.insert_distance or abs(d[2]) >= c.insert_angle)
