@@ -419,7 +419,7 @@ class OdometryConfig:
             space are never fused (they are taken for people), so a map whose earlier pass
             disagrees with the scans for good never learns what they see: pallets set down
             along an aisle while the robot was at its far end (a 3.5 m 360° scanner: steps
-            0.8-0.9 m wrong on the way back without the rebuild, under 5 cm with it,
+            0.8-0.9 m wrong on the way back without the rebuild, within 3 cm with it,
             ``tests/test_odometry_rebuild.py``), or an aisle come back to after the heading
             drifted 7° (the simulated warehouse, ``benchmarks/README.md``, "A map that
             disagrees with the scans for good"). Half the window must be in conflict, so a
