@@ -11,6 +11,7 @@ from _scan_world import make_scan
 
 from bioslam.geometry import between
 from bioslam.odometry import LidarOdometry, OdometryConfig
+from bioslam.odometry.local_map import Fusion
 
 RANGE = 3.5
 RATE = 5.0
@@ -90,7 +91,10 @@ def test_endpoints_near_the_range_are_matched_only_where_a_recent_fusion_mapped_
     odo.update(scan)
     # the last fusions 0.2-1.6 m behind the robot, the scan predicted at the origin
     odo._fusion_frame = np.zeros(3)
-    odo._fused_poses.extend(np.array([-0.2 * k, 0.0, 0.0]) for k in range(8, 0, -1))
+    none = np.zeros((0, 2))
+    odo._fusions.extend(
+        Fusion(np.array([-0.2 * k, 0.0, 0.0]), none, none, False) for k in range(8, 0, -1)
+    )
     # one point behind and one ahead, both 3.2 m off: past the range rule's 2.9 m; the
     # fusions behind the robot reach the first (2.4 m from the one 1.6 m back), none the second
     pts = np.array([[-2.2, 2.3], [2.2, 2.3], [0.0, 1.0]])

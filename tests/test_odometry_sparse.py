@@ -16,10 +16,13 @@ from bioslam.evaluation import rpe_distance
 from bioslam.geometry import between, compose
 from bioslam.io.logs import open_log
 from bioslam.odometry import LidarOdometry, MatchReport, OdometryConfig, turned_windows
+from bioslam.odometry.local_map import Fusion
 from bioslam.sim import LIDAR_PRESETS, LidarModel
 from bioslam.step_prior import StepPriorConfig
 from bioslam.thinning import thin_indices
 from bioslam.trajectory import Trajectory
+
+NO_POINTS = np.zeros((0, 2))
 
 
 def room_path(n: int, step: float) -> list[tuple[float, float, float]]:
@@ -200,13 +203,13 @@ def test_an_echo_of_a_fused_scan_needs_the_step_prior_in_full():
         (OdometryConfig(echo_prior_weight=None), still[0]),
     ):
         odo = sparse_odometry(config)
-        odo._fused_poses.append(previous.copy())
+        odo._fusions.append(Fusion(previous.copy(), NO_POINTS, NO_POINTS, False))
         pose, _ = odo._choose_sparse([still, on], previous, reach)
         np.testing.assert_array_equal(pose, expected)
     no_cone = OdometryConfig(step_prior=StepPriorConfig(cone_sigma=None))
     for config, expected in ((no_cone, back[0]), (OdometryConfig(), on[0])):
         odo = sparse_odometry(config)
-        odo._fused_poses.append(previous.copy())
+        odo._fusions.append(Fusion(previous.copy(), NO_POINTS, NO_POINTS, False))
         pose, _ = odo._choose_sparse([back, on], previous, reach)
         np.testing.assert_array_equal(pose, expected)
 

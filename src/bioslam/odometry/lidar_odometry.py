@@ -39,7 +39,7 @@ from bioslam.occupancy_grid import MapPyramid, OccupancyGrid, subsample_by_spaci
 from bioslam.odometry.body_hits import BodyHits
 from bioslam.odometry.choice import MatchChoice
 from bioslam.odometry.guards import PredictionGuards
-from bioslam.odometry.local_map import LocalMap
+from bioslam.odometry.local_map import Fusion, LocalMap
 from bioslam.odometry.search import WideSearch
 from bioslam.odometry.sweep import SweepMotion, sweep_seconds
 from bioslam.odometry_config import OdometryConfig
@@ -129,11 +129,12 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         # along, while a thinned log's second scan is matched (:meth:`_densify_first`)
         self._first_twinned: OccupancyGrid | None = None
         self._step_prior = StepPrior(c.step_prior)
-        # the poses of the last scans fused: those whose beam patterns a sparse map echoes
-        # (``echo_scans``), and whose beams mapped what is near the end of the range
-        # (``fused_reach_scans``)
-        self._fused_poses: deque[FloatArray] = deque(
-            maxlen=max(c.echo_scans, c.fused_reach_scans, 1)
+        # the last scans fused: those whose beam patterns a sparse map echoes
+        # (``echo_scans``), whose beams mapped what is near the end of the range
+        # (``fused_reach_scans``), and that a map in conflict with the scans is rebuilt
+        # from (``rebuild_scans``)
+        self._fusions: deque[Fusion] = deque(
+            maxlen=max(c.echo_scans, c.fused_reach_scans, c.rebuild_scans, 1)
         )
         self._searched: deque[bool] = deque(maxlen=c.score_window)
         self._num_searched = 0  # of those in _searched
@@ -150,11 +151,6 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         self._conflict = False  # and the maps disagreed since (:meth:`_maps_disagree`)
         self._matched_levels: tuple[list[FloatArray], FloatArray, list[FloatArray]] | None = None
         self.num_submaps = 0
-        # the last scans fused, as (pose, endpoints, normals, whether the match was in
-        # conflict with the map), that a map in conflict with the scans is rebuilt from
-        self._recent_fusions: deque[tuple[FloatArray, FloatArray, FloatArray, bool]] = deque(
-            maxlen=c.rebuild_scans
-        )
         self.num_rebuilds = 0
 
     # -- steps of one update ------------------------------------------------------------------
@@ -207,7 +203,7 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
 
     def _last_fused(self, count: int) -> list[FloatArray]:
         """The poses the last ``count`` scans were fused at (fewer at the start)."""
-        return list(itertools.islice(reversed(self._fused_poses), count))
+        return [fusion.pose for fusion in itertools.islice(reversed(self._fusions), count)]
 
     def _within_fused_reach(self, pts: FloatArray, limit: float) -> NDArray[np.bool_]:
         """The endpoints ``pts`` within ``limit`` metres of where one of the last

@@ -10,7 +10,9 @@ A mixin of :class:`bioslam.odometry.LidarOdometry`, whose state it reads (``conf
 from __future__ import annotations
 
 import copy
+import itertools
 import math
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -68,6 +70,17 @@ def _apart(points, k):
     return math.hypot(points[k + 1, 0] - points[k, 0], points[k + 1, 1] - points[k, 1])
 
 
+class Fusion(NamedTuple):
+    """A scan as fused into the local map: its pose, its endpoints and their normals (sensor
+    frame, those not kept out as moving objects), and whether its match left more than
+    ``recovery_free_fraction`` of its endpoints in known free space."""
+
+    pose: FloatArray
+    points: FloatArray
+    normals: FloatArray
+    conflicted: bool
+
+
 class LocalMap:
     """When and how a matched scan is fused into the local map, and the submaps of sparse
     scans."""
@@ -103,12 +116,8 @@ class LocalMap:
         still = ~self._moving_objects(self.pose, pts)
         self._fuse(self.pose, pts[still], normals[still])
         self._last_inserted = self.pose.copy()
-        self._fused_poses.append(self._last_inserted)
-        if self.config.rebuild_scans:
-            conflicted = self.last_report.free_fraction > self.config.recovery_free_fraction
-            self._recent_fusions.append(
-                (self._last_inserted, pts[still], normals[still], conflicted)
-            )
+        conflicted = self.last_report.free_fraction > self.config.recovery_free_fraction
+        self._fusions.append(Fusion(self._last_inserted, pts[still], normals[still], conflicted))
 
     def _objects(self, pose: FloatArray, pts: FloatArray) -> tuple[NDArray[np.int64], FloatArray]:
         """The objects among a scan's endpoints ``pts`` placed at ``pose``: the runs of them
@@ -201,9 +210,10 @@ class LocalMap:
         if self._typical_free <= c.recovery_free_fraction:
             return
         self.pyramid = self._new_pyramid()
-        for pose, pts, normals, conflicted in self._recent_fusions:
-            if not conflicted:
-                self._fuse(pose, pts, normals)
+        first = max(len(self._fusions) - c.rebuild_scans, 0)
+        for fusion in itertools.islice(self._fusions, first, None):
+            if not fusion.conflicted:
+                self._fuse(fusion.pose, fusion.points, fusion.normals)
         self._frees.clear()
         self._typical_free = 0.0
         self.num_rebuilds += 1
