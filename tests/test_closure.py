@@ -323,6 +323,17 @@ def test_nearest_experience_skips_places_just_left():
     assert nearest_experience(poses, travelled, np.array([0.1, 0.0]), 2.5, 0.5, 3.0) is None
 
 
+def test_nearest_experience_passes_over_places_without_a_scan():
+    poses = np.array([[0.0, 0.0, 0.0], [0.4, 0.0, 0.0], [0.9, 0.0, 0.0], [0.2, 0.1, 0.0]])
+    travelled = np.array([0.0, 0.4, 0.9, 10.0])
+    here = np.array([0.05, 0.0])
+    verifiable = np.array([False, True, True, True])
+    assert nearest_experience(poses, travelled, here, 10.0, 1.0, 3.0) == 0
+    assert nearest_experience(poses, travelled, here, 10.0, 1.0, 3.0, verifiable) == 1
+    # none usable within the radius: no candidate rather than the unusable one
+    assert nearest_experience(poses, travelled, here, 10.0, 0.3, 3.0, verifiable) is None
+
+
 def test_identical_rooms_give_only_true_closures():
     # Identical rooms off a corridor, driven like a person (off-centre, back the other way)
     # with a 180 deg scanner: every accepted closure must be the same place (to within what

@@ -900,3 +900,24 @@ def test_a_fit_under_min_score_where_the_odometry_is_lost_finds_no_partner():
     assert max(_closure_errors(slam, gt, accepted)) < 0.5
     weak = [c for c in slam.checks if c.verdict.needs_partner and c.verdict.reason == "score"]
     assert any(c.verdict.score >= slam.config.loop_closure.partner_score for c in weak)
+
+
+def test_a_return_to_the_first_place_is_checked_against_a_place_with_a_scan():
+    # One lap that ends where it began, as a robot driven back to its start: the place
+    # nearest the end is the run's first, whose swept scan is not kept; the proximity cue
+    # must propose the nearest place it can register against, not the first in vain (no
+    # check at all ran then).
+    route = ring_route(laps=1.0)
+    scans = [s for s, _ in simulate_scans(ring_world(), LIDAR_PRESETS["urg04lx"], route, seed=5)]
+    assert scans[0].time_increment > 0.0
+    slam = run(scans, SLAMConfig())
+    assert slam.cognitive_map.payloads[0] is None
+    start = slam.cognitive_map.experience_poses_view[0]
+    end = slam.trajectory().poses[-1]
+    assert np.hypot(*(end[:2] - start[:2])) < 0.3  # back at the start
+    lap_end = scans[-1].stamp - 10.0
+    returns = [
+        c for c in slam.checks
+        if c.cue == "proximity" and c.stamp > lap_end and c.experience_stamp < scans[0].stamp + 3.0
+    ]  # fmt: skip
+    assert returns and all(c.experience != 0 for c in returns)

@@ -534,22 +534,36 @@ def nearest_experience(
     now: float,
     radius: float,
     min_travel: float,
+    verifiable: NDArray[np.bool_] | None = None,
 ) -> int | None:
     """The experience nearest ``position`` (map frame) within ``radius`` metres among those
     made at least ``min_travel`` metres of travel ago (a place just left is no loop), or None.
+    ``verifiable``: which experiences a check can register against (all when None); one
+    without a scan of its own is passed over for the nearest that has one, not proposed in
+    vain (exp1.dat came back within 0.13 m of its first place, whose scan is not kept, and no
+    check ran).
     """
     old = int(np.searchsorted(travelled, now - min_travel, side="right"))
-    best = _nearest_within(poses, old, float(position[0]), float(position[1]), radius)
+    usable = _ALL_USABLE if verifiable is None else verifiable
+    best = _nearest_within(poses, old, float(position[0]), float(position[1]), radius, usable)
     return None if best < 0 else best
 
 
+_ALL_USABLE = np.zeros(0, dtype=np.bool_)
+
+
 @njit(cache=True)
-def _nearest_within(poses: FloatArray, count: int, x: float, y: float, radius: float) -> int:
+def _nearest_within(
+    poses: FloatArray, count: int, x: float, y: float, radius: float, usable: NDArray[np.bool_]
+) -> int:
     # One pass over the first ``count`` poses without temporaries: the cue is probed at
     # every scan between looks, where a few NumPy calls would cost more than the odometry.
+    # An empty ``usable`` stands for all.
     best = -1
     best_d2 = radius * radius
     for i in range(count):
+        if usable.size > 0 and not usable[i]:
+            continue
         dx = poses[i, 0] - x
         dy = poses[i, 1] - y
         d2 = dx * dx + dy * dy

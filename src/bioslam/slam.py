@@ -357,6 +357,9 @@ class BioSLAM:
         # relative poses for the closures' pairwise test (:class:`bioslam.closure.Candidate`)
         self._odometry_at = np.empty((1024, 3))
         self._doubts_at = np.empty(1024, dtype=np.int64)
+        # whether each experience keeps a scan to register against (the proximity cue
+        # proposes only those)
+        self._verifiable = np.empty(1024, dtype=np.bool_)
         self.consensus = ClosureConsensus(self.config.loop_closure)
         # the odometry's summed heading variance when each experience was made, and the
         # closures' residuals against the odometry that refine the links' noise model
@@ -584,12 +587,13 @@ class BioSLAM:
         self._stamp = scan.stamp
         self._proposed = self._nearby(self._travelled)
         known = len(self.cognitive_map)
+        payload = self._payload(scan, points)
         event = self.cognitive_map.update(
             match.view_id,
             match.is_new,
             self.pose_cells.centre(),
             scan.stamp,
-            payload=self._payload(scan, points),
+            payload=payload,
             refine=self._refiner(points) if self.config.loop_closure.refine else None,
             nearby=self._proposed,
         )
@@ -604,7 +608,7 @@ class BioSLAM:
         self._travelled += float(np.hypot(dp[0], dp[1]))
         # every experience this look made (a closure also makes one of the robot's pose)
         for experience_id in range(known, len(self.cognitive_map)):
-            self._note_made(experience_id)
+            self._note_made(experience_id, payload is not None)
             if self.self_motion.slides.open:
                 self._made_in_slide.add(experience_id)
         if event.kind != "none":
@@ -613,11 +617,11 @@ class BioSLAM:
             StepRecord(scan.stamp, match.view_id, match.is_new, event.kind, event.experience)
         )
 
-    def _note_made(self, experience_id: int) -> None:
+    def _note_made(self, experience_id: int, verifiable: bool = True) -> None:
         if experience_id >= self._made_at.size:
             for name in (
                 "_made_at", "_breaks_at", "_jumps_at", "_extent_at", "_odometry_at",
-                "_doubts_at", "_heading_var_at",
+                "_doubts_at", "_heading_var_at", "_verifiable",
             ):  # fmt: skip
                 column = getattr(self, name)
                 setattr(self, name, np.concatenate([column, np.empty_like(column)]))
@@ -628,6 +632,7 @@ class BioSLAM:
         self._breaks_at[experience_id] = self.self_motion.breaks
         self._jumps_at[experience_id] = self.self_motion.jumps
         self._extent_at[experience_id] = self.self_motion.break_extent
+        self._verifiable[experience_id] = verifiable
 
     def _nearby(self, travelled: float, pending: FloatArray | None = None) -> int | None:
         """The path-integration cue: the experience nearest the robot's map pose (the map's,
@@ -647,7 +652,7 @@ class BioSLAM:
         drift, _ = self._drift_bound(travelled, False)
         found = nearest_experience(
             cmap.experience_poses_view, self._made_at[: len(cmap)], pose, travelled,
-            min(cfg.recognition_radius, drift), cfg.min_loop_travel,
+            min(cfg.recognition_radius, drift), cfg.min_loop_travel, self._verifiable[: len(cmap)],
         )  # fmt: skip
         if found is None or found == cmap.current:
             return None
