@@ -935,3 +935,49 @@ def test_exp1_return_through_its_start_is_checked():
         if c.cue == "proximity" and 34.0 <= c.stamp - t0 <= 42.0 and c.experience_stamp - t0 < 3.0
     ]  # fmt: skip
     assert at_start and all(c.experience != 0 for c in at_start)
+
+
+
+def test_a_place_found_ambiguous_stays_so_for_the_next_metres(ring_drive, monkeypatch):
+    # Each place's first check is refused as ambiguous (as if a rival fitted nearly as
+    # well), and the next check to it may pass: within ``ambiguity_memory`` metres of travel
+    # that is the same doubt passing by a hair, and it is refused; farther on it may close.
+    # With the memory off, such checks a few scans on are accepted.
+    import bioslam.slam as slam_module
+
+    scans, _ = ring_drive
+    checked: set[int] = set()
+    real_refine = BioSLAM._refine
+
+    def first_ambiguous(self, experience, points):
+        fresh = experience.id not in checked
+        checked.add(experience.id)
+        if fresh:
+            self._note_check(experience, slam_module.Verdict(
+                False, np.zeros(3), 1.0, 1.0, "ambiguous"
+            ))  # fmt: skip
+            return None
+        return real_refine(self, experience, points)
+
+    monkeypatch.setattr(BioSLAM, "_refine", first_ambiguous)
+
+    def retried(slam: BioSLAM) -> list[float]:
+        """The metres (at the ring route's 0.4 m/s) from an ambiguous check to the accepted
+        one that directly follows it to the same place."""
+        last: dict[int, tuple[str, float]] = {}
+        gaps = []
+        for c in slam.checks:
+            reason, when = last.get(c.experience, ("", 0.0))
+            if c.verdict.accepted and reason == "ambiguous":
+                gaps.append(0.4 * (c.stamp - when))
+            last[c.experience] = (c.verdict.reason or "accepted", c.stamp)
+        return gaps
+
+    config = SLAMConfig()
+    checked.clear()
+    kept = retried(run(scans, config))
+    checked.clear()
+    off = retried(run(scans, config_from_dict({"loop_closure": {"ambiguity_memory": 0.0}}, "t")))
+    memory = config.loop_closure.ambiguity_memory
+    assert sum(g < memory for g in off) >= 10
+    assert all(g > 0.9 * memory for g in kept) and len(kept) >= 1

@@ -132,6 +132,12 @@ class LoopClosureConfig:
             pose farther than the rival distance from it is refused unless its score (share
             of points on the submap) beats the prediction's by more than this (along a
             corridor the best may sit on a plateau the scan barely constrains).
+        ambiguity_memory: a place a check found ambiguous (a rival nearly as good, or a
+            look-alike outside the window fitting as well) stays so for the checks to it
+            within this many metres of travel: the robot has not moved enough to see it
+            differently, and a later check that passes by a hair is the same doubt
+            (simulated hall, URG-04LX, reversing route: three checks to one place refused as
+            ambiguous within 1 s, the fourth accepted 0.72 m off). 0 turns it off.
         prior_tie: a best pose nearer the prediction than the rival distance must score
             more than this above the prediction refined where it stands, or the latter is
             taken (along a corridor the window's best is one point of a plateau; on the
@@ -281,6 +287,7 @@ class LoopClosureConfig:
     rival_distance: float = 0.5
     rival_angle: float = math.radians(20.0)
     max_ambiguity: float = 0.9
+    ambiguity_memory: float = 2.0
     prior_margin: float = 0.1
     prior_tie: float = 0.02
     tie_distance: float = 0.15

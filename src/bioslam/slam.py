@@ -360,6 +360,8 @@ class BioSLAM:
         # whether each experience keeps a scan to register against (the proximity cue
         # proposes only those)
         self._verifiable = np.empty(1024, dtype=np.bool_)
+        # the travel (m) at each place's last check refused as ambiguous
+        self._ambiguous_at: dict[int, float] = {}
         self.consensus = ClosureConsensus(self.config.loop_closure)
         # the odometry's summed heading variance when each experience was made, and the
         # closures' residuals against the odometry that refine the links' noise model
@@ -759,6 +761,8 @@ class BioSLAM:
             # put there (a thinned RPLIDAR lost 8.4 m and 180 degrees: two such closures
             # agreed, each as far off)
             verdict = dataclasses.replace(verdict, accepted=False, reason="score")
+        if verdict.accepted and self._recently_ambiguous(experience.id):
+            verdict = dataclasses.replace(verdict, accepted=False, reason="ambiguous")
         self._note_check(experience, verdict)
         if not verdict.accepted:
             return None
@@ -975,8 +979,17 @@ class BioSLAM:
         verdict = Verdict(False, np.asarray(predicted, dtype=np.float64), float("nan"), 0.0, reason)
         self._note_check(experience, verdict)
 
+    def _recently_ambiguous(self, experience_id: int) -> bool:
+        """Whether a check to ``experience_id`` was refused as ambiguous within the last
+        ``ambiguity_memory`` metres of travel."""
+        when = self._ambiguous_at.get(experience_id)
+        memory = self.config.loop_closure.ambiguity_memory
+        return memory > 0.0 and when is not None and self._travelled - when <= memory
+
     def _note_check(self, experience: Experience, verdict: Verdict) -> None:
         """Record a verification's outcome, with the cue that proposed the experience."""
+        if verdict.reason == "ambiguous":
+            self._ambiguous_at[experience.id] = self._travelled
         cue = "proximity" if experience.id == self._proposed else "view"
         self.checks.append(Check(self._stamp, experience.id, experience.stamp, cue, verdict))
 
