@@ -527,6 +527,10 @@ def _same_layout(a: FloatArray, b: FloatArray, tolerance: float) -> bool:
     return bool(np.all(moved <= tolerance) and np.all(turned <= tolerance))
 
 
+# the mask of :func:`nearest_experience` that stands for every experience
+_ALL_USABLE = np.zeros(0, dtype=np.bool_)
+
+
 def nearest_experience(
     poses: FloatArray,
     travelled: FloatArray,
@@ -547,9 +551,6 @@ def nearest_experience(
     usable = _ALL_USABLE if verifiable is None else verifiable
     best = _nearest_within(poses, old, float(position[0]), float(position[1]), radius, usable)
     return None if best < 0 else best
-
-
-_ALL_USABLE = np.zeros(0, dtype=np.bool_)
 
 
 @njit(cache=True)

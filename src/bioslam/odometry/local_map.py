@@ -114,10 +114,11 @@ class LocalMap:
         if dense.shape[0] != pts.shape[0]:
             pts, normals = dense, thinned_normals(dense)
         still = ~self._moving_objects(self.pose, pts)
-        self._fuse(self.pose, pts[still], normals[still])
-        self._last_inserted = self.pose.copy()
         conflicted = self.last_report.free_fraction > self.config.recovery_free_fraction
-        self._fusions.append(Fusion(self._last_inserted, pts[still], normals[still], conflicted))
+        fusion = Fusion(self.pose.copy(), pts[still], normals[still], conflicted)
+        self._fuse(fusion.pose, fusion.points, fusion.normals)
+        self._last_inserted = fusion.pose
+        self._fusions.append(fusion)
 
     def _objects(self, pose: FloatArray, pts: FloatArray) -> tuple[NDArray[np.int64], FloatArray]:
         """The objects among a scan's endpoints ``pts`` placed at ``pose``: the runs of them
