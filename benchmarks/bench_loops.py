@@ -42,7 +42,12 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np
 
 from bioslam.config import SLAMConfig, config_from_dict
-from bioslam.evaluation import evaluate
+from bioslam.evaluation import (
+    FALSE_CLOSURE_ANGLE_DEG,
+    FALSE_CLOSURE_DISTANCE,
+    evaluate,
+    relative_pose_errors,
+)
 from bioslam.geometry import between, wrap_angle
 from bioslam.odometry import LidarOdometry
 from bioslam.pipeline import warm_up
@@ -51,8 +56,8 @@ from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world, people_on_roadmap, si
 from bioslam.slam import BioSLAM
 from bioslam.trajectory import Trajectory
 
-TRUE_DISTANCE = 0.5
-TRUE_ANGLE = math.radians(20.0)
+TRUE_DISTANCE = FALSE_CLOSURE_DISTANCE
+TRUE_ANGLE = math.radians(FALSE_CLOSURE_ANGLE_DEG)
 
 
 @dataclass(frozen=True)
@@ -134,16 +139,13 @@ def _wall_ms(step: Callable[[LaserScan], object], scan: LaserScan) -> float:
 
 def closure_errors(slam: BioSLAM, gt: Trajectory) -> list[tuple[float, str, float, float]]:
     """(stamp, cue, metres, degrees) of each accepted closure's error against the truth."""
-    stamps, poses = gt.stamps, gt.poses
-    at = lambda t: poses[min(int(np.searchsorted(stamps, t)), len(stamps) - 1)]  # noqa: E731
-    out = []
-    for check in slam.checks:
-        if not check.verdict.accepted:
-            continue
-        truth = between(at(check.experience_stamp), at(check.stamp))
-        err = between(truth, check.verdict.pose)
-        out.append((check.stamp, check.cue, math.hypot(err[0], err[1]), abs(math.degrees(err[2]))))
-    return out
+    accepted = [check for check in slam.checks if check.verdict.accepted]
+    errors = relative_pose_errors(
+        [c.experience_stamp for c in accepted], [c.stamp for c in accepted],
+        [c.verdict.pose for c in accepted], gt, max_dt=math.inf,
+    )  # fmt: skip
+    pairs = zip(accepted, errors, strict=True)
+    return [(c.stamp, c.cue, float(m), float(d)) for c, (m, d) in pairs]
 
 
 def correction_lines(slam: BioSLAM, truth: Trajectory) -> list[str]:
@@ -246,7 +248,8 @@ def revisit_stages(
         if b in hit:
             stage = "recognised"
         elif b in reasons:
-            stage = "refused " + max(set(reasons[b]), key=reasons[b].count)
+            # ties to the first reason in alphabetical order, not to the set's hash order
+            stage = "refused " + max(sorted(set(reasons[b])), key=reasons[b].count)
         else:
             stage = "no check"
         out[stage] = out.get(stage, 0) + 1

@@ -14,7 +14,9 @@ from bioslam.evaluation import (
     associate,
     ate,
     evaluate,
+    off_reference,
     position_errors,
+    relative_pose_errors,
     rpe_distance,
     rpe_distance_pairs,
     rpe_time,
@@ -354,3 +356,36 @@ def test_rpe_per_second_matches_evo_rpe_per_frames_on_even_stamps(tum_pair):
 def test_eval_config_defaults_are_the_documented_ones():
     cfg = EvalConfig()
     assert (cfg.rpe_delta_m, cfg.rpe_delta_s, cfg.pairs_from_reference) == (1.0, 1.0, False)
+
+
+def _straight_reference() -> Trajectory:
+    stamps = np.arange(0.0, 10.0, 0.1)
+    poses = np.column_stack([0.5 * stamps, np.zeros_like(stamps), np.full_like(stamps, 0.3)])
+    return Trajectory(stamps, poses)
+
+
+def test_relative_pose_errors_measure_a_closure_against_the_reference():
+    ref = _straight_reference()
+    # the robot at 9 s seen from the place it was at 1 s: 4 m ahead, same heading
+    exact = between(ref.poses[10], ref.poses[90])
+    off_sideways = compose(exact, [0.0, 0.8, 0.0])
+    turned = compose(exact, [0.0, 0.0, np.radians(25.0)])
+    errors = relative_pose_errors(
+        [1.0, 1.0, 1.0, 1.0], [9.0, 9.0, 9.0, 42.0],
+        [exact, off_sideways, turned, exact], ref,
+    )  # fmt: skip
+    np.testing.assert_allclose(errors[0], [0.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(errors[1], [0.8, 0.0], atol=1e-9)
+    np.testing.assert_allclose(errors[2], [0.0, 25.0], atol=1e-9)
+    assert np.isnan(errors[3]).all()  # no reference pose near 42 s
+    assert off_reference(errors).tolist() == [False, True, True, False]
+
+
+def test_relative_pose_errors_take_the_nearest_reference_stamp():
+    ref = _straight_reference()
+    exact = between(ref.poses[10], ref.poses[90])
+    # stamps 4 ms off the reference's: still those poses; 60 ms off: none within max_dt
+    near = relative_pose_errors([1.004], [8.996], [exact], ref, max_dt=0.02)
+    far = relative_pose_errors([1.06], [9.0], [exact], ref, max_dt=0.02)
+    np.testing.assert_allclose(near[0], [0.0, 0.0], atol=1e-9)
+    assert np.isnan(far).all()

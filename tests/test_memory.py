@@ -154,7 +154,7 @@ def test_releasing_the_working_memory_writes_the_same_results(tmp_path, odometry
         k: v for k, v in kept.items() if k not in TIMING
     }
     names = ["trajectory.tum", "odometry.tum", "map.pgm", "map.yaml"]
-    names += [] if odometry_only else ["cognitive_map.json"]
+    names += [] if odometry_only else ["cognitive_map.json", "closures.csv"]
     for name in names:
         released_bytes = (tmp_path / "released" / name).read_bytes()
         assert released_bytes == (tmp_path / "kept" / name).read_bytes(), name

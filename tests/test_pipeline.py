@@ -10,6 +10,7 @@ import pytest
 from loop_world import ring_route, ring_world
 
 from bioslam.cli import main
+from bioslam.io.closures import read_closures
 from bioslam.io.mapfile import read_map
 from bioslam.io.tum import read_tum
 from bioslam.io.uncertainty import read_uncertainty
@@ -225,3 +226,34 @@ def test_figures_drawn_by_a_worker_are_those_drawn_here(short_drive, tmp_path, m
     summary, files = written("broken")  # the figures before the failing one are kept
     assert summary["figures_error"] == "ValueError: no views to draw"
     assert set(files) == {"map.png", "cognitive_map.png"}
+
+
+def test_every_closure_check_is_written_and_judged_against_the_reference(tmp_path):
+    route = ring_route(laps=1.6)
+    pairs = list(simulate_scans(ring_world(), LIDAR_PRESETS["urg04lx"], route, seed=3))
+    scans = [s for s, _ in pairs]
+    gt = Trajectory(np.array([s.stamp for s in scans]), np.array([p for _, p in pairs]))
+    options = RunOptions(progress=False)
+    result = run_slam(scans, options=options)
+    summary = write_results(result, tmp_path / "true", gt, options)
+    rows = read_closures(tmp_path / "true" / "closures.csv")
+    assert len(rows) == len(result.system.checks) > 0
+    accepted = [r for r in rows if r["accepted"] == "1"]
+    assert len(accepted) == summary["loop_closures"] >= 3
+    assert summary["loop_closures_against_reference"] == len(accepted)
+    assert summary["loop_closures_off_reference"] == 0
+    assert all(float(r["reference_error_m"]) < 0.1 for r in accepted)
+    assert all(r["reason"] for r in rows if r["accepted"] == "0")
+    # A reference that jumps 1 m sideways half-way: the closures across the jump now
+    # disagree with it by 1 m, and are counted off it; the others still agree.
+    half = 0.5 * (gt.stamps[0] + gt.stamps[-1])
+    shifted = gt.poses.copy()
+    shifted[gt.stamps >= half, 1] += 1.0
+    summary = write_results(result, tmp_path / "off", Trajectory(gt.stamps, shifted), options)
+    across = [r for r in accepted if float(r["experience_stamp"]) < half <= float(r["stamp"])]
+    assert 0 < len(across) < len(accepted)
+    assert summary["loop_closures_off_reference"] == len(across)
+    # without a reference the table has no reference columns
+    write_results(result, tmp_path / "none", None, options)
+    header = (tmp_path / "none" / "closures.csv").read_text().splitlines()[0]
+    assert "reference_error_m" not in header and header.startswith("stamp,experience,")

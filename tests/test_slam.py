@@ -11,7 +11,7 @@ from _io_data import shared_log
 from loop_world import ring_route, ring_world
 
 from bioslam.config import LoopClosureConfig, SLAMConfig, config_from_dict
-from bioslam.evaluation import ate
+from bioslam.evaluation import ate, relative_pose_errors
 from bioslam.geometry import between
 from bioslam.io.logs import open_log
 from bioslam.odometry import MatchReport, OdometryConfig
@@ -150,12 +150,11 @@ def _jumping(slam: BioSLAM, at: int, jump: float, recovered: bool = True) -> Non
 
 def _closure_errors(slam: BioSLAM, gt: Trajectory, checks: list) -> list[float]:
     """Each check's registered pose against the truth's relative pose (m)."""
-    at = lambda t: gt.poses[min(int(np.searchsorted(gt.stamps, t)), len(gt) - 1)]  # noqa: E731
-    errors = []
-    for check in checks:
-        err = between(between(at(check.experience_stamp), at(check.stamp)), check.verdict.pose)
-        errors.append(float(np.hypot(err[0], err[1])))
-    return errors
+    errors = relative_pose_errors(
+        [c.experience_stamp for c in checks], [c.stamp for c in checks],
+        [c.verdict.pose for c in checks], gt, max_dt=np.inf,
+    )  # fmt: skip
+    return errors[:, 0].tolist()
 
 
 @pytest.mark.parametrize("jump", [0.6, 2.8, 4.0])

@@ -372,3 +372,58 @@ def evaluate(est: Trajectory, gt: Trajectory, config: EvalConfig | None = None) 
         "rpe_1s_rot_deg": r_s["rot_rmse_deg"],
         "pairs": a["pairs"],
     }
+
+
+#: a loop closure whose measured relative pose is farther than this from the reference's
+#: (metres, degrees) is counted false (the loop-closure issue's precision: 0.5 m, 20°)
+FALSE_CLOSURE_DISTANCE = 0.5
+FALSE_CLOSURE_ANGLE_DEG = 20.0
+
+
+def off_reference(errors: ArrayLike) -> NDArray[np.bool_]:
+    """Which rows of :func:`relative_pose_errors` are beyond :data:`FALSE_CLOSURE_DISTANCE`
+    or :data:`FALSE_CLOSURE_ANGLE_DEG` (False where the reference has no pose)."""
+    e = np.asarray(errors, dtype=np.float64).reshape(-1, 2)
+    with np.errstate(invalid="ignore"):
+        return (e[:, 0] > FALSE_CLOSURE_DISTANCE) | (e[:, 1] > FALSE_CLOSURE_ANGLE_DEG)
+
+
+def relative_pose_errors(
+    first_stamps: ArrayLike,
+    second_stamps: ArrayLike,
+    measured: ArrayLike,
+    reference: Trajectory,
+    max_dt: float = EvalConfig.max_dt,
+) -> FloatArray:
+    """(N, 2) position (m) and heading (degrees) errors of ``measured`` relative poses (N, 3:
+    the pose at each of ``second_stamps`` in the frame of the pose at ``first_stamps``, as a
+    loop closure measures the robot in a place's frame) against ``reference``'s relative pose
+    between the same stamps, each taken at the reference's nearest stamp; NaN where the
+    reference has no pose within ``max_dt`` seconds of either stamp."""
+    first = np.asarray(first_stamps, dtype=np.float64).reshape(-1)
+    second = np.asarray(second_stamps, dtype=np.float64).reshape(-1)
+    poses = np.asarray(measured, dtype=np.float64).reshape(-1, 3)
+    out = np.full((len(poses), 2), np.nan)
+    if len(reference) == 0 or len(poses) == 0:
+        return out
+    i, ok_i = _nearest_reference(reference.stamps, first, max_dt)
+    j, ok_j = _nearest_reference(reference.stamps, second, max_dt)
+    ok = ok_i & ok_j
+    truth = between(reference.poses[i[ok]], reference.poses[j[ok]])
+    err = between(truth, poses[ok]).reshape(-1, 3)
+    out[ok, 0] = np.hypot(err[:, 0], err[:, 1])
+    out[ok, 1] = np.degrees(np.abs(wrap_angle(err[:, 2])))
+    return out
+
+
+def _nearest_reference(
+    stamps: FloatArray, wanted: FloatArray, max_dt: float
+) -> tuple[IntArray, NDArray[np.bool_]]:
+    """Index of the nearest of sorted ``stamps`` to each of ``wanted``, and whether it lies
+    within ``max_dt``."""
+    last = len(stamps) - 1
+    upper = np.minimum(np.searchsorted(stamps, wanted), last)
+    lower = np.maximum(upper - 1, 0)
+    nearer_upper = np.abs(stamps[upper] - wanted) < np.abs(stamps[lower] - wanted)
+    idx = np.where(nearer_upper, upper, lower).astype(np.intp)
+    return idx, np.abs(stamps[idx] - wanted) <= max_dt

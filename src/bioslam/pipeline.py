@@ -23,9 +23,10 @@ from tqdm import tqdm
 from bioslam import signals
 from bioslam.cognitive_map import CognitiveMap, configured_noise
 from bioslam.config import SLAMConfig
-from bioslam.evaluation import evaluate, position_errors
+from bioslam.evaluation import evaluate, off_reference, position_errors, relative_pose_errors
 from bioslam.geometry import Pose2D, compose, inverse
 from bioslam.growing import GrowingArray, Rows, RowsFactory
+from bioslam.io.closures import write_closures
 from bioslam.io.forked import ChildEndedError
 from bioslam.io.jsonio import atomic_write_bytes, write_json, write_json_streamed
 from bioslam.io.mapfile import OccupancyImage, write_map
@@ -585,6 +586,7 @@ def write_results(
         if options.release:
             system.release_scans()  # the trajectories are made: the figures go without them
         summary.update(system.summary())
+        reference = gt
         if gt is not None and len(trajectory) > 1:
             gt = _evaluate_into(summary, trajectory, odometry, gt)
         # the worker draws these while the files below and the map are written
@@ -595,6 +597,8 @@ def write_results(
         if isinstance(system, BioSLAM):
             out.save("cognitive_map.json", write_json_streamed,
                      system.cognitive_map.json_fields())  # fmt: skip
+            errors = _closure_errors(system, reference, summary)
+            out.save("closures.csv", write_closures, system.checks, errors)
     if len(trajectory):
         _write_map_and_figures(result, out, trajectory, odometry, gt, options, summary, sent)
     if result.interrupted or signals.received() is not None:
@@ -609,6 +613,29 @@ def write_results(
     if out.errors:
         summary["write_errors"] = list(out.errors)
     return summary
+
+
+def _closure_errors(
+    system: BioSLAM, reference: Trajectory | None, summary: dict[str, Any]
+) -> NDArray | None:
+    """Each loop-closure check's measured pose against ``reference``
+    (:func:`bioslam.evaluation.relative_pose_errors`), or None without one; the accepted
+    closures' count off it (:func:`bioslam.evaluation.off_reference`) and their median
+    error go into ``summary``."""
+    if reference is None:
+        return None
+    checks = system.checks
+    errors = relative_pose_errors(
+        [c.experience_stamp for c in checks], [c.stamp for c in checks],
+        [c.verdict.pose for c in checks], reference,
+    )  # fmt: skip
+    accepted = np.array([c.verdict.accepted for c in checks], dtype=bool)
+    judged = accepted & np.isfinite(errors[:, 0])
+    summary["loop_closures_against_reference"] = int(judged.sum())
+    summary["loop_closures_off_reference"] = int((off_reference(errors) & judged).sum())
+    if judged.any():
+        summary["loop_closure_reference_error_median_m"] = float(np.median(errors[judged, 0]))
+    return errors
 
 
 def _evaluate_into(

@@ -33,10 +33,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "run",
         help="run SLAM on a log (CARMEN, ROS 1/2 bag, BreezySLAM .dat)",
         description="Run the LiDAR-only biologically-inspired SLAM on a log and write "
-        "trajectory.tum, odometry.tum, cognitive_map.json, map.pgm/map.yaml, figures/ and "
-        "summary.json into --out. With --gt (or a log that carries corrected poses) the "
-        "trajectory is evaluated too. Exit codes: 0 success, 1 incomplete result (written), "
-        "2 invalid input (nothing run), 130/143 interrupted (results so far written).",
+        "trajectory.tum, odometry.tum, cognitive_map.json, closures.csv, map.pgm/map.yaml, "
+        "figures/ and summary.json into --out. With --gt (or a log that carries corrected "
+        "poses) the trajectory is evaluated too. Exit codes: 0 success, 1 incomplete result "
+        "(written), 2 invalid input (nothing run), 130/143 interrupted (results so far "
+        "written).",
     )
     parser.add_argument("input", type=Path, help="log file or ROS 2 bag directory")
     parser.add_argument("--out", type=Path, required=True, help="output directory")
