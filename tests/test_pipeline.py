@@ -10,7 +10,8 @@ import pytest
 from loop_world import ring_route, ring_world
 
 from bioslam.cli import main
-from bioslam.io.closures import read_closures
+from bioslam.closure import Check, Verdict
+from bioslam.io.closures import read_closures, write_closures
 from bioslam.io.mapfile import read_map
 from bioslam.io.tum import read_tum
 from bioslam.io.uncertainty import read_uncertainty
@@ -257,3 +258,16 @@ def test_every_closure_check_is_written_and_judged_against_the_reference(tmp_pat
     write_results(result, tmp_path / "none", None, options)
     header = (tmp_path / "none" / "closures.csv").read_text().splitlines()[0]
     assert "reference_error_m" not in header and header.startswith("stamp,experience,")
+
+
+def test_a_check_refused_before_its_registration_leaves_its_score_empty(tmp_path):
+    unregistered = Verdict(False, np.array([1.0, -2.0, 0.5]), float("nan"), 0.0, "beyond drift")
+    refused = Check(12.5, 7, 3.25, "proximity", unregistered)
+    accepted = Check(13.0, 7, 3.25, "view", Verdict(True, np.array([0.1, 0.2, -0.1]), 0.93, 0.4))
+    errors = np.array([[np.nan, np.nan], [0.02, 1.5]])
+    write_closures(tmp_path / "c.csv", [refused, accepted], errors)
+    first, second = read_closures(tmp_path / "c.csv")
+    assert (first["accepted"], first["reason"], first["score"]) == ("0", "beyond drift", "")
+    assert first["reference_error_m"] == "" and float(first["theta_deg"]) == pytest.approx(28.648)
+    assert (second["accepted"], second["reason"], second["score"]) == ("1", "", "0.9300")
+    assert float(second["reference_error_deg"]) == pytest.approx(1.5)
