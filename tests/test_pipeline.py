@@ -254,10 +254,15 @@ def test_every_closure_check_is_written_and_judged_against_the_reference(tmp_pat
     across = [r for r in accepted if float(r["experience_stamp"]) < half <= float(r["stamp"])]
     assert 0 < len(across) < len(accepted)
     assert summary["loop_closures_off_reference"] == len(across)
-    # without a reference the table has no reference columns
-    write_results(result, tmp_path / "none", None, options)
-    header = (tmp_path / "none" / "closures.csv").read_text().splitlines()[0]
-    assert "reference_error_m" not in header and header.startswith("stamp,experience,")
+    # without a reference, or with one the run cannot be evaluated against (its stamps out
+    # of order), the table has no reference columns
+    backwards = Trajectory(gt.stamps[::-1].copy(), gt.poses[::-1].copy())
+    for name, reference in (("none", None), ("backwards", backwards)):
+        summary = write_results(result, tmp_path / name, reference, options)
+        header = (tmp_path / name / "closures.csv").read_text().splitlines()[0]
+        assert "reference_error_m" not in header and header.startswith("stamp,experience,")
+        assert "loop_closures_off_reference" not in summary
+    assert "evaluation_error" in summary
 
 
 def test_a_check_refused_before_its_registration_leaves_its_score_empty(tmp_path):

@@ -586,7 +586,6 @@ def write_results(
         if options.release:
             system.release_scans()  # the trajectories are made: the figures go without them
         summary.update(system.summary())
-        reference = gt
         if gt is not None and len(trajectory) > 1:
             gt = _evaluate_into(summary, trajectory, odometry, gt)
         # the worker draws these while the files below and the map are written
@@ -597,7 +596,7 @@ def write_results(
         if isinstance(system, BioSLAM):
             out.save("cognitive_map.json", write_json_streamed,
                      system.cognitive_map.json_fields())  # fmt: skip
-            errors = _closure_errors(system, reference, summary)
+            errors = _closure_errors(system, gt, summary)
             out.save("closures.csv", write_closures, system.checks, errors)
     if len(trajectory):
         _write_map_and_figures(result, out, trajectory, odometry, gt, options, summary, sent)
@@ -619,7 +618,8 @@ def _closure_errors(
     system: BioSLAM, reference: Trajectory | None, summary: dict[str, Any]
 ) -> NDArray | None:
     """Each loop-closure check's measured pose against ``reference``
-    (:func:`bioslam.evaluation.relative_pose_errors`), or None without one; the accepted
+    (:func:`bioslam.evaluation.relative_pose_errors`), or None without one (or with one the
+    trajectory could not be evaluated against: unsorted, non-finite); the accepted
     closures' count off it (:func:`bioslam.evaluation.off_reference`) and their median
     error go into ``summary``."""
     if reference is None:
