@@ -406,9 +406,9 @@ def relative_pose_errors(
     out = np.full((len(poses), 2), np.nan)
     if len(reference) == 0 or len(poses) == 0:
         return out
-    i, ok_i = _nearest_reference(reference.stamps, first, max_dt)
-    j, ok_j = _nearest_reference(reference.stamps, second, max_dt)
-    ok = ok_i & ok_j
+    i = _nearest_reference(reference.stamps, first, max_dt)
+    j = _nearest_reference(reference.stamps, second, max_dt)
+    ok = (i >= 0) & (j >= 0)
     truth = between(reference.poses[i[ok]], reference.poses[j[ok]])
     err = between(truth, poses[ok]).reshape(-1, 3)
     out[ok, 0] = np.hypot(err[:, 0], err[:, 1])
@@ -416,14 +416,11 @@ def relative_pose_errors(
     return out
 
 
-def _nearest_reference(
-    stamps: FloatArray, wanted: FloatArray, max_dt: float
-) -> tuple[IntArray, NDArray[np.bool_]]:
-    """Index of the nearest of sorted ``stamps`` to each of ``wanted``, and whether it lies
-    within ``max_dt``."""
-    last = len(stamps) - 1
-    upper = np.minimum(np.searchsorted(stamps, wanted), last)
-    lower = np.maximum(upper - 1, 0)
-    nearer_upper = np.abs(stamps[upper] - wanted) < np.abs(stamps[lower] - wanted)
-    idx = np.where(nearer_upper, upper, lower).astype(np.intp)
-    return idx, np.abs(stamps[idx] - wanted) <= max_dt
+def _nearest_reference(stamps: FloatArray, wanted: FloatArray, max_dt: float) -> IntArray:
+    """Index of the nearest of sorted ``stamps`` to each of ``wanted`` (evo's match,
+    :func:`_match_nearest`), -1 where none lies within ``max_dt``."""
+    idx = np.full(wanted.shape, -1, dtype=np.intp)
+    if wanted.size:
+        matched, nearest = _match_nearest(wanted, stamps, max_dt)
+        idx[matched] = nearest
+    return idx
