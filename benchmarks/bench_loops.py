@@ -15,6 +15,12 @@ For each case (world, scanner, route):
   pass (median over the bin): up to 30 deg, 30-90 deg, and beyond 90 deg (the other way: a
   180 or 270 deg scanner then shares little or nothing of its field of view with it);
 * ATE RMSE of the full system and of its own odometry;
+* revisit sharpness (:mod:`bioslam.consistency`): at the scans where the robot came back
+  within 3 m of a pass 30 s or more earlier (chosen on the truth, a log's reference, or the
+  full system's trajectory when the log has none), the median distance of their endpoints to
+  the other pass's, placed by each trajectory: the median over those scans, and at how many
+  of them the full system's map is sharper than the other's. It needs no reference, and a
+  log's reference is judged by it like any trajectory;
 * per-scan wall time: the full system's median, p99 and mean, and the odometry alone on the
   same scans, run interleaved with it scan by scan (ratios of medians and of means), after
   the warm-up ``bioslam run`` does before its first scan (every compiled kernel's first call,
@@ -42,6 +48,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np
 
 from bioslam.config import SLAMConfig, config_from_dict
+from bioslam.consistency import find_revisits, revisit_residuals
 from bioslam.evaluation import (
     FALSE_CLOSURE_ANGLE_DEG,
     FALSE_CLOSURE_DISTANCE,
@@ -146,6 +153,29 @@ def closure_errors(slam: BioSLAM, gt: Trajectory) -> list[tuple[float, str, floa
     )  # fmt: skip
     pairs = zip(accepted, errors, strict=True)
     return [(c.stamp, c.cue, float(m), float(d)) for c, (m, d) in pairs]
+
+
+def sharpness_line(slam: BioSLAM, scans: list, reference: Trajectory | None, name: str) -> str:
+    """Revisit sharpness of the full system's map, its odometry's and ``reference``'s (called
+    ``name``; None: the revisits chosen on the full system's trajectory)."""
+    stamps = np.array([scan.stamp for scan in scans])
+    placed = {"full": slam.trajectory(), "odometry": slam.odometry_trajectory()}
+    if reference is not None:
+        placed[name] = reference
+    poses = {key: traj.at(stamps).poses for key, traj in placed.items()}
+    revisits = find_revisits(poses[name if reference is not None else "full"], stamps)
+    if not revisits:
+        return "  revisit sharpness: no revisit"
+    endpoints = [scan.endpoints() for scan in scans]
+    residual = {key: revisit_residuals(endpoints, p, revisits) for key, p in poses.items()}
+    judged = ~np.isnan(residual["full"])
+    medians = ", ".join(f"{key} {1e3 * np.nanmedian(r):.1f}" for key, r in residual.items())
+    sharper = ", ".join(
+        f"than {key} at {np.mean(residual['full'][judged] < r[judged]):.0%}"
+        for key, r in residual.items() if key != "full"
+    )
+    return (f"  revisit sharpness over {int(judged.sum())} scans, median mm: {medians}; "
+            f"full sharper {sharper}")
 
 
 def correction_lines(slam: BioSLAM, truth: Trajectory) -> list[str]:
@@ -294,6 +324,7 @@ def report(
         + ", ".join(f"{k} {v}" for k, v in sorted(stages.items(), key=lambda kv: -kv[1])),
         f"  ATE RMSE full {100 * full:.2f} cm, odometry {100 * odo:.2f} cm",
         *correction_lines(slam, gt),
+        sharpness_line(slam, scans, gt, "truth"),
         f"  per-scan ms full median {np.median(full_ms):.2f} p99 {np.percentile(full_ms, 99):.2f};"
         f" odometry median {np.median(odo_ms):.2f} p99 {np.percentile(odo_ms, 99):.2f};"
         f" ratio of medians {np.median(full_ms) / np.median(odo_ms):.2f};"
@@ -334,6 +365,7 @@ def report_log(path: str, config: SLAMConfig) -> str:
         f"reference {spread}",
         f"  ATE RMSE full {100 * full:.2f} cm, odometry {100 * odo:.2f} cm",
         *correction_lines(slam, reference),
+        sharpness_line(slam, scans, reference, "reference"),
         cost_line(full_ms, odo_ms),
     ])
 
@@ -381,6 +413,7 @@ def report_loop_gap(
             + (f" (not measured: {m['reason']})" if m.get("reason") else "")
             for name, m in zip(("full", "odometry"), misfits, strict=True)
         ),
+        sharpness_line(slam, scans, None, ""),
         cost_line(full_ms, odo_ms),
     ])
 
