@@ -276,3 +276,41 @@ def test_a_check_refused_before_its_registration_leaves_its_score_empty(tmp_path
     assert first["reference_error_m"] == "" and float(first["theta_deg"]) == pytest.approx(28.648)
     assert (second["accepted"], second["reason"], second["score"]) == ("1", "", "0.9300")
     assert float(second["reference_error_deg"]) == pytest.approx(1.5)
+
+
+def test_a_logs_corrected_poses_are_drawn_as_a_reference_not_as_ground_truth(
+    short_drive, tmp_path, monkeypatch, capsys
+):
+    """A log's corrected poses are another SLAM system's estimate: the figures that draw them
+    or the errors against them say so; a simulation's poses (or ``--gt``) are the truth."""
+    from _log_fixtures import carmen_text
+
+    from bioslam.plots import GROUND_TRUTH, LOG_REFERENCE, figures
+
+    drawn: dict[str, list[str]] = {}
+    against = ("plot_cognitive_map", "plot_error_over_time", "plot_views_and_errors",
+               "plot_mapping_progress")  # fmt: skip
+    def recording(name):
+        plot = getattr(figures, name)
+
+        def record(*args, **kwargs):
+            drawn.setdefault(name, []).append(args[-1])  # the label: the jobs' last argument
+            return plot(*args, **kwargs)
+
+        return record
+
+    for name in against:
+        monkeypatch.setattr(figures, name, recording(name))
+    scans, gt = short_drive
+    end = float(gt.stamps[-1] - gt.stamps[0])
+    result = run_slam(scans, options=RunOptions(progress=False, snapshot_times=(5.0, end)))
+    write_results(result, tmp_path / "sim", gt, RunOptions(progress=False))
+    assert drawn == {name: [GROUND_TRUTH] for name in against}
+    drawn.clear()
+    log = tmp_path / "robot-corrected.log"  # named as the Radish data sets' corrected logs
+    log.write_text(carmen_text(scans=40), encoding="latin-1")
+    assert main(["run", str(log), "--out", str(tmp_path / "log"), "--no-progress",
+                 "--one-process"]) == 0  # fmt: skip
+    assert (tmp_path / "log" / "reference.tum").is_file()
+    assert drawn["plot_cognitive_map"] == [LOG_REFERENCE]
+    assert drawn["plot_error_over_time"] == [LOG_REFERENCE]

@@ -38,6 +38,7 @@ from bioslam.link_noise import LinkNoiseEstimator
 from bioslam.memory import drop_file_pages, release_free_memory
 from bioslam.occupancy_grid import OccupancyGrid
 from bioslam.odometry import LidarOdometry, register_scans
+from bioslam.plots import GROUND_TRUTH
 from bioslam.scan import LaserScan
 from bioslam.slam import (
     BioSLAM,
@@ -103,6 +104,10 @@ class RunOptions:
         figure_worker: draws the figures in a child process (:mod:`bioslam.plots.worker`,
             started by ``bioslam run`` with the command), beside the writing of the other
             outputs. None: drawn in this process.
+        reference_label: what the figures call the trajectory the run is evaluated against:
+            the ground truth (a simulation's, or ``--gt``), or a log's corrected poses,
+            another SLAM system's estimate with errors of its own
+            (:data:`bioslam.plots.LOG_REFERENCE`).
     """
 
     odometry_only: bool = False
@@ -120,6 +125,7 @@ class RunOptions:
     scan_store_dir: Path | None = None
     drop_library_pages: bool = False
     figure_worker: FigureWorker | None = None
+    reference_label: str = GROUND_TRUTH
 
 
 class OdometryOnly:
@@ -589,7 +595,7 @@ def write_results(
         if gt is not None and len(trajectory) > 1:
             gt = _evaluate_into(summary, trajectory, odometry, gt)
         # the worker draws these while the files below and the map are written
-        sent = _send_figures(options.figure_worker, result, trajectory, odometry, gt)
+        sent = _send_figures(options, result, trajectory, odometry, gt)
         out.save("trajectory.tum", write_tum, trajectory)
         out.save("odometry.tum", write_tum, odometry)
         out.save("odometry_uncertainty.csv", write_uncertainty, *uncertainty)
@@ -673,7 +679,8 @@ def _write_map_and_figures(
                 release_free_memory()
             out.write(["map.pgm", "map.yaml"], lambda: write_map(out.path, image))
             if sent is None or not _write_drawn(sent, out, image, trajectory, summary):
-                _write_figures(result, out, trajectory, odometry, gt, image)
+                label = options.reference_label
+                _write_figures(result, out, trajectory, odometry, gt, image, label)
     except KeyboardInterrupt:
         result.interrupted = True
     except Exception as exc:  # a figure must not cost the summary
@@ -685,16 +692,21 @@ def _map_figure(image: OccupancyImage, trajectory: Trajectory) -> Job:
 
 
 def _other_figures(
-    result: RunResult, trajectory: Trajectory, odometry: Trajectory, gt: Trajectory | None
+    result: RunResult,
+    trajectory: Trajectory,
+    odometry: Trajectory,
+    gt: Trajectory | None,
+    label: str,
 ) -> Iterator[Job]:
     """The figures after the map's, in order, each made when asked for (an error in making
-    one leaves those before it to draw)."""
+    one leaves those before it to draw); ``gt`` is called ``label`` in them."""
     system = result.system
     if not isinstance(system, BioSLAM):
         return
     final = cognitive_map_snapshot(system, float(trajectory.stamps[-1] - trajectory.stamps[0]))
     aligned_gt = _gt_in_map_frame(trajectory, gt) if gt is not None else None
-    yield "cognitive_map.png", "plot_cognitive_map", (final.nodes_xy, final.links, aligned_gt)
+    yield "cognitive_map.png", "plot_cognitive_map", (
+        final.nodes_xy, final.links, aligned_gt, "Cognitive map", label)
     records = system.records
     stamps, view_ids = records.stamps.view(), records.view_ids.view()
     new_mask = records.new_views.view()
@@ -703,12 +715,12 @@ def _other_figures(
         return
     err_t, err = position_errors(trajectory, gt)
     odo_t, odo_err = position_errors(odometry, gt)
-    yield "error.png", "plot_error_over_time", (err_t, err, (odo_t, odo_err))
+    yield "error.png", "plot_error_over_time", (err_t, err, (odo_t, odo_err), None, label)
     yield "views_and_error.png", "plot_views_and_errors", (
-        stamps, view_ids, new_mask, err_t, err, (odo_t, odo_err))
+        stamps, view_ids, new_mask, err_t, err, (odo_t, odo_err), label)
     if result.snapshots:
         yield "mapping_progress.png", "plot_mapping_progress", (
-            [(s.elapsed, s.nodes_xy, s.links) for s in result.snapshots], aligned_gt)
+            [(s.elapsed, s.nodes_xy, s.links) for s in result.snapshots], aligned_gt, label)
 
 
 def _write_figures(
@@ -718,12 +730,14 @@ def _write_figures(
     odometry: Trajectory,
     gt: Trajectory | None,
     image: OccupancyImage,
+    label: str,
 ) -> None:
-    """Draw the figures in this process, in order; the first failure ends them."""
+    """Draw the figures in this process, in order (``gt`` called ``label``); the first failure
+    ends them."""
     # matplotlib costs ~50 MB and a second to import: only once the run is over
     from bioslam.plots import figures
 
-    jobs = _other_figures(result, trajectory, odometry, gt)
+    jobs = _other_figures(result, trajectory, odometry, gt, label)
     for name, plot, args in itertools.chain([_map_figure(image, trajectory)], jobs):
         out.save(f"figures/{name}", getattr(figures, plot), *args)
         release_free_memory()  # the next figure is drawn on what this one left (module doc)
@@ -740,20 +754,21 @@ class _SentFigures:
 
 
 def _send_figures(
-    worker: FigureWorker | None,
+    options: RunOptions,
     result: RunResult,
     trajectory: Trajectory,
     odometry: Trajectory,
     gt: Trajectory | None,
 ) -> _SentFigures | None:
-    """Send the figures that need no map to ``worker``; None: none, or the worker is gone
-    (the figures are then drawn here)."""
+    """Send the figures that need no map to the options' figure worker; None: none, or the
+    worker is gone (the figures are then drawn here)."""
+    worker = options.figure_worker
     if worker is None or not len(trajectory):
         return None
     jobs: list[Job] = []
     failure = None
     try:
-        jobs.extend(_other_figures(result, trajectory, odometry, gt))
+        jobs.extend(_other_figures(result, trajectory, odometry, gt, options.reference_label))
     except Exception as exc:  # reported after the figures before it, as when drawn here
         failure = f"{type(exc).__name__}: {exc}"
     try:

@@ -179,7 +179,7 @@ def _run(task: Task, log_path: Path, out_path: Path) -> dict[str, Any]:
         run_status,
         source_skipped,
     )
-    from bioslam.cli.run import reference_trajectory
+    from bioslam.cli.run import reference_label, reference_trajectory
     from bioslam.io.logs import open_log
     from bioslam.io.outdir import OutputDir
     from bioslam.pipeline import RunOptions, run_slam, write_results
@@ -208,6 +208,7 @@ def _run(task: Task, log_path: Path, out_path: Path) -> dict[str, Any]:
     }
     if reference_name:
         extra["reference"] = reference_name
+    options.reference_label = reference_label(reference_name)
     summary = write_results(result, out, reference, options, extra)
     problems = [f"run stopped early ({result.error})"] if result.error else []
     # a prefix (max_scans) is a complete read of what was asked for

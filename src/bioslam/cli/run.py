@@ -79,6 +79,14 @@ def reference_trajectory(
     return None, None
 
 
+def reference_label(reference_name: str | None) -> str:
+    """What the figures call the reference named ``reference_name`` by
+    :func:`reference_trajectory`: a log's corrected poses are no ground truth."""
+    from bioslam.plots import GROUND_TRUTH, LOG_REFERENCE
+
+    return LOG_REFERENCE if reference_name == "log" else GROUND_TRUTH
+
+
 def run_command(args: argparse.Namespace) -> dict[str, Any]:
     # Imported here so that `bioslam --help` and the light subcommands start fast.
     from bioslam.io.forked import can_fork
@@ -161,6 +169,7 @@ def _run(args: argparse.Namespace, source: Any, config: Any, gt: Trajectory | No
         extra.update(session.summary())
         if reference_name:
             extra["reference"] = reference_name
+        options.reference_label = reference_label(reference_name)
         summary = write_results(result, out, reference, options, extra)
         processed = summary["scans"]
         for line in read_report(source, processed):

@@ -5,3 +5,8 @@ over time, mapping progress as the paper's Fig. 5, occupancy map); ``boundary`` 
 pictures. Plot functions take plain data, write one file and return its path; they never compute
 SLAM state themselves.
 """
+
+#: What the figures call the trajectory a run is evaluated against, unless told otherwise.
+GROUND_TRUTH = "ground truth"
+#: ... and a log's corrected poses: another SLAM system's estimate, with errors of its own.
+LOG_REFERENCE = "log's corrected poses"

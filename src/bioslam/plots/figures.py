@@ -24,6 +24,7 @@ from matplotlib.figure import Figure
 from numpy.typing import ArrayLike, NDArray
 
 from bioslam.io.jsonio import atomic_write_bytes
+from bioslam.plots import GROUND_TRUTH
 
 FloatArray = NDArray[np.float64]
 Link = tuple[int, int, Any]
@@ -109,12 +110,17 @@ def _split_links(links: Sequence[Link], n_nodes: int) -> tuple[NDArray[np.intp],
 
 
 def _draw_map(
-    ax: Axes, nodes_xy: FloatArray, links: Sequence[Link], gt_xy: FloatArray | None = None
+    ax: Axes,
+    nodes_xy: FloatArray,
+    links: Sequence[Link],
+    gt_xy: FloatArray | None = None,
+    gt_label: str = GROUND_TRUTH,
 ) -> None:
-    """Experience nodes, ordinary links, loop links on top, and the ground truth underneath."""
+    """Experience nodes, ordinary links, loop links on top, and the ground truth (or the
+    reference called ``gt_label``) underneath."""
     cfg = CONFIG
     if gt_xy is not None and len(gt_xy):
-        ax.plot(*gt_xy.T, color=cfg.truth_colour, lw=0.8, ls="--", alpha=0.6, label="ground truth")
+        ax.plot(*gt_xy.T, color=cfg.truth_colour, lw=0.8, ls="--", alpha=0.6, label=gt_label)
     ends, loops = _split_links(links, len(nodes_xy))
     segments = nodes_xy[ends] if len(ends) else np.zeros((0, 2, 2))
     ax.add_collection(LineCollection(segments[~loops], colors=cfg.link_colour, linewidths=0.8))
@@ -192,6 +198,7 @@ def _draw_errors(
     errors: ArrayLike,
     odometry: tuple[ArrayLike, ArrayLike] | None,
     t0: float | None,
+    gt_label: str = GROUND_TRUTH,
 ) -> None:
     t, start = _elapsed(stamps, t0)
     err = np.asarray(errors, dtype=np.float64).reshape(-1)
@@ -210,7 +217,7 @@ def _draw_errors(
             lw=1.0,
             label=f"odometry only (mean {odo_mean:.3f} m)",
         )
-    ax.set_ylabel("position error [m]")
+    ax.set_ylabel("position error [m]" if gt_label == GROUND_TRUTH else f"error vs {gt_label} [m]")
     ax.set_ylim(bottom=0.0)
     _legend_above(ax)
     ax.grid(True, lw=0.3, alpha=0.5)
@@ -242,16 +249,18 @@ def plot_cognitive_map(
     links: Sequence[Link],
     gt_xy: ArrayLike | None = None,
     title: str = "Cognitive map",
+    gt_label: str = GROUND_TRUTH,
 ) -> Target:
     """The cognitive map: experience nodes (Eq. 12), their links, loop links highlighted.
 
     ``nodes_xy`` (N, 2) experience positions; ``links`` ``(from, to, kind)`` node indices;
-    ``gt_xy`` (M, 2) an optional ground-truth path drawn underneath.
+    ``gt_xy`` (M, 2) an optional ground-truth path drawn underneath, in the legend as
+    ``gt_label`` (a log's corrected poses are a "reference", not the truth).
     """
     nodes = _xy(nodes_xy, "nodes_xy")
     fig = Figure(figsize=(CONFIG.panel_size * 1.4, CONFIG.panel_size * 1.2))
     ax = fig.add_subplot()
-    _draw_map(ax, nodes, links, _xy(gt_xy, "gt_xy") if gt_xy is not None else None)
+    _draw_map(ax, nodes, links, _xy(gt_xy, "gt_xy") if gt_xy is not None else None, gt_label)
     ax.set_title(title)
     ax.legend(loc="best", fontsize="small", markerscale=2)
     fig.tight_layout()
@@ -285,15 +294,17 @@ def plot_error_over_time(
     errors: ArrayLike,
     odometry_errors: tuple[ArrayLike, ArrayLike] | None = None,
     t0: float | None = None,
+    gt_label: str = GROUND_TRUTH,
 ) -> Target:
-    """Position error against ground truth over time (bottom of the paper's Fig. 6).
+    """Position error against ground truth (or the reference called ``gt_label``) over time
+    (bottom of the paper's Fig. 6).
 
     ``odometry_errors`` is an optional ``(stamps, errors)`` of the odometry-only trajectory,
     drawn over the SLAM curve on the same time axis.
     """
     fig = Figure(figsize=(8.0, 3.2))
     ax = fig.add_subplot()
-    _draw_errors(ax, stamps, errors, odometry_errors, t0)
+    _draw_errors(ax, stamps, errors, odometry_errors, t0, gt_label)
     ax.set_xlabel("time [s]")
     fig.tight_layout()
     return _save(fig, path, CONFIG.dpi)
@@ -307,14 +318,16 @@ def plot_views_and_errors(
     error_stamps: ArrayLike,
     errors: ArrayLike,
     odometry_errors: tuple[ArrayLike, ArrayLike] | None = None,
+    gt_label: str = GROUND_TRUTH,
 ) -> Target:
-    """The paper's Fig. 6 in one picture: active view ID above, position error below, on a
-    shared time axis starting at the first scan."""
+    """The paper's Fig. 6 in one picture: active view ID above, position error below (against
+    the ground truth or the reference called ``gt_label``), on a shared time axis starting at
+    the first scan."""
     t0 = float(np.asarray(stamps, dtype=np.float64).reshape(-1)[0])
     fig = Figure(figsize=(8.0, 5.6))
     top, bottom = fig.subplots(2, 1, sharex=True)
     _draw_active_view(top, stamps, view_ids, new_mask, t0)
-    _draw_errors(bottom, error_stamps, errors, odometry_errors, t0)
+    _draw_errors(bottom, error_stamps, errors, odometry_errors, t0, gt_label)
     bottom.set_xlabel("time [s]")
     fig.tight_layout()
     return _save(fig, path, CONFIG.dpi)
@@ -324,12 +337,13 @@ def plot_mapping_progress(
     path: Target,
     snapshots: Sequence[tuple[float, ArrayLike, Sequence[Link]]],
     gt_xy: ArrayLike | None,
+    gt_label: str = GROUND_TRUTH,
 ) -> Target:
     """The paper's Fig. 5: the cognitive map at several times beside the ground-truth path.
 
     ``snapshots`` ``[(t, nodes_xy, links), ...]`` with ``t`` in seconds since the start (one
-    panel each, titled ``t = …``); a last panel shows ``gt_xy`` when given. All panels share
-    the same axes limits so the growth of the map is comparable.
+    panel each, titled ``t = …``); a last panel shows ``gt_xy`` when given, titled
+    ``gt_label``. All panels share the same axes limits so the growth of the map is comparable.
     """
     maps = [(float(t), _xy(nodes, f"nodes_xy at t = {t}"), links) for t, nodes, links in snapshots]
     truth = _xy(gt_xy, "gt_xy") if gt_xy is not None else None
@@ -345,7 +359,7 @@ def plot_mapping_progress(
         ax = axes[-1]
         ax.plot(*truth.T, color=CONFIG.truth_colour, lw=1.0)
         _finish_map_axes(ax)
-        ax.set_title("ground truth")
+        ax.set_title(gt_label)
     limits = _limits(*(nodes for _, nodes, _ in maps), *([truth] if truth is not None else []))
     if limits is not None:
         # Fixed, shared limits: the box (not the data range) gives way to keep metres square.
