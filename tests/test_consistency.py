@@ -1,6 +1,8 @@
 """Revisit sharpness: a trajectory judged by how well its map agrees with itself where the robot
 came back, with no reference."""
 
+import json
+
 import numpy as np
 import pytest
 from loop_world import ring_route, ring_world
@@ -11,12 +13,27 @@ from bioslam.sim import LIDAR_PRESETS, simulate_scans
 
 
 @pytest.fixture(scope="module")
-def two_laps():
-    """Scans and true poses of two laps of the ring corridor (about 53 s a lap)."""
-    pairs = list(simulate_scans(ring_world(), LIDAR_PRESETS["urg04lx"], ring_route(laps=2.0),
-                                seed=5))  # fmt: skip
-    stamps = np.array([scan.stamp for scan, _ in pairs])
-    return [scan.endpoints() for scan, _ in pairs], np.array([pose for _, pose in pairs]), stamps
+def ring_scans():
+    """(scan, true pose) pairs of two laps of the ring corridor (about 53 s a lap)."""
+    return list(simulate_scans(ring_world(), LIDAR_PRESETS["urg04lx"], ring_route(laps=2.0),
+                               seed=5))  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def two_laps(ring_scans):
+    """Endpoints, true poses and stamps of the two laps."""
+    stamps = np.array([scan.stamp for scan, _ in ring_scans])
+    return ([scan.endpoints() for scan, _ in ring_scans],
+            np.array([pose for _, pose in ring_scans]), stamps)  # fmt: skip
+
+
+def _bent(truth, stamps, degrees=2.0):
+    """The true poses with the second lap turned by ``degrees`` about the start: 4-31 cm off
+    along the ring for 2 degrees."""
+    bent = truth.copy()
+    second = stamps >= stamps[-1] / 2
+    bent[second] = compose(np.array([0.0, 0.0, np.radians(degrees)]), truth[second])
+    return bent
 
 
 def test_revisits_are_scans_near_another_pass_and_only_those():
@@ -40,10 +57,7 @@ def test_the_true_poses_make_a_sharper_map_than_a_trajectory_bent_between_the_la
     endpoints, truth, stamps = two_laps
     revisits = find_revisits(truth, stamps, RevisitConfig(min_gap_s=10.0))
     assert len(revisits) > 50
-    # the second lap turned by 2 degrees about the start: 4-31 cm off along the ring
-    bent = truth.copy()
-    second = stamps >= stamps[-1] / 2
-    bent[second] = compose(np.array([0.0, 0.0, np.radians(2.0)]), truth[second])
+    bent = _bent(truth, stamps)
     true_residual = revisit_residuals(endpoints, truth, revisits)
     bent_residual = revisit_residuals(endpoints, bent, revisits)
     assert np.nanmedian(true_residual) < 0.02  # the scanner's noise, 1-2 cm
@@ -65,3 +79,51 @@ def test_a_scan_with_too_few_endpoints_in_range_is_not_judged(two_laps):
 def test_poses_and_stamps_of_different_lengths_are_refused():
     with pytest.raises(ValueError, match="differ in length"):
         find_revisits(np.zeros((3, 3)), np.zeros(2))
+
+
+def test_the_command_ranks_trajectories_by_how_sharp_they_make_the_logs_map(
+    ring_scans, two_laps, tmp_path, capsys
+):
+    """``bioslam consistency LOG A.tum B.tum``: the revisits chosen on A, both judged on them."""
+    from bioslam.cli import main
+    from bioslam.io.bag_writer import write_scan_bag
+    from bioslam.io.tum import write_tum
+    from bioslam.trajectory import Trajectory
+
+    _, truth, stamps = two_laps
+    bag = tmp_path / "ring"
+    write_scan_bag(bag, [scan for scan, _ in ring_scans], scan_time=0.1)
+    write_tum(tmp_path / "truth.tum", Trajectory(stamps, truth))
+    write_tum(tmp_path / "bent.tum", Trajectory(stamps, _bent(truth, stamps)))
+    # a trajectory of the first lap only: the scans of the second are not judged by anyone
+    first_lap = stamps < stamps[-1] / 2
+    write_tum(tmp_path / "lap.tum", Trajectory(stamps[first_lap], truth[first_lap]))
+    argv = ["consistency", str(bag), str(tmp_path / "truth.tum"), str(tmp_path / "bent.tum")]
+    assert main(argv) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["scans"] == len(stamps) and summary["judged"] > 50
+    truth_row, bent_row = summary["trajectories"]
+    assert truth_row["median_mm"] < 20.0 and bent_row["median_mm"] > 2 * truth_row["median_mm"]
+    assert bent_row["sharper_than_first"] < 0.1
+    assert main([*argv, str(tmp_path / "lap.tum")]) == 0
+    # only the scans of the first lap are judged: those near its start and its end
+    within_lap = find_revisits(truth[first_lap], stamps[first_lap])
+    judged = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["judged"]
+    assert 0 < judged == len(within_lap) < summary["judged"] / 2
+
+
+def test_the_command_names_a_trajectory_on_another_clock(ring_scans, two_laps, tmp_path, capsys):
+    from bioslam.cli import main
+    from bioslam.io.bag_writer import write_scan_bag
+    from bioslam.io.tum import write_tum
+    from bioslam.trajectory import Trajectory
+
+    _, truth, stamps = two_laps
+    bag = tmp_path / "ring"
+    write_scan_bag(bag, [scan for scan, _ in ring_scans[:50]], scan_time=0.1)
+    write_tum(tmp_path / "later.tum", Trajectory(stamps + 1e6, truth))
+    assert main(["consistency", str(bag), str(tmp_path / "later.tum")]) == 2
+    err = capsys.readouterr().err
+    assert "none of its 50 scans" in err and str(bag) in err
+    assert main(["consistency", str(bag), str(tmp_path / "missing.tum")]) == 2
+    assert "missing.tum does not exist" in capsys.readouterr().err

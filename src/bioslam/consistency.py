@@ -17,7 +17,7 @@ trajectory is judged on the same scans.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -86,14 +86,15 @@ def find_revisits(
 
 
 def revisit_residuals(
-    endpoints: Sequence[ArrayLike],
+    endpoints: Sequence[ArrayLike] | Mapping[int, ArrayLike],
     poses: ArrayLike,
     revisits: Sequence[Revisit],
     config: RevisitConfig | None = None,
 ) -> FloatArray:
     """For each revisit, the median distance (m) from the judged scan's endpoints (robot frame,
-    ``endpoints[i]`` (M, 2)) to the nearest endpoint of its partners, every scan placed by
-    ``poses`` (N, 3); NaN where the scan has too few endpoints in range."""
+    ``endpoints[i]`` (M, 2); a mapping may hold only the scans the revisits name) to the
+    nearest endpoint of its partners, every scan placed by ``poses`` (N, 3); NaN where the
+    scan has too few endpoints in range."""
     from scipy.spatial import cKDTree
 
     cfg = config or RevisitConfig()

@@ -17,7 +17,7 @@ from typing import NoReturn
 
 from bioslam import __version__, signals
 
-SUBCOMMAND_MODULES = ("info", "sim", "thin", "run", "demo", "eval", "batch")
+SUBCOMMAND_MODULES = ("info", "sim", "thin", "run", "demo", "eval", "consistency", "batch")
 
 
 def build_parser() -> argparse.ArgumentParser:
