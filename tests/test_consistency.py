@@ -127,6 +127,10 @@ def test_the_command_names_a_trajectory_on_another_clock(ring_scans, two_laps, t
     assert "none of its 50 scans" in err and str(bag) in err
     assert main(["consistency", str(bag), str(tmp_path / "missing.tum")]) == 2
     assert "missing.tum does not exist" in capsys.readouterr().err
+    empty = tmp_path / "empty.log"  # a CARMEN log whose one scan line is cut short
+    empty.write_text("PARAM robot_width 0.5 host 0\nFLASER 181 1.0 2.0\n", encoding="latin-1")
+    assert main(["consistency", str(empty), str(tmp_path / "later.tum")]) == 2
+    assert "empty.log: no scan could be read" in capsys.readouterr().err
 
 
 def test_intels_scans_agree_with_bioslams_map_better_than_with_its_corrected_poses():

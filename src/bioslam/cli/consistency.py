@@ -5,12 +5,13 @@ scans agree with themselves where the robot came back (revisit sharpness,
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from bioslam.cli.common import check_input, read_counts, source_skipped
+from bioslam.cli.common import check_input, read_counts, read_report, source_skipped
 from bioslam.consistency import RevisitConfig, find_revisits, revisit_residuals
 from bioslam.trajectory import Trajectory
 
@@ -73,6 +74,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     check_input(args.log)
     source = open_log(args.log, topic=args.topic)
     stamps = np.array([scan.stamp for scan in source])  # a first pass: the stamps alone
+    for line in read_report(source, len(stamps)):
+        print(f"bioslam consistency: {line}", file=sys.stderr)
+    if stamps.size == 0:
+        raise ValueError(f"{args.log}: no scan could be read")
     covered = np.flatnonzero(_covered(stamps, trajectories))
     if covered.size == 0:
         raise ValueError(f"{args.log}: none of its {len(stamps)} scans lies within the span of "
