@@ -99,12 +99,21 @@ def test_the_command_ranks_trajectories_by_how_sharp_they_make_the_logs_map(
     first_lap = stamps < stamps[-1] / 2
     write_tum(tmp_path / "lap.tum", Trajectory(stamps[first_lap], truth[first_lap]))
     argv = ["consistency", str(bag), str(tmp_path / "truth.tum"), str(tmp_path / "bent.tum")]
-    assert main(argv) == 0
+    table, picture = tmp_path / "revisits.csv", tmp_path / "revisits.png"
+    assert main([*argv, "--csv", str(table), "--plot", str(picture)]) == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["scans"] == len(stamps) and summary["judged"] > 50
     truth_row, bent_row = summary["trajectories"]
     assert truth_row["median_mm"] < 20.0 and bent_row["median_mm"] > 2 * truth_row["median_mm"]
     assert bent_row["sharper_than_first"] < 0.1
+    # the table: a judged scan a row, its residual under each trajectory, medians as printed
+    lines = table.read_text().splitlines()
+    assert lines[0] == "stamp,x,y,truth.tum,bent.tum"
+    rows = np.array([[float(v) for v in line.split(",")] for line in lines[1:]])
+    assert len(rows) == summary["judged"]
+    assert np.median(rows[:, 3]) == pytest.approx(truth_row["median_mm"], abs=0.01)
+    assert np.median(rows[:, 4]) == pytest.approx(bent_row["median_mm"], abs=0.01)
+    assert picture.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert main([*argv, str(tmp_path / "lap.tum")]) == 0
     # only the scans of the first lap are judged: those near its start and its end
     within_lap = find_revisits(truth[first_lap], stamps[first_lap])

@@ -15,6 +15,7 @@ from bioslam.plots.figures import (
     plot_error_over_time,
     plot_mapping_progress,
     plot_occupancy,
+    plot_revisit_sharpness,
     plot_views_and_errors,
 )
 
@@ -142,3 +143,19 @@ def test_mapping_progress_has_one_panel_per_snapshot_plus_ground_truth(tmp_path)
     assert four[1] == two[1]
     with pytest.raises(ValueError, match="at least one"):
         plot_mapping_progress(tmp_path / "none.png", [], None)
+
+
+def test_revisit_sharpness_has_a_panel_per_trajectory_on_one_colour_scale(tmp_path):
+    route = _square_route()
+    sharp = np.full(len(route), 0.004)
+    blurred = sharp.copy()
+    blurred[:10] = 0.4  # one side of the square 40 cm off
+    blurred[10] = np.nan  # a scan not judged is left out
+    two = plot_revisit_sharpness(tmp_path / "two.png", route, [("a", sharp), ("b", blurred)])
+    one = plot_revisit_sharpness(tmp_path / "one.png", route, [("a", sharp)])
+    assert Image.open(two).size[0] > 1.5 * Image.open(one).size[0] - 60
+    # the blurred side is drawn in the scale's top colour (which the colour bar shows in both)
+    top = "#fde725"
+    assert _count_colour(_pixels(two), top) > _count_colour(_pixels(one), top) + 10
+    with pytest.raises(ValueError, match="one residual per judged scan"):
+        plot_revisit_sharpness(tmp_path / "bad.png", route, [("a", sharp[:-1])])

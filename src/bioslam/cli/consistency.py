@@ -41,6 +41,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="... whose pose is within this many metres (default: %(default)s)")
     parser.add_argument("--every", type=int, default=_DEFAULTS.every, metavar="N",
                         help="judge every N-th scan (default: %(default)s)")
+    parser.add_argument("--csv", type=Path, metavar="FILE.csv",
+                        help="write each judged scan: stamp, x, y (the first trajectory's) and "
+                        "its residual in mm under every trajectory")
+    parser.add_argument("--plot", type=Path, metavar="FILE.png",
+                        help="draw the judged scans coloured by their residual, a panel per "
+                        "trajectory")
     parser.set_defaults(func=run)
 
 
@@ -98,6 +104,15 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
           f"covered by every trajectory, {len(stamps)} read)")
     rows = [_row(path, r[judged], residuals[0][judged], k) for k, (path, r) in
             enumerate(zip(args.trajectories, residuals, strict=True))]  # fmt: skip
+    scans = np.array([r.scan for r in revisits], dtype=np.intp)
+    table = (stamps[covered][scans], poses[0][scans, :2], residuals)
+    if args.csv is not None:
+        _write_csv(args.csv, _names(args.trajectories), *table)
+    if args.plot is not None:
+        from bioslam.plots.figures import plot_revisit_sharpness
+
+        plot_revisit_sharpness(args.plot, table[1], list(zip(_names(args.trajectories),
+                                                             residuals, strict=True)))
     return {"log": str(args.log), "scans": len(stamps), "judged": int(judged.sum()),
             "trajectories": rows, "skipped": source_skipped(source), **read_counts(source)}
 
@@ -115,3 +130,23 @@ def _row(path: Path, residual: np.ndarray, first: np.ndarray, k: int) -> dict[st
         line += f"; sharper than the first at {row['sharper_than_first']:.0%} of the scans"
     print(line)
     return row
+
+
+def _names(paths: list[Path]) -> list[str]:
+    """The trajectories' file names, numbered where two are alike."""
+    names = [path.name for path in paths]
+    return [f"{k + 1}:{name}" if names.count(name) > 1 else name for k, name in enumerate(names)]
+
+
+def _write_csv(
+    path: Path, names: list[str], stamps: np.ndarray, xy: np.ndarray, residuals: list
+) -> None:
+    """One row per judged scan: stamp, x, y, and its residual (mm) under each trajectory
+    (empty where it was not judged)."""
+    from bioslam.io.jsonio import atomic_write_text
+
+    lines = [",".join(["stamp", "x", "y", *names])]
+    for k in range(len(stamps)):
+        values = [f"{1e3 * r[k]:.2f}" if np.isfinite(r[k]) else "" for r in residuals]
+        lines.append(",".join([f"{stamps[k]:.6f}", f"{xy[k, 0]:.3f}", f"{xy[k, 1]:.3f}", *values]))
+    atomic_write_text(path, "\n".join(lines) + "\n")

@@ -371,6 +371,42 @@ def plot_mapping_progress(
     return _save(fig, path, CONFIG.dpi)
 
 
+def plot_revisit_sharpness(
+    path: Target,
+    xy: ArrayLike,
+    residuals: Sequence[tuple[str, ArrayLike]],
+) -> Target:
+    """Where a map agrees with itself (:mod:`bioslam.consistency`): one panel per trajectory,
+    each judged scan at ``xy`` ((N, 2), the first trajectory's positions) coloured by its
+    revisit residual (``residuals``: (name, (N,) metres) pairs; NaN not drawn), all on one
+    logarithmic colour scale (millimetres where the scans agree, metres where they do not
+    overlap or the trajectory is off), so that a place one trajectory leaves blurred shows
+    against the others."""
+    from matplotlib.colors import LogNorm
+
+    points = _xy(xy, "xy")
+    named = [(name, np.asarray(r, dtype=np.float64).reshape(-1) * 1e3) for name, r in residuals]
+    if not named or any(r.size != len(points) for _, r in named):
+        raise ValueError("need one residual per judged scan for every trajectory")
+    finite = np.concatenate([r[np.isfinite(r) & (r > 0)] for _, r in named])
+    low, high = np.percentile(finite, [5, 95]) if finite.size else (1.0, 10.0)
+    norm = LogNorm(vmin=max(float(low), 0.1), vmax=max(float(high), float(low) * 10, 1.0))
+    fig = Figure(figsize=(CONFIG.panel_size * len(named) + 1.2, CONFIG.panel_size),
+                 layout="constrained")  # fmt: skip
+    axes = np.atleast_1d(fig.subplots(1, len(named), sharex=True, sharey=True))
+    drawn = None
+    for ax, (name, r) in zip(axes, named, strict=True):
+        keep = np.isfinite(r)
+        drawn = ax.scatter(*points[keep].T, c=np.maximum(r[keep], norm.vmin), s=6,
+                           cmap="viridis", norm=norm, lw=0)  # fmt: skip
+        median = float(np.median(r[keep])) if keep.any() else float("nan")
+        ax.set_title(f"{name}: median {median:.1f} mm", fontsize="small")
+        _finish_map_axes(ax, adjustable="box")  # shared axes: the box gives way
+    if drawn is not None:
+        fig.colorbar(drawn, ax=list(axes), label="revisit residual [mm]", shrink=0.9)
+    return _save(fig, path, CONFIG.dpi)
+
+
 def plot_occupancy(
     path: Target,
     grid: OccupancyLike | tuple[ArrayLike, float, Sequence[float]],
