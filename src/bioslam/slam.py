@@ -750,7 +750,15 @@ class BioSLAM:
                 grids[min(cfg.registration.score_level, len(grids) - 1)], verdict.pose,
                 mapped, pts, modes(), cfg, submap.seen,
             )  # fmt: skip
-            verdict = dataclasses.replace(verdict, pose=settled)
+            if cfg.refuse_far_settle and not within(
+                between(verdict.pose, settled), cfg.rival_distance, cfg.rival_angle
+            ):
+                # the map's prediction fits about as well as the registration, farther from it
+                # than a rival may be: the scan cannot say which is the place (a pillar hall
+                # seen to 3.5 m: both 0.8-1 m apart scored 0.99, the prediction the wrong one)
+                verdict = dataclasses.replace(verdict, accepted=False, reason="ambiguous")
+            else:
+                verdict = dataclasses.replace(verdict, pose=settled)
         registered = verdict.pose  # in the submap anchor's frame
         verdict = dataclasses.replace(verdict, pose=compose(anchor_in_experience, verdict.pose))
         alone = trusted and cfg.consistency
