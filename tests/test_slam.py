@@ -972,7 +972,9 @@ def test_a_place_found_ambiguous_stays_so_for_the_next_metres(ring_drive, monkey
             last[c.experience] = (c.verdict.reason or "accepted", c.stamp)
         return gaps
 
-    config = SLAMConfig()
+    # the place alone: with every place's first check ambiguous, the places beside it would
+    # be doubted too (the next test)
+    config = config_from_dict({"loop_closure": {"ambiguity_radius": 0.0}}, "t")
     checked.clear()
     kept = retried(run(scans, config))
     checked.clear()
@@ -980,6 +982,51 @@ def test_a_place_found_ambiguous_stays_so_for_the_next_metres(ring_drive, monkey
     memory = config.loop_closure.ambiguity_memory
     assert sum(g < memory for g in off) >= 10
     assert all(g > 0.9 * memory for g in kept) and len(kept) >= 1
+
+
+def test_a_place_beside_one_found_ambiguous_is_doubted_too(ring_drive, monkeypatch):
+    # An ambiguity is the surroundings': a neighbouring place of the same pass has the same
+    # look-alikes, and a check to it that passes by a hair is the same doubt. On the second
+    # lap, one check every 10 s is refused as ambiguous (as if a rival fitted nearly as
+    # well); checks to places within ``ambiguity_radius`` of it within ``ambiguity_memory``
+    # metres of travel are then refused, while with the radius at 0 they close.
+    import bioslam.slam as slam_module
+
+    scans, _ = ring_drive
+    lap = scans[0].stamp + 0.5 * (scans[-1].stamp - scans[0].stamp)
+    real_refine = BioSLAM._refine
+
+    def ambiguous_every_10_s(self, experience, points):
+        marked = self.__dict__.setdefault("marked", [])
+        if self._stamp > lap and (not marked or self._stamp - marked[-1][0] > 10.0):
+            marked.append((self._stamp, self._travelled, experience.id))
+            self._note_check(experience, slam_module.Verdict(
+                False, np.zeros(3), 1.0, 1.0, "ambiguous"
+            ))  # fmt: skip
+            return None
+        return real_refine(self, experience, points)
+
+    monkeypatch.setattr(BioSLAM, "_refine", ambiguous_every_10_s)
+
+    def beside(slam: BioSLAM, radius: float, memory: float) -> int:
+        """Accepted checks to another place within ``radius`` of a marked one on the map,
+        within ``memory`` metres of travel after it (at the route's 0.4 m/s)."""
+        poses = slam.cognitive_map.experience_poses
+        count = 0
+        for stamp, _, place in slam.marked:
+            for c in slam.checks:
+                near = np.hypot(*(poses[c.experience, :2] - poses[place, :2])) <= radius
+                soon = 0.0 < 0.4 * (c.stamp - stamp) <= memory
+                count += c.verdict.accepted and c.experience != place and near and soon
+        return count
+
+    cfg = SLAMConfig().loop_closure
+    assert cfg.ambiguity_radius > 0.0
+    kept = run(scans, SLAMConfig())
+    off = run(scans, config_from_dict({"loop_closure": {"ambiguity_radius": 0.0}}, "t"))
+    assert len(kept.marked) >= 3
+    assert beside(off, cfg.ambiguity_radius, cfg.ambiguity_memory) >= 3
+    assert beside(kept, cfg.ambiguity_radius, 0.9 * cfg.ambiguity_memory) == 0
 
 
 @pytest.mark.parametrize("far", [False, True])

@@ -138,6 +138,11 @@ class LoopClosureConfig:
             differently, and a later check that passes by a hair is the same doubt
             (simulated hall, URG-04LX, reversing route: three checks to one place refused as
             ambiguous within 1 s, the fourth accepted 0.72 m off). 0 turns it off.
+        ambiguity_radius: ... and so do the places within this many metres of it on the
+            map: an ambiguity is the surroundings', which a neighbouring place of the same
+            pass shares, and a check to it that passes by a hair is the same doubt
+            (ring floor, URG-04LX, weaving route: checks to consecutive places 0.25-1 m
+            apart refused as ambiguous and accepted 3 m off by turns). 0: the place alone.
         prior_tie: a best pose nearer the prediction than the rival distance must score
             more than this above the prediction refined where it stands, or the latter is
             taken (along a corridor the window's best is one point of a plateau; on the
@@ -294,6 +299,7 @@ class LoopClosureConfig:
     rival_angle: float = math.radians(20.0)
     max_ambiguity: float = 0.9
     ambiguity_memory: float = 2.0
+    ambiguity_radius: float = 1.5
     prior_margin: float = 0.1
     prior_tie: float = 0.02
     tie_distance: float = 0.15

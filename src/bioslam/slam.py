@@ -360,7 +360,8 @@ class BioSLAM:
         # whether each experience keeps a scan to register against (the proximity cue
         # proposes only those)
         self._verifiable = np.empty(1024, dtype=np.bool_)
-        # the travel (m) at each place's last check refused as ambiguous
+        # the travel (m) at each place's last check refused as ambiguous, for those within
+        # ``ambiguity_memory`` of the robot's travel
         self._ambiguous_at: dict[int, float] = {}
         self.consensus = ClosureConsensus(self.config.loop_closure)
         # the odometry's summed heading variance when each experience was made, and the
@@ -769,9 +770,12 @@ class BioSLAM:
             # put there (a thinned RPLIDAR lost 8.4 m and 180 degrees: two such closures
             # agreed, each as far off)
             verdict = dataclasses.replace(verdict, accepted=False, reason="score")
-        if verdict.accepted and self._recently_ambiguous(experience.id):
+        doubted = self._recently_ambiguous(experience.id) if verdict.accepted else None
+        if doubted is not None:
             verdict = dataclasses.replace(verdict, accepted=False, reason="ambiguous")
-        self._note_check(experience, verdict)
+        # a doubt taken from a place beside is not found here: it does not arm the memory for
+        # the places beyond (each refusal would arm the next, the doubt moving with the robot)
+        self._note_check(experience, verdict, remember=doubted != "beside")
         if not verdict.accepted:
             return None
         if within(between(predicted, verdict.pose), cfg.deadband, cfg.deadband_angle):
@@ -987,16 +991,30 @@ class BioSLAM:
         verdict = Verdict(False, np.asarray(predicted, dtype=np.float64), float("nan"), 0.0, reason)
         self._note_check(experience, verdict)
 
-    def _recently_ambiguous(self, experience_id: int) -> bool:
-        """Whether a check to ``experience_id`` was refused as ambiguous within the last
-        ``ambiguity_memory`` metres of travel."""
-        when = self._ambiguous_at.get(experience_id)
-        memory = self.config.loop_closure.ambiguity_memory
-        return memory > 0.0 and when is not None and self._travelled - when <= memory
+    def _recently_ambiguous(self, experience_id: int) -> str | None:
+        """Whether a check to ``experience_id`` ("place"), or else to a place within
+        ``ambiguity_radius`` of it on the map ("beside"), was refused as ambiguous within the
+        last ``ambiguity_memory`` metres of travel; None if neither."""
+        cfg = self.config.loop_closure
+        if cfg.ambiguity_memory <= 0.0:
+            return None
+        for place, when in list(self._ambiguous_at.items()):
+            if self._travelled - when > cfg.ambiguity_memory:
+                del self._ambiguous_at[place]  # forgotten: the robot has moved on
+        if experience_id in self._ambiguous_at:
+            return "place"
+        if cfg.ambiguity_radius <= 0.0 or not self._ambiguous_at:
+            return None
+        poses = self.cognitive_map.experience_poses_view
+        places = np.fromiter(self._ambiguous_at, dtype=np.int64)
+        offsets = poses[places, :2] - poses[experience_id, :2]
+        near = np.hypot(offsets[:, 0], offsets[:, 1]) <= cfg.ambiguity_radius
+        return "beside" if near.any() else None
 
-    def _note_check(self, experience: Experience, verdict: Verdict) -> None:
-        """Record a verification's outcome, with the cue that proposed the experience."""
-        if verdict.reason == "ambiguous":
+    def _note_check(self, experience: Experience, verdict: Verdict, remember: bool = True) -> None:
+        """Record a verification's outcome, with the cue that proposed the experience; an
+        ambiguity found (``remember``) arms :meth:`_recently_ambiguous`."""
+        if remember and verdict.reason == "ambiguous":
             self._ambiguous_at[experience.id] = self._travelled
         cue = "proximity" if experience.id == self._proposed else "view"
         self.checks.append(Check(self._stamp, experience.id, experience.stamp, cue, verdict))
