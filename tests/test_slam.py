@@ -937,13 +937,20 @@ def test_exp1_return_through_its_start_is_checked():
 
 
 
+def note_ambiguous(slam: BioSLAM, experience) -> None:
+    """Record a check to ``experience`` refused as ambiguous, as a verification finding a
+    rival nearly as good would, and refuse it."""
+    from bioslam.closure import Verdict
+
+    slam._note_check(experience, Verdict(False, np.zeros(3), 1.0, 1.0, "ambiguous"))
+    return None
+
+
 def test_a_place_found_ambiguous_stays_so_for_the_next_metres(ring_drive, monkeypatch):
     # Each place's first check is refused as ambiguous (as if a rival fitted nearly as
     # well), and the next check to it may pass: within ``ambiguity_memory`` metres of travel
     # that is the same doubt passing by a hair, and it is refused; farther on it may close.
     # With the memory off, such checks a few scans on are accepted.
-    import bioslam.slam as slam_module
-
     scans, _ = ring_drive
     checked: set[int] = set()
     real_refine = BioSLAM._refine
@@ -952,10 +959,7 @@ def test_a_place_found_ambiguous_stays_so_for_the_next_metres(ring_drive, monkey
         fresh = experience.id not in checked
         checked.add(experience.id)
         if fresh:
-            self._note_check(experience, slam_module.Verdict(
-                False, np.zeros(3), 1.0, 1.0, "ambiguous"
-            ))  # fmt: skip
-            return None
+            return note_ambiguous(self, experience)
         return real_refine(self, experience, points)
 
     monkeypatch.setattr(BioSLAM, "_refine", first_ambiguous)
@@ -990,8 +994,6 @@ def test_a_place_beside_one_found_ambiguous_is_doubted_too(ring_drive, monkeypat
     # lap, one check every 10 s is refused as ambiguous (as if a rival fitted nearly as
     # well); checks to places within ``ambiguity_radius`` of it within ``ambiguity_memory``
     # metres of travel are then refused, while with the radius at 0 they close.
-    import bioslam.slam as slam_module
-
     scans, _ = ring_drive
     lap = scans[0].stamp + 0.5 * (scans[-1].stamp - scans[0].stamp)
     real_refine = BioSLAM._refine
@@ -1000,10 +1002,7 @@ def test_a_place_beside_one_found_ambiguous_is_doubted_too(ring_drive, monkeypat
         marked = self.__dict__.setdefault("marked", [])
         if self._stamp > lap and (not marked or self._stamp - marked[-1][0] > 10.0):
             marked.append((self._stamp, self._travelled, experience.id))
-            self._note_check(experience, slam_module.Verdict(
-                False, np.zeros(3), 1.0, 1.0, "ambiguous"
-            ))  # fmt: skip
-            return None
+            return note_ambiguous(self, experience)
         return real_refine(self, experience, points)
 
     monkeypatch.setattr(BioSLAM, "_refine", ambiguous_every_10_s)
