@@ -729,8 +729,8 @@ def verify(
     elif not within(between(predicted, pose), distance, angle):
         reason = "beyond drift"
     elif outside is not None and outside_rival(
-        pyramid, query, predicted, (distance, angle), rival_window, (fit, score), config, seen,
-        searcher,
+        pyramid, query, predicted, (distance, angle), rival_window, fit, config, seen, searcher,
+        looked=score,
     ):
         reason = "ambiguous"
     return Verdict(
@@ -813,16 +813,17 @@ def outside_rival(
     predicted: FloatArray,
     window: tuple[float, float],
     rival_window: tuple[float, float],
-    fit: float | tuple[float, float],
+    fit: float,
     config: LoopClosureConfig,
     seen: SeenArea | None = None,
     searcher: WideBasinMatcher | None = None,
+    looked: float | None = None,
 ) -> bool:
     """Whether a pose outside ``window`` (m, rad) around ``predicted`` but within ``rival_window``
     (capped at ``outside_rival_distance`` and ``outside_rival_angle``) fits ``query`` as well as
-    the pose accepted in it (share ``fit`` of every point on the submap, or ``(fit, score)``
-    with its score where the submap looked, :func:`seen_hit_fraction`: as well on either), to
-    within ``prior_tie`` (the score's own noise). Where the submap looked decides too: a scan
+    the pose accepted in it, to within ``prior_tie`` (the score's own noise): on every point
+    (share ``fit`` on the submap) or, given ``looked``, where the submap looked (its score
+    there, :func:`seen_hit_fraction` with ``seen``). Where the submap looked decides too: a scan
     turned the other way sees much the submap never did, and at the true place those points
     count as misses on every point while a look-alike 3 m on puts them on other walls (the
     URG-04LX hall's reversing route: the true place 0.74-0.80 on every point against the
@@ -845,14 +846,13 @@ def outside_rival(
     level = min(config.search_level, len(pyramid.grids) - 1)
     iterations = levels_up_to(reg.max_iterations, level)
     judge = pyramid.grids[reg.score_level]
-    everywhere, looked = fit if isinstance(fit, tuple) else (fit, None)
     for start in (found.pose, found.rival_pose):
         if start is None or within(between(predicted, start), *window):
             continue
         pose, _ = refine_where_seen(pyramid, start, query, iterations, seen)
         if within(between(predicted, pose), *window):
             continue  # slid back into the window: the accepted pose's own peak
-        if seen_hit_fraction(judge, pose, query, reg.hit_level) >= everywhere - config.prior_tie:
+        if seen_hit_fraction(judge, pose, query, reg.hit_level) >= fit - config.prior_tie:
             return True
         if looked is not None and seen_hit_fraction(
             judge, pose, query, reg.hit_level, seen, config.min_seen

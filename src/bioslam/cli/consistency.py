@@ -142,11 +142,16 @@ def _write_csv(
     path: Path, names: list[str], stamps: np.ndarray, xy: np.ndarray, residuals: list
 ) -> None:
     """One row per judged scan: stamp, x, y, and its residual (mm) under each trajectory
-    (empty where it was not judged)."""
+    (empty where it was not judged); a trajectory's name is quoted where it holds a comma."""
+    import csv
+    import io
+
     from bioslam.io.jsonio import atomic_write_text
 
-    lines = [",".join(["stamp", "x", "y", *names])]
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(["stamp", "x", "y", *names])
     for k in range(len(stamps)):
         values = [f"{1e3 * r[k]:.2f}" if np.isfinite(r[k]) else "" for r in residuals]
-        lines.append(",".join([f"{stamps[k]:.6f}", f"{xy[k, 0]:.3f}", f"{xy[k, 1]:.3f}", *values]))
-    atomic_write_text(path, "\n".join(lines) + "\n")
+        writer.writerow([f"{stamps[k]:.6f}", f"{xy[k, 0]:.3f}", f"{xy[k, 1]:.3f}", *values])
+    atomic_write_text(path, buffer.getvalue())
