@@ -733,27 +733,25 @@ def test_an_undoubted_chain_the_map_disagrees_with_or_a_doubted_robot_is_not_tru
     assert not slam._trust(0, 1.0, 0)[0]
 
 
-def test_a_slide_the_odometry_undid_is_bridged_in_the_map(ring_drive):
-    scans, gt = ring_drive
-    at = len(scans) // 4
+def _run_with_slides(scans: list, slides: dict[int, int | None]) -> BioSLAM:
+    """A full run whose odometry slides 20 cm back along the way at each scan number of
+    ``slides`` and, at the scan number it maps to (None: never), forward to where it would
+    have been (the same displacement in the odometry's frame, the robot having turned
+    since): the odometry tracked both (nothing flagged), as the simulated rooms' slides."""
     slam = BioSLAM(SLAMConfig())
     odometry = slam.self_motion.odometry
     update = odometry.update
-
-    slid_at: list[float] = []
+    undo = {back: at for at, back in slides.items() if back is not None}
+    heading_at: dict[int, float] = {}
 
     def sliding_update(scan):
-        # 20 cm back along the way at one scan, and 25 scans later forward to where it
-        # would have been (the same displacement in the odometry's frame, the robot having
-        # turned since): the odometry tracked both (nothing flagged), as the simulated
-        # rooms' slides
         dp = np.array(update(scan), dtype=np.float64)
         heading = float(slam.self_motion.pose[2])
-        if odometry.num_scans == at:
-            slid_at.append(heading)
+        if odometry.num_scans in slides:
+            heading_at[odometry.num_scans] = heading
             dp[0] -= 0.2
-        elif odometry.num_scans == at + 25:
-            turned = slid_at[0] - heading
+        elif odometry.num_scans in undo:
+            turned = heading_at[undo[odometry.num_scans]] - heading
             dp[:2] += 0.2 * np.array([np.cos(turned), np.sin(turned)])
         return dp
 
@@ -761,12 +759,27 @@ def test_a_slide_the_odometry_undid_is_bridged_in_the_map(ring_drive):
     for scan in scans:
         slam.process(scan)
     slam.finish()
+    return slam
+
+
+def _bridges(slam: BioSLAM) -> list:
+    """The map's odometry links that skip experiences of the chain: the bridges."""
+    ends, kinds = slam.cognitive_map.link_table()
+    return [
+        slam.cognitive_map.link(k)
+        for k, (s, t) in enumerate(ends) if kinds[k] == "odometry" and t - s > 1
+    ]
+
+
+def test_a_slide_the_odometry_undid_is_bridged_in_the_map(ring_drive):
+    scans, gt = ring_drive
+    at = len(scans) // 4
+    slam = _run_with_slides(scans, {at: at + 25})
     assert slam.bridges == 1
     cmap = slam.cognitive_map
-    ends, kinds = cmap.link_table()
-    bridge = [k for k, (s, t) in enumerate(ends) if kinds[k] == "odometry" and t - s > 1]
+    bridge = _bridges(slam)
     assert len(bridge) == 1
-    link = cmap.link(bridge[0])
+    link = bridge[0]
     stamps = [cmap.experience(i).stamp for i in (link.source, link.target)]
     truth = between(*(gt.poses[np.searchsorted(gt.stamps, t)] for t in stamps))
     # across the slide the odometry's motion is as good as anywhere: the slide is not in it
@@ -775,6 +788,26 @@ def test_a_slide_the_odometry_undid_is_bridged_in_the_map(ring_drive):
     _, covariances, _ = slam.odometry_uncertainty()
     measured = np.nansum(covariances[:, 5])
     assert slam.self_motion.heading_var == pytest.approx(measured, rel=1e-3)
+
+
+def test_a_slide_never_undone_is_forgotten_past_its_reach(ring_drive):
+    # A slide the odometry never undid, and 1.5 reaches of travel later one it undid 25
+    # scans on. The first is forgotten once the robot has travelled the reach: the places
+    # made after it are not displaced by it, and the second's bridge starts where the
+    # second began. (Held open until the next jump, the first slide's start was where the
+    # second's bridge began: a link across all the odometry between, taken as exact.)
+    scans, gt = ring_drive
+    reach = SLAMConfig().loop_closure.return_reach
+    travelled = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(gt.poses[:, :2], axis=0).T))))
+    first = len(scans) // 8
+    second = int(np.searchsorted(travelled, travelled[first] + 1.5 * reach))
+    forgotten = scans[int(np.searchsorted(travelled, travelled[first] + reach)) + 1].stamp
+    assert second + 25 < len(scans)
+    slam = _run_with_slides(scans, {first: None, second: second + 25})
+    assert slam.bridges == 1
+    (bridge,) = _bridges(slam)
+    assert slam.cognitive_map.experience(bridge.source).stamp > forgotten
+    assert bridge.target > bridge.source
 
 
 def _slid_along_the_corridor(verify, slide: float):
@@ -1086,3 +1119,4 @@ def test_a_look_alike_beside_a_true_place_that_fits_better_where_the_submap_look
     )  # fmt: skip
     assert len(accepted) > 20
     assert not off_reference(errors).any()
+

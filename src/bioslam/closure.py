@@ -186,16 +186,25 @@ class SlideReturns:
 
     @property
     def open(self) -> bool:
-        """Whether a slide is under way (the odometry's pose now displaced by it)."""
+        """Whether a slide is under way (the odometry's pose now displaced by it) as of the
+        last :meth:`travel` or :meth:`jump`."""
         return self._net is not None
+
+    def travel(self, travelled: float) -> None:
+        """The odometry has travelled ``travelled`` metres: a slide not undone within
+        ``reach`` of its start is forgotten now, not at the next jump. (Held open until
+        then, every place made for hundreds of metres counted as displaced by it, and its
+        start was the one a later slide's return was bridged from: simulated ring floor,
+        a 360° scanner of 3.5 m, a link of 223 m of odometry that the map took as exact.)"""
+        if self._net is not None and travelled - self._since > self.reach:
+            self._net = None  # never undone: the jumps stay as they are
 
     def jump(self, departure: ArrayLike, travelled: float) -> str:
         """Take one jump's ``departure`` (x, y, θ in the odometry's frame) after
         ``travelled`` metres: ``'opened'`` when it starts a slide, ``'returned'`` when it
         undid the open one, else ``''`` (the slide goes on)."""
         d = np.asarray(departure, dtype=np.float64).reshape(3)
-        if self._net is not None and travelled - self._since > self.reach:
-            self._net = None  # never undone: the jumps stay as they are
+        self.travel(travelled)
         if self._net is None:
             self._net, self._since = d.copy(), travelled
             return "opened"

@@ -265,6 +265,7 @@ class SelfMotion:
         self._last_stamp = scan.stamp
         self.heading_var += self._step_heading_var(dp)
         self.travelled += math.hypot(dp[0], dp[1])
+        self.slides.travel(self.travelled)
         self.pose = compose(self.pose, dp)
         return dp
 
@@ -436,6 +437,7 @@ class BioSLAM:
         odometry link across it at the next look (:meth:`_bridge`)."""
         motion = self.self_motion
         if motion.slide == "opened":
+            self._slide_start = None  # (the start of one that was never undone)
             base, offset = self.cognitive_map.anchor()
             if base in self._made_in_slide:
                 return  # the pose it hangs off is displaced by the slide before
