@@ -20,6 +20,7 @@ from bioslam.cognitive_map import (
     relaxation_correction,
 )
 from bioslam.geometry import between, compose, inverse, wrap_angle
+from bioslam.link_noise import LinkNoise
 from bioslam.pose_cells import PoseCellConfig, PoseCellNetwork
 
 PC = (10.0, 10.0, 0.0)  # a packet centre used where the test is not about matching
@@ -789,6 +790,46 @@ def test_a_closure_bends_the_map_where_the_odometrys_matches_doubted_the_heading
     # weighted by its scans' own heading variances, the map turns on the side that drifted
     # (what is left is the closure's own heading error, 0.3 deg, over the square)
     assert measured < 0.3 * modelled and measured < 0.1 * odometry
+
+
+def slide_on_one_side(weak_var: bool, drift_per_m: float) -> tuple[float, float]:
+    """A square of 5 m sides driven once; on the second side, a corridor whose walls leave
+    the scans unconstrained along it, each step of the odometry slides 2 cm on along it,
+    and its matches say how far they could (``weak_var``: each step's position variance,
+    (3 cm)²; without it, the links are the noise model's alone, whose odometry drifts
+    ``drift_per_m`` m² a metre); elsewhere it is exact. A closure onto the first
+    experience measures the truth. Returns the odometry's and the relaxed map's position
+    RMS errors against the truth."""
+    steps = square_route(5.0, 0.25, 1)
+    truth = integrate(steps)
+    cm = CognitiveMap(CognitiveMapConfig())
+    cm.set_noise(LinkNoise(drift_per_m, 0.02**2))
+    sliding = np.zeros(len(steps), dtype=bool)
+    sliding[20:40] = True
+    for k, d in enumerate(steps[:-1]):
+        odometry = d + np.array([0.02 if sliding[k] else 0.0, 0.0, 0.0])
+        var = 0.03**2 if sliding[k] and weak_var else 0.0
+        cm.integrate_odometry(odometry, stamp=float(k), weak_var=var)
+        cm.update(k, True, PC, stamp=float(k))
+    before = cm.experience_poses
+    cm.integrate_odometry(steps[-1])
+    measured = between(truth[0], truth[-1])
+    assert cm.update(0, False, PC, stamp=99.0, refine=lambda e: measured).kind == "loop"
+    cm.relax()
+    rms = lambda p: float(np.sqrt(np.mean(np.sum((p[:, :2] - truth[: len(p), :2]) ** 2, 1))))  # noqa: E731
+    return rms(before), rms(cm.experience_poses)
+
+
+@pytest.mark.parametrize("drift_per_m", [1e-4, 0.0])
+def test_a_closure_bends_the_map_where_the_odometrys_scans_left_it_free_to_slide(drift_per_m):
+    odometry, weighed = slide_on_one_side(True, drift_per_m)
+    _, modelled = slide_on_one_side(False, drift_per_m)
+    assert odometry > 0.2
+    # the model spreads the correction over the whole square (or, where it learned that
+    # the odometry does not drift, turns the links instead): the exact sides move too
+    assert modelled > 0.1
+    # weighed by the degenerate steps' own variance, the map gives way along the corridor
+    assert weighed < 0.3 * modelled and weighed < 0.1 * odometry
 
 
 def corridor_with_undone_slide(bridge: bool) -> tuple[float, float]:

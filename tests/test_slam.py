@@ -1120,3 +1120,31 @@ def test_a_look_alike_beside_a_true_place_that_fits_better_where_the_submap_look
     assert len(accepted) > 20
     assert not off_reference(errors).any()
 
+
+def test_only_a_degenerate_steps_own_position_variance_weakens_the_maps_link():
+    from bioslam.closure import break_thresholds
+    from bioslam.matching.gauss_newton import MatchReport
+
+    motion = BioSLAM(SLAMConfig()).self_motion
+
+    def weak_var(degenerate: bool, covariance, dt: float = 0.2, prior_terms=None) -> float:
+        made = MatchReport(degenerate=degenerate, prior_terms=prior_terms)
+        made._covariance = np.asarray(covariance, dtype=np.float64)
+        motion.odometry.last_report = made
+        return motion._step_weak_var(dt)
+
+    along_corridor = np.diag([0.03**2, 0.002**2, 1e-6])
+    assert weak_var(True, along_corridor) == pytest.approx(0.03**2 + 0.002**2)
+    # a scan held on every axis: its covariance is not the odometry's drift
+    assert weak_var(False, along_corridor) == 0.0
+    # where the motion prior holds three quarters of the curvature, a quarter of it slides
+    held = (np.eye(3), np.array([1.0, 0.0, 0.0]), 1.0, 1.0)
+    assert weak_var(True, along_corridor, prior_terms=held) == pytest.approx(
+        0.25 * (0.03**2 + 0.002**2)
+    )
+    # a step without a match has no covariance of its own
+    assert weak_var(True, np.full((3, 3), np.nan)) == 0.0
+    # a scan that pins nothing: the step slid at most as far as it could without a jump
+    most = break_thresholds(0.2, motion.closure)[0]
+    assert weak_var(True, np.diag([1e5, 1e5, 1.0])) == pytest.approx(most**2)
+    assert weak_var(True, np.diag([1e5, 1e5, 1.0]), dt=2.0) > most**2

@@ -149,12 +149,12 @@ def implausible(
     step: FloatArray, expected: FloatArray, dt: float, config: LoopClosureConfig
 ) -> bool:
     """Whether ``step`` departs from the ``expected`` motion by more than a robot can change
-    its motion in ``dt`` seconds (:func:`_break_thresholds`), however the odometry matched
+    its motion in ``dt`` seconds (:func:`break_thresholds`), however the odometry matched
     it: on the simulated rooms the odometry, tracking without a search, slid 20 cm back in
     one scan and forward again seconds later."""
     (moved, turned), (max_moved, max_turned) = (
         _departure(step, expected),
-        _break_thresholds(dt, config),
+        break_thresholds(dt, config),
     )
     return moved > max_moved or turned > max_turned
 
@@ -223,7 +223,7 @@ def break_extent(
     have put the robot from where it went: its departure from the ``expected`` motion, at
     least what a robot could have changed its motion by in ``dt`` (a step without a match,
     or one blind along a corridor, has no departure of its own to tell)."""
-    return np.maximum(np.array(_departure(step, expected)), np.array(_break_thresholds(dt, config)))
+    return np.maximum(np.array(_departure(step, expected)), np.array(break_thresholds(dt, config)))
 
 
 def break_departure(
@@ -272,7 +272,7 @@ def _departure(step: FloatArray, expected: FloatArray) -> tuple[float, float]:
     )
 
 
-def _break_thresholds(dt: float, config: LoopClosureConfig) -> tuple[float, float]:
+def break_thresholds(dt: float, config: LoopClosureConfig) -> tuple[float, float]:
     """The most (m, rad) a robot's motion can change in ``dt`` seconds: ``break_distance``
     / ``break_angle`` plus half the break accelerations times dt²."""
     slack = 0.5 * dt * dt

@@ -125,6 +125,17 @@ class CognitiveMapConfig:
     #: covariance, :meth:`CognitiveMap.integrate_odometry`) instead of the two settings
     #: above, which then serve only scans without a match. False: the model alone.
     scan_heading_variance: bool = True
+    #: An odometry link's position variance also holds its degenerate scans' own (each such
+    #: match's covariance, :meth:`CognitiveMap.integrate_odometry`): where the scans left a
+    #: direction unconstrained the odometry may slide along it, and a loop closure then
+    #: bends the map there rather than where the scans held it. Off by default: it helps
+    #: where the odometry did slide (simulated floors with a 360° scanner of 3.5 m: ring
+    #: 15.2 -> 5.7 cm, cubicles with people 21.9 -> 12.5, against odometries of 13.2 and
+    #: 16.1), and costs where it did not, whatever the covariance said (a drift-free
+    #: URG-04LX ring to 0.63 cm, above its odometry's 0.61; the maze's SICK tour s1 0.38 ->
+    #: 0.47; intel 8.22 -> 8.39); the closures learned from cannot tell the two apart
+    #: (``benchmarks/README.md``, "Where the odometry could slide").
+    weak_step_variance: bool = False
     #: Variance (m^2, rad^2) every link has at least, so that a zero-length link is finite.
     #: Far below any link's own: at 1e-6 m² (and 1e-8 rad²) per link the floor alone, over
     #: the three links a metre of a simulated run makes, gave the odometry more variance
@@ -776,6 +787,8 @@ class CognitiveMap:
         self._heading_var = 0.0
         # variance (m², rad²) the odometry's breaks since the current experience add
         self._broken_var = np.zeros(2)
+        # position variance (m²) its degenerate steps since then add (``weak_var``)
+        self._weak_var = 0.0
         # whether the odometry doubted or broke a step since then
         self._doubted = False
         self._entered_measured = False
@@ -937,6 +950,7 @@ class CognitiveMap:
         broken: ArrayLike = (0.0, 0.0),
         doubted: bool = False,
         heading_var: float | None = None,
+        weak_var: float = 0.0,
     ) -> None:
         """Accumulate the motion ``dp`` (robot frame) since the current experience.
 
@@ -953,7 +967,12 @@ class CognitiveMap:
         (:func:`modelled_heading_var`). A scan-to-map odometry's heading is as good as its
         scans' fit: on the simulated worlds the summed per-scan variances came within a
         factor of two of the steps' true heading errors, 4e-6 to 3e-4 rad² per metre from
-        one world and scanner to another, where the model assumes 1e-5 everywhere."""
+        one world and scanner to another, where the model assumes 1e-5 everywhere.
+        ``weak_var`` (m²): the position variance of the steps within ``dp`` whose scans left
+        a direction unconstrained, as their matches measured it
+        (:attr:`CognitiveMapConfig.weak_step_variance`); the link that carries them is
+        weighted by that much less, beside the noise model's drift, and is not doubted for
+        it."""
         d = np.asarray(dp, dtype=np.float64).reshape(3)
         if not np.all(np.isfinite(d)):
             raise ValueError(f"odometry step must be finite, got {dp}")
@@ -965,6 +984,8 @@ class CognitiveMap:
         broken_var = np.square(np.asarray(broken, dtype=np.float64).reshape(2))
         self._broken_var += broken_var
         self._doubted = self._doubted or doubted or bool(broken_var.any())
+        if math.isfinite(weak_var):
+            self._weak_var += max(float(weak_var), 0.0)
         if stamp is not None:
             self._last_stamp = float(stamp)
 
@@ -1094,9 +1115,8 @@ class CognitiveMap:
         now: the odometry and breaks since it was entered, ``registrations`` at the robot's
         end and one more if the experience was entered by one (:func:`link_terms`)."""
         registrations += int(self._entered_measured)
-        return link_terms(
-            *self._travel, registrations, self.config, self._broken_var, self._heading_var
-        )
+        extra = self._broken_var + np.array([self._weak_var, 0.0])
+        return link_terms(*self._travel, registrations, self.config, extra, self._heading_var)
 
     def _weigh(self, terms: FloatArray) -> FloatArray:
         """:func:`information_of` ``terms`` under the map's noise model."""
@@ -1141,6 +1161,7 @@ class CognitiveMap:
         self._travel = np.zeros(2)
         self._heading_var = 0.0
         self._broken_var = np.zeros(2)
+        self._weak_var = 0.0
         self._doubted = False
         self._entered_measured = measured
         self._current = self._base = eid
