@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+from numpy.typing import ArrayLike
 
 from bioslam.cognitive_map import (
     ISOTROPIC,
@@ -755,21 +756,20 @@ def test_undoubted_chains_skip_doubted_links_and_compose_the_links_measurements(
     assert cm.link_distance(4, 2, within=10.0, undoubted=True) == pytest.approx(1.0)
 
 
-def heading_drift_on_one_side(heading_var: bool) -> tuple[float, float]:
-    """A square of 5 m sides driven once; on the second side the odometry's heading drifts
-    (0.01 rad a step, a corridor whose walls barely fix the heading) and its matches say
-    so (``heading_var``: each step's measured variance, else the model's), elsewhere it is
-    exact; a closure onto the first experience measures the truth. Returns the odometry's
-    and the relaxed map's position RMS errors against the truth."""
+def square_closed_after_one_bad_side(
+    cm: CognitiveMap, error: ArrayLike, bad: dict, good: dict
+) -> tuple[float, float]:
+    """A square of 5 m sides driven once into ``cm``; on the second side each odometry step
+    is off by ``error`` and integrated with the keywords ``bad`` (what its matches said),
+    elsewhere exact, with ``good``; a closure onto the first experience measures the
+    truth. Returns the odometry's and the relaxed map's position RMS errors against the
+    truth."""
     steps = square_route(5.0, 0.25, 1)
     truth = integrate(steps)
-    cm = CognitiveMap(CognitiveMapConfig())
-    drifting = np.zeros(len(steps), dtype=bool)
-    drifting[20:40] = True
     for k, d in enumerate(steps[:-1]):
-        odometry = d + np.array([0.0, 0.0, 0.01 if drifting[k] else 0.0])
-        var = (0.01**2 if drifting[k] else 1e-8) if heading_var else None
-        cm.integrate_odometry(odometry, stamp=float(k), heading_var=var)
+        off = 20 <= k < 40
+        cm.integrate_odometry(d + (np.asarray(error) if off else 0.0), stamp=float(k),
+                              **(bad if off else good))  # fmt: skip
         cm.update(k, True, PC, stamp=float(k))
     before = cm.experience_poses
     cm.integrate_odometry(steps[-1])
@@ -778,6 +778,16 @@ def heading_drift_on_one_side(heading_var: bool) -> tuple[float, float]:
     cm.relax()
     rms = lambda p: float(np.sqrt(np.mean(np.sum((p[:, :2] - truth[: len(p), :2]) ** 2, 1))))  # noqa: E731
     return rms(before), rms(cm.experience_poses)
+
+
+def heading_drift_on_one_side(heading_var: bool) -> tuple[float, float]:
+    """:func:`square_closed_after_one_bad_side` whose second side's heading drifts (0.01 rad
+    a step, a corridor whose walls barely fix the heading) and its matches say so
+    (``heading_var``: each step's measured variance, else the model's)."""
+    bad, good = ({"heading_var": 0.01**2}, {"heading_var": 1e-8}) if heading_var else ({}, {})
+    return square_closed_after_one_bad_side(
+        CognitiveMap(CognitiveMapConfig()), (0.0, 0.0, 0.01), bad, good
+    )
 
 
 def test_a_closure_bends_the_map_where_the_odometrys_matches_doubted_the_heading():
@@ -793,31 +803,15 @@ def test_a_closure_bends_the_map_where_the_odometrys_matches_doubted_the_heading
 
 
 def slide_on_one_side(weak_var: bool, drift_per_m: float) -> tuple[float, float]:
-    """A square of 5 m sides driven once; on the second side, a corridor whose walls leave
-    the scans unconstrained along it, each step of the odometry slides 2 cm on along it,
-    and its matches say how far they could (``weak_var``: each step's position variance,
-    (3 cm)²; without it, the links are the noise model's alone, whose odometry drifts
-    ``drift_per_m`` m² a metre); elsewhere it is exact. A closure onto the first
-    experience measures the truth. Returns the odometry's and the relaxed map's position
-    RMS errors against the truth."""
-    steps = square_route(5.0, 0.25, 1)
-    truth = integrate(steps)
+    """:func:`square_closed_after_one_bad_side` whose second side, a corridor whose walls
+    leave the scans unconstrained along it, slides 2 cm on along it a step, and its matches
+    say how far they could (``weak_var``: each step's position variance, (3 cm)²; without
+    it the links are the noise model's alone, whose odometry drifts ``drift_per_m`` m² a
+    metre)."""
     cm = CognitiveMap(CognitiveMapConfig())
     cm.set_noise(LinkNoise(drift_per_m, 0.02**2))
-    sliding = np.zeros(len(steps), dtype=bool)
-    sliding[20:40] = True
-    for k, d in enumerate(steps[:-1]):
-        odometry = d + np.array([0.02 if sliding[k] else 0.0, 0.0, 0.0])
-        var = 0.03**2 if sliding[k] and weak_var else 0.0
-        cm.integrate_odometry(odometry, stamp=float(k), weak_var=var)
-        cm.update(k, True, PC, stamp=float(k))
-    before = cm.experience_poses
-    cm.integrate_odometry(steps[-1])
-    measured = between(truth[0], truth[-1])
-    assert cm.update(0, False, PC, stamp=99.0, refine=lambda e: measured).kind == "loop"
-    cm.relax()
-    rms = lambda p: float(np.sqrt(np.mean(np.sum((p[:, :2] - truth[: len(p), :2]) ** 2, 1))))  # noqa: E731
-    return rms(before), rms(cm.experience_poses)
+    bad = {"weak_var": 0.03**2 if weak_var else 0.0}
+    return square_closed_after_one_bad_side(cm, (0.02, 0.0, 0.0), bad, {})
 
 
 @pytest.mark.parametrize("drift_per_m", [1e-4, 0.0])
