@@ -1125,7 +1125,8 @@ def test_only_a_degenerate_steps_own_position_variance_weakens_the_maps_link():
     from bioslam.closure import break_thresholds
     from bioslam.matching.gauss_newton import MatchReport
 
-    motion = BioSLAM(SLAMConfig()).self_motion
+    weighed = config_from_dict({"cognitive_map": {"weak_step_variance": True}}, "test")
+    motion = BioSLAM(weighed).self_motion
 
     def weak_var(degenerate: bool, covariance, dt: float = 0.2, prior_terms=None) -> float:
         made = MatchReport(degenerate=degenerate, prior_terms=prior_terms)
@@ -1148,3 +1149,6 @@ def test_only_a_degenerate_steps_own_position_variance_weakens_the_maps_link():
     most = break_thresholds(0.2, motion.closure)[0]
     assert weak_var(True, np.diag([1e5, 1e5, 1.0])) == pytest.approx(most**2)
     assert weak_var(True, np.diag([1e5, 1e5, 1.0]), dt=2.0) > most**2
+    # the map does not take it: nothing to sum
+    motion = BioSLAM(SLAMConfig()).self_motion
+    assert weak_var(True, along_corridor) == 0.0

@@ -785,10 +785,9 @@ class CognitiveMap:
         self._travel = np.zeros(2)
         # the odometry's heading variance (rad²) since then (:meth:`integrate_odometry`)
         self._heading_var = 0.0
-        # variance (m², rad²) the odometry's breaks since the current experience add
+        # variance (m², rad²) the odometry's breaks since the current experience add, with
+        # the position variance of its degenerate steps (``weak_var``)
         self._broken_var = np.zeros(2)
-        # position variance (m²) its degenerate steps since then add (``weak_var``)
-        self._weak_var = 0.0
         # whether the odometry doubted or broke a step since then
         self._doubted = False
         self._entered_measured = False
@@ -985,7 +984,7 @@ class CognitiveMap:
         self._broken_var += broken_var
         self._doubted = self._doubted or doubted or bool(broken_var.any())
         if math.isfinite(weak_var):
-            self._weak_var += max(float(weak_var), 0.0)
+            self._broken_var[0] += max(float(weak_var), 0.0)  # a possible slide, no doubt
         if stamp is not None:
             self._last_stamp = float(stamp)
 
@@ -1115,8 +1114,9 @@ class CognitiveMap:
         now: the odometry and breaks since it was entered, ``registrations`` at the robot's
         end and one more if the experience was entered by one (:func:`link_terms`)."""
         registrations += int(self._entered_measured)
-        extra = self._broken_var + np.array([self._weak_var, 0.0])
-        return link_terms(*self._travel, registrations, self.config, extra, self._heading_var)
+        return link_terms(
+            *self._travel, registrations, self.config, self._broken_var, self._heading_var
+        )
 
     def _weigh(self, terms: FloatArray) -> FloatArray:
         """:func:`information_of` ``terms`` under the map's noise model."""
@@ -1161,7 +1161,6 @@ class CognitiveMap:
         self._travel = np.zeros(2)
         self._heading_var = 0.0
         self._broken_var = np.zeros(2)
-        self._weak_var = 0.0
         self._doubted = False
         self._entered_measured = measured
         self._current = self._base = eid

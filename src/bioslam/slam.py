@@ -219,7 +219,8 @@ class SelfMotion:
         self.heading_var = 0.0
         #: the position variance (m²) of every step whose match the scan left unconstrained
         #: along a direction (:attr:`MatchReport.degenerate`), summed, as its match measured
-        #: it: how far the odometry may have slid where its scans could not hold it
+        #: it: how far the odometry may have slid where its scans could not hold it (0 unless
+        #: ``cognitive_map.weak_step_variance``)
         self.weak_var = 0.0
         self._map_config = config.cognitive_map
         #: metres travelled by the odometry so far
@@ -241,8 +242,8 @@ class SelfMotion:
         """The motion since the previous scan, in the previous robot frame."""
         dp = np.asarray(self.odometry.update(scan), dtype=np.float64).copy()
         self.slide = ""
+        dt = 0.0 if self._last_stamp is None else max(scan.stamp - self._last_stamp, 0.0)
         if self._last_stamp is not None:
-            dt = max(scan.stamp - self._last_stamp, 0.0)
             if self._last_dt > 0.0:  # the velocity of the step before is known
                 expected = self._last_step * min(dt / self._last_dt, 1e3)
                 report = self.odometry.last_report
@@ -267,10 +268,9 @@ class SelfMotion:
             self._last_step, self._last_dt = dp.copy(), dt
             if self.heading_bias:
                 dp[2] += self.heading_bias * dt
-        interval = 0.0 if self._last_stamp is None else max(scan.stamp - self._last_stamp, 0.0)
         self._last_stamp = scan.stamp
         self.heading_var += self._step_heading_var(dp)
-        self.weak_var += self._step_weak_var(interval)
+        self.weak_var += self._step_weak_var(dt)
         self.travelled += math.hypot(dp[0], dp[1])
         self.slides.travel(self.travelled)
         self.pose = compose(self.pose, dp)
@@ -331,9 +331,10 @@ class SelfMotion:
         weighed as one). 0 for a step the scan held on every axis: a well-held scan's
         covariance is not the odometry's drift (each scan is matched to a map the others
         hold too; summed over a run of a 10 Hz SICK it bent the rooms' loops by more than
-        the closures' error, ATE 0.71 cm against 0.30), a slide along a corridor is."""
+        the closures' error, ATE 0.71 cm against 0.30), a slide along a corridor is. 0
+        also when the map does not take it (``cognitive_map.weak_step_variance``)."""
         report = self.odometry.last_report
-        if not report.degenerate:
+        if not (self._map_config.weak_step_variance and report.degenerate):
             return 0.0
         var = float(report.covariance[0, 0] + report.covariance[1, 1])
         if not math.isfinite(var):
@@ -617,8 +618,7 @@ class BioSLAM:
         self._weak_var_at_look = self.self_motion.weak_var
         self.cognitive_map.integrate_odometry(
             dp, scan.stamp, broken, doubted,
-            heading_var if self.config.cognitive_map.scan_heading_variance else None,
-            weak_var if self.config.cognitive_map.weak_step_variance else 0.0,
+            heading_var if self.config.cognitive_map.scan_heading_variance else None, weak_var,
         )  # fmt: skip
         self._stamp = scan.stamp
         self._proposed = self._nearby(self._travelled)
