@@ -212,7 +212,7 @@ class MatchChoice:
         can have moved since the last scan (``reach``) falls back on the first, as in
         :meth:`_choose`, unless the first is rejected and it is clean and did not fail, and
         it turned no farther than the robot can have since the last scan and lies within
-        that reach across the robot's motion (:meth:`_off_course`), or the scan came after a
+        that reach across the robot's motion (:meth:`_beyond_motion`), or the scan came after a
         gap (not ``gapless``). A pose lost along a corridor is so found again, but
         a look-alike turned round is no recovery: scans at the scanner's rate match as
         sparse ones where the search ran for most of them, as on a revisit of a map a
@@ -249,8 +249,7 @@ class MatchChoice:
         best = self._at_place(pool, merit, cost, place_quality)
         chosen = self._typical_on_plateau(best, pool, quality, cost, previous)
         if chosen is not first and self._beyond(chosen[0], previous, reach) and (
-            (gapless and abs(between(previous, chosen[0])[2]) > reach[1])  # turned beyond
-            or (gapless and self._off_course(previous, chosen[0]) > reach[0])
+            (gapless and self._beyond_motion(previous, chosen[0], reach))
             or not (self._rejected(first[1]) and self._clean(chosen[1]) and not chosen[2])
         ):
             chosen = first
@@ -399,19 +398,25 @@ class MatchChoice:
         cfg = self._searcher.config
         return distance > cfg.rival_distance or turn > cfg.rival_angle
 
-    def _off_course(self, previous: FloatArray, pose: FloatArray) -> float:
-        """How far (m) the step from ``previous`` to ``pose`` lies across the direction the
-        robot was moving in (the motion model's velocity; the whole step when it stood
-        still). A pose the odometry lost slides along that direction, where a corridor's
-        ends are out of sight: the search may find it again farther than the robot moves
-        between two scans. Across it the walls held every step, and a match there beyond
-        reach is a look-alike."""
+    def _beyond_motion(
+        self, previous: FloatArray, pose: FloatArray, reach: tuple[float, float]
+    ) -> bool:
+        """Whether the step from ``previous`` to ``pose`` turned farther than ``reach`` or lies
+        farther than it across the direction the robot was moving in (the motion model's
+        velocity; any way for a robot that stood still). A pose the odometry lost slides
+        along that direction, where a corridor's ends are out of sight: the search may find
+        it again farther than the robot moves between two scans. Across it the walls held
+        every step, and a match there beyond reach is a look-alike, as is one turned
+        round."""
         step = between(previous, pose)
+        if abs(step[2]) > reach[1]:
+            return True
         vx, vy = float(self._motion.twist[0]), float(self._motion.twist[1])
         speed = math.hypot(vx, vy)
         if speed < 1e-6:
-            return math.hypot(step[0], step[1])
-        return abs(step[0] * vy - step[1] * vx) / speed
+            return math.hypot(step[0], step[1]) > reach[0]
+        along = np.array([vx / speed, vy / speed, 0.0])
+        return off_line(step, np.zeros(3), along, 0.0) > reach[0]
 
     @staticmethod
     def _beyond(pose: FloatArray, previous: FloatArray, reach: tuple[float, float]) -> bool:

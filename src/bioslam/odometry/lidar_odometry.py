@@ -475,9 +475,14 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         2.2 m/s through 20 s of degenerate scans, 6 m)."""
         c = self.config
         motion = (c.max_speed * dt, c.max_turn_rate * dt)
-        if self.num_scans == 2:
+        if self._first_match():
             return motion
         return jump[0] + motion[0], jump[1] + motion[1]
+
+    def _first_match(self) -> bool:
+        """The scan being matched is the second of the run (:attr:`num_scans` counts it): the
+        first matched against a map, from the first scan's pose."""
+        return self.num_scans == 2
 
     def _gapless(self, dt: float) -> bool:
         """The scan came no later than ``gap_time`` after the last: its prediction is a

@@ -148,7 +148,7 @@ class WideSearch:
         c = self.config
         step = between(previous, start)
         large = math.hypot(step[0], step[1]) > c.large_step or abs(step[2]) > c.large_turn
-        first = self.num_scans == 2
+        first = self._first_match()
         after_gap = not self._gapless(self._last_dt) and self._as_sparse()
         return failed or not self._gapless(dt) or large or first or after_gap
 
