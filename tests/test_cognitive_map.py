@@ -587,6 +587,27 @@ def test_block_solve_with_isotropic_shapes_is_the_scalar_solve():
     np.testing.assert_allclose(block, scalar, atol=1e-9)
 
 
+@pytest.mark.parametrize("windings", [1, -1, 2])
+def test_a_map_whose_headings_wound_wrongly_round_a_lap_solves_to_the_truth(windings):
+    # Two laps of a circle (every node's heading turned 2 pi per lap) with links between
+    # the laps: the links are exact, but the map it starts from believes each lap turned
+    # ``windings`` whole turns more, a few degrees per link, each residual small. Its
+    # solve must land on the truth, not spread the whole turns round the laps.
+    n, radius = 48, 3.0
+    angle = np.arange(2 * n) * 2 * math.pi / n
+    heading = wrap_angle(angle + math.pi / 2)
+    truth = np.stack([radius * np.cos(angle), radius * np.sin(angle), heading], 1)
+    src = np.r_[np.arange(2 * n - 1), np.arange(0, n, 6)]
+    dst = np.r_[np.arange(1, 2 * n), np.arange(0, n, 6) + n]
+    dps = between(truth[src], truth[dst])
+    weights = np.tile([100.0, 400.0], (src.size, 1))
+    start = truth.copy()
+    start[:, 2] = wrap_angle(truth[:, 2] + windings * angle)
+    _solve_fixed_point(start, src, dst, dps, weights, 1)
+    np.testing.assert_allclose(start[:, :2], truth[:, :2], atol=1e-6)
+    np.testing.assert_allclose(wrap_angle(start[:, 2] - truth[:, 2]), 0.0, atol=1e-9)
+
+
 def test_robust_kernel_still_catches_a_closure_that_slid_far_along_a_corridor():
     # A look-alike 1 m down the corridor: the shape excuses errors along it, the kernel must
     # not (it judges the residual against the registration's best-direction accuracy).

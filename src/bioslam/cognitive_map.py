@@ -381,6 +381,67 @@ def _incidence_t(src: NDArray[np.int64], dst: NDArray[np.int64], v: FloatArray, 
     return np.bincount(dst, v, minlength=n) - np.bincount(src, v, minlength=n)
 
 
+def _chain_headings(
+    poses: FloatArray,
+    src: NDArray[np.int64],
+    dst: NDArray[np.int64],
+    turns: FloatArray,
+    weights: FloatArray,
+    lo: int,
+) -> None:
+    """Sets the headings of experiences ``lo``.. (in place) to those composed along each one's
+    most certain chain of links (least summed heading variance, ``1 / weights``) from the
+    fixed experiences, the links' ``turns`` added up unwrapped.
+
+    The heading solve is linear only once every cycle of the graph knows how many times it
+    winds round: its residuals wrap at ±π, and a linear step leaves the sum of a cycle's
+    wrapped residuals as it found it. From headings that a wrong closure bent by more than
+    half a turn somewhere along a lap, that sum is a whole turn, which the solve then spreads
+    round the lap (a map of a curved floor re-solved with every link true ended 17 m off).
+    Along the chains each link's residual is zero, and a link off them is left with its
+    cycle's own misclosure, the smallest winding; headings that were right come out as
+    before, the solve being linear."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    free = poses.shape[0] - lo
+    ground = free  # every fixed experience, as in the Laplacian
+    ls = np.where(src >= lo, src - lo, ground)
+    lt = np.where(dst >= lo, dst - lo, ground)
+    usable = (ls != lt) & (weights > 0.0)
+    cost = np.where(usable, 1.0 / np.maximum(weights, 1e-300), np.inf)
+    # the most certain of parallel links, once per pair (a sparse matrix would add them up)
+    pair = np.minimum(ls, lt) * (free + 1) + np.maximum(ls, lt)
+    order = np.lexsort((cost, pair))
+    order = order[usable[order]]
+    _, first = np.unique(pair[order], return_index=True)
+    edges = order[first]
+    graph = coo_matrix((cost[edges], (ls[edges], lt[edges])), shape=(free + 1, free + 1))
+    _, parent = dijkstra(graph.tocsr(), directed=False, indices=ground, return_predecessors=True)
+    nodes = np.flatnonzero(parent[:free] >= 0)
+    if nodes.size == 0:
+        return
+    up = parent[nodes]
+    # the link each node was reached by (the kept pairs are sorted, as np.unique leaves them)
+    via = edges[
+        np.searchsorted(pair[edges], np.minimum(nodes, up) * (free + 1) + np.maximum(nodes, up))
+    ]
+    forwards = lt[via] == nodes  # the link runs from the parent to the node
+    # a node's heading is its parent's plus its link's turn: a fixed parent's own heading is
+    # folded into the link (the ground stands for all of them and counts as zero)
+    offset = np.where(forwards, turns[via], -turns[via])
+    fixed_end = np.where(forwards, src[via], dst[via])
+    offset = offset + np.where(up == ground, poses[fixed_end, 2], 0.0)
+    ancestor = np.full(free + 1, ground)
+    ancestor[nodes] = up
+    total = np.zeros(free + 1)
+    total[nodes] = offset
+    while (ancestor != ground).any():  # pointer jumping: each pass doubles the chain summed
+        total = total + np.where(ancestor != ground, total[ancestor], 0.0)
+        ancestor = np.where(ancestor != ground, ancestor[ancestor], ground)
+    poses[lo + nodes, 2] = wrap_angle(total[nodes])
+
+
 def _solve_fixed_point(
     poses: FloatArray,
     src: NDArray[np.int64],
@@ -399,11 +460,11 @@ def _solve_fixed_point(
     # Fixed experiences all map to one ground index (the last), dropped from the system.
     ls = np.where(src >= lo, src - lo, free)
     lt = np.where(dst >= lo, dst - lo, free)
+    _chain_headings(poses, src, dst, dps[:, 2], weights[:, 1], lo)
     lu = _laplacian_lu(ls, lt, weights[:, 1], free + 1)
-    for _ in range(2):  # a second pass settles residuals that wrapped around ±π
-        r = wrap_angle(poses[src, 2] + dps[:, 2] - poses[dst, 2])
-        step = lu.solve(_incidence_t(ls, lt, weights[:, 1] * r, free + 1)[:free])
-        poses[lo:, 2] = wrap_angle(poses[lo:, 2] + step)
+    r = wrap_angle(poses[src, 2] + dps[:, 2] - poses[dst, 2])
+    step = lu.solve(_incidence_t(ls, lt, weights[:, 1] * r, free + 1)[:free])
+    poses[lo:, 2] = wrap_angle(poses[lo:, 2] + step)
     c, sn = np.cos(poses[src, 2]), np.sin(poses[src, 2])
     rel = np.stack([c * dps[:, 0] - sn * dps[:, 1], sn * dps[:, 0] + c * dps[:, 1]], 1)
     # Known positions of fixed ends move to the right-hand side.
