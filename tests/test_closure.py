@@ -399,17 +399,20 @@ def test_a_scanner_passing_the_other_way_is_not_moved_along_the_corridor(world, 
     assert not verdict.accepted or math.hypot(err[0], err[1]) < 0.1, (verdict, err)
 
 
-def _second_pass(x: float, off: float = 0.0, jumps: int = 0) -> Candidate:
+def _second_pass(
+    x: float, off: float = 0.0, jumps: int = 0, read: frozenset[int] = frozenset()
+) -> Candidate:
     """A closure measured on a second pass 0.2 m beside the first along x, at travel ``x``
     (m): the old pass's odometry runs along the x axis, the robot's in a frame drifted by
     (100 m, 5 m, 0.3 rad); the measurement is the truth, ``off`` metres along the corridor
-    for a closure that slid or took a look-alike."""
+    for a closure that slid or took a look-alike; ``read`` the old experiences whose scans
+    it was registered against."""
     drifted = np.array([100.0, 5.0, 0.3])
     return Candidate(
         stamp=x, target=int(x * 10), measured=np.array([off, 0.2, 0.0]),
         odometry=compose(drifted, np.array([x, 0.2, 0.0])),
         target_odometry=np.array([x, 0.0, 0.0]), travelled=50.0 + x, target_travelled=x,
-        jumps=jumps, target_jumps=0,
+        jumps=jumps, target_jumps=0, read=read,
     )  # fmt: skip
 
 
@@ -436,6 +439,28 @@ def test_a_closure_off_along_the_corridor_never_finds_a_partner():
     lone = ClosureConsensus(LoopClosureConfig())
     assert lone.offer(_second_pass(1.0, off=0.9)) == []
     assert lone.offer(_second_pass(1.2, off=0.9)) == []  # the same view again proves nothing
+
+
+def test_closures_registered_against_the_same_old_scans_cannot_confirm_each_other():
+    # Two checks 0.7 m apart along a corridor both took the look-alike 2.7 m on (beyond the
+    # drift bound, where the system names the scans read): they read four of the same six
+    # scans of the old pass, so their agreement is one error twice. A third, against scans
+    # of its own, tells: true, it confirms neither.
+    consensus = ClosureConsensus(LoopClosureConfig())
+    first = _second_pass(1.0, off=2.7, read=frozenset({10, 12, 14, 16, 18, 20}))
+    second = _second_pass(1.7, off=2.7, read=frozenset({5, 7, 10, 12, 14, 16}))
+    assert consensus.offer(first) == []
+    assert consensus.offer(second) == []
+    true_one = _second_pass(4.5, read=frozenset({30, 32, 34}))
+    assert consensus.offer(true_one) == []
+    assert not (first.entered or second.entered)
+    # true ones against disjoint scans agree as before
+    apart = ClosureConsensus(LoopClosureConfig())
+    assert apart.offer(_second_pass(1.0, read=frozenset({10, 12}))) == []
+    assert len(apart.offer(_second_pass(2.0, read=frozenset({14, 16})))) == 2
+    alike = ClosureConsensus(LoopClosureConfig())
+    assert alike.offer(_second_pass(1.0, read=frozenset({10, 12}))) == []
+    assert alike.offer(_second_pass(2.0, read=frozenset({12, 14}))) == []
 
 
 def test_closures_across_an_odometry_break_cannot_confirm_each_other():

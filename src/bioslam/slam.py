@@ -13,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from collections.abc import Callable, Iterator, MutableSequence
+from collections.abc import Callable, Iterator, MutableSequence, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, overload
@@ -725,6 +725,7 @@ class BioSLAM:
         trusted, since, by_chain = self._trust(min(anchor, experience.id), since, anchor)
         chained = by_chain is not None
         drift, drift_angle = self._drift_bound(since, linked or chained)
+        bound = (drift, drift_angle)
         # a trusted relation has no break; one trusted only through the chain none on it
         broken = None if trusted else self._break_since(min(anchor, experience.id))
         if broken is not None:
@@ -823,7 +824,10 @@ class BioSLAM:
                 else None  # (only that weighting reads it)
             )
             measured = Measurement(verdict.pose, shape, doubted=chained, covariance=covariance)
-        if not self._confirmed(experience, measured, alone and not verdict.needs_partner):
+        # a correction only the breaks' widening of the window let in: checks that matched
+        # the same old scans share its error, and cannot vouch for one another
+        read = (*members, anchor) if not within(between(predicted, verdict.pose), *bound) else ()
+        if not self._confirmed(experience, measured, alone and not verdict.needs_partner, read):
             return None
         if self.config.cognitive_map.learn_noise:
             unsettled_in_place = compose(anchor_in_experience, unsettled)
@@ -875,14 +879,18 @@ class BioSLAM:
         pinned = (v * w) @ v.T
         return np.array([pinned[0, 0], pinned[0, 1], pinned[1, 1]])
 
-    def _confirmed(self, experience: Experience, measured: Measurement, alone: bool) -> bool:
+    def _confirmed(
+        self, experience: Experience, measured: Measurement, alone: bool, read: Sequence[int]
+    ) -> bool:
         """Whether a verified closure enters the map now: at once without the pairwise
         test, or when it may stand ``alone`` (the odometry relates the robot to the place
         without a step it doubted, :func:`bioslam.closure.odometry_doubted`, or a break, and
         the registration scored ``min_score``); else once another closure agrees with it
         (:class:`bioslam.closure.ClosureConsensus`). The waiting closures a closure
         confirms enter the map here, their checks then counting as accepted; one left
-        waiting is recorded as refused ('unconfirmed') until then."""
+        waiting is recorded as refused ('unconfirmed') until then. ``read``: the experiences
+        whose scans the registration matched, where their shared errors would tell (empty
+        where not)."""
         if not self.config.loop_closure.consistency:
             return True
         cmap, eid = self.cognitive_map, experience.id
@@ -891,6 +899,7 @@ class BioSLAM:
             self.self_motion.pose.copy(), self._odometry_at[eid].copy(), self._travelled,
             float(self._made_at[eid]), self.self_motion.jumps, int(self._jumps_at[eid]),
             link=cmap.loop_link(eid, measured, self._stamp), check=len(self.checks) - 1,
+            read=frozenset(read),
         )  # fmt: skip
         confirmed = self.consensus.offer(candidate, alone)
         check = self.checks[candidate.check]
