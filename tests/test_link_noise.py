@@ -33,13 +33,17 @@ def test_the_fit_recovers_a_drift_and_a_registration_floor(seed):
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_residuals_that_do_not_grow_with_the_span_give_no_drift(seed):
+def test_residuals_that_do_not_grow_with_the_span_give_only_the_drift_they_cannot_rule_out(
+    seed,
+):
     # the registrations' and the odometry's own local errors: no correction of the path
-    # between two places removes them
+    # between two places removes them. The drift is what they could not have seen: below
+    # one that would double their variance at the longest span, and not none (no
+    # odometry link is ever exact), far below the configured 1e-4 m² a metre
     spans, r = residuals(rate=0.0, floor=2e-5, n=40, seed=seed)
     rate, floor = fit_random_walk(spans, r**2, (1e-4, 4e-4), 1.0)
-    assert rate == 0.0
     assert floor == pytest.approx(2e-5, rel=0.6)
+    assert 0.1 * floor < rate * spans.max() < 2.0 * floor
 
 
 @pytest.mark.parametrize("count", [2, 5])
@@ -74,7 +78,8 @@ def test_the_estimator_keeps_the_prior_until_enough_closures_came_in():
     assert estimator.add(float("nan"), 0.0, 0.0, 0.0) == PRIOR  # not counted
     assert len(estimator) == 7
     fitted = estimator.add(spans[7], r[7], heading[7], 1e-4 * spans[7])
-    assert fitted != PRIOR and fitted.closure_var < 1e-5 and fitted.odometry_var_per_m == 0.0
+    assert fitted != PRIOR and fitted.closure_var < 1e-5
+    assert 0.0 < fitted.odometry_var_per_m < 1e-2 * PRIOR.odometry_var_per_m
 
 
 @pytest.mark.parametrize("seed", range(8))

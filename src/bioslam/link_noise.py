@@ -226,8 +226,37 @@ def fit_random_walk(
         _posterior_cost(drift[0], drift[1], spans, squared, centre, prior_decades)
     )
     if gain < 0.5 * math.log(max(spans.size, 2)):
-        return 0.0, 10.0**still / T_SCALE_OF_UNIT_VARIANCE
+        unrefuted = _unrefuted_rate(still, lo[0], hi[0], spans, squared, centre, prior_decades)
+        return unrefuted / T_SCALE_OF_UNIT_VARIANCE, 10.0**still / T_SCALE_OF_UNIT_VARIANCE
     return rate / T_SCALE_OF_UNIT_VARIANCE, floor / T_SCALE_OF_UNIT_VARIANCE
+
+
+#: How much worse (in log-likelihood) than none a drift may fit the residuals and still not
+#: be ruled out by them (:func:`_unrefuted_rate`): a two-sided 95 % profile bound.
+UNREFUTED_MARGIN = 1.92
+#: log10 step of the search for that drift
+UNREFUTED_STEP = 0.125
+
+
+def _unrefuted_rate(
+    log_floor: float, lo: float, hi: float, spans: FloatArray, squared: FloatArray,
+    centre: FloatArray, prior_decades: float,
+) -> float:
+    """The largest drift rate (between ``10**lo`` and ``10**hi``) that fits the residuals
+    within :data:`UNREFUTED_MARGIN` of no drift at all, the floor ``10**log_floor`` kept;
+    0 if none does. Where the closures show no drift they have not shown that there is
+    none, only that it is smaller than they could see, and they never span the slides the
+    odometry did not notice. A rate of exactly 0 made every odometry link as stiff as the
+    variance floor: a 1.2 m slide in a maze corridor (SICK, reversing, two people) could
+    not bend, the true closures beyond it dragged the whole first lap a metre off (61 cm
+    against the odometry's 47), and the Laplacian's weights, 1e-1 to 1e10, cost its solve
+    millimetres a link."""
+    base = _posterior_cost(None, log_floor, spans, squared, centre, prior_decades)
+    for log_rate in np.arange(hi, lo - 0.5 * UNREFUTED_STEP, -UNREFUTED_STEP):
+        cost = _posterior_cost(float(log_rate), log_floor, spans, squared, centre, prior_decades)
+        if cost - base <= UNREFUTED_MARGIN:
+            return float(10.0**log_rate)
+    return 0.0
 
 
 def _posterior_cost(
