@@ -18,9 +18,10 @@ registration's, ``rate * distance + floor`` (a random walk plus a constant); the
 ``scale * (the matches' summed heading variance) + floor``. :class:`LinkNoiseEstimator` fits
 both by maximum likelihood under a Student-t (a false or slid closure among true ones does not
 inflate the fit), with a log-normal prior centred on the configured values, so that a few
-closures move the model little and many set it; the drift stays 0 unless the residuals grow
-with the distance significantly (:func:`fit_random_walk`), and the map's odometry then bends
-only where it broke.
+closures move the model little and many set it. Unless the residuals grow with the distance
+significantly (:func:`fit_random_walk`), the drift is the largest they cannot rule out, small
+enough that the map's odometry bends mostly where it broke, and never so small that a slide
+the odometry did not notice cannot bend at all.
 """
 
 from __future__ import annotations
@@ -191,11 +192,12 @@ def fit_random_walk(
     two-valleyed likelihood does not trap it), refined by a bounded Newton descent
     (:func:`_descend`).
 
-    The rate is 0 unless the model with it explains the residuals significantly better than
-    the one without (the Bayesian information criterion: its gain must exceed half the log
-    of the number of residuals): residuals that do not grow are the registrations' and the
-    odometry's own local errors, which no correction of the path between them removes, and
-    a rate the data cannot tell from none would still bend every loop by part of them. The
+    The rate is fitted only where the model with it explains the residuals significantly
+    better than the one without (the Bayesian information criterion: its gain must exceed
+    half the log of the number of residuals): residuals that do not grow are the
+    registrations' and the odometry's own local errors, which no correction of the path
+    between them removes, and a rate fitted to them would bend every loop by part of them.
+    Otherwise it is the largest rate they do not rule out (:func:`_unrefuted_rate`). The
     two are compared with their priors' penalties above the settings (:func:`_posterior_cost`):
     where every closure spans the same loop the residuals alone cannot tell a drift from a
     registration floor, and a floor decades above the registrations' prior is the less
