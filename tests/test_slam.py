@@ -86,15 +86,20 @@ def test_drift_free_run_stays_accurate(ring_drive):
     slam = run(scans, SLAMConfig())
     assert ate(slam.trajectory(), gt)["rmse"] < 0.05
     # The closures' residuals against this odometry are their own errors, not growing with
-    # the loop: the learned link noise gives the odometry no drift, and the closures leave
-    # it as it was. With the configured model (1 cm a metre, 2 cm a closure) their errors
-    # bend the loops.
+    # the loop: the learned link noise gives the odometry only the drift they cannot rule
+    # out, far below the configured one, and the closures' errors bend its loops less than
+    # half as much as with the configured model (1 cm a metre, 2 cm a closure): 0.3 mm and
+    # 0.7 mm of ATE. (With no drift at all they bent nothing here, and a slide the odometry
+    # did not notice could not bend either: a maze corridor's 1.2 m.)
     summary = slam.summary()
-    assert summary["loop_closures"] >= 10 and summary["link_noise_odometry_var_per_m"] == 0.0
+    configured = SLAMConfig().cognitive_map.odometry_var_per_m
+    assert summary["loop_closures"] >= 10
+    assert 0.0 < summary["link_noise_odometry_var_per_m"] < 0.01 * configured
     odometry = ate(slam.odometry_trajectory(), gt)["rmse"]
-    assert ate(slam.trajectory(), gt)["rmse"] <= odometry + 1e-4
     fixed = run(scans, config_from_dict({"cognitive_map": {"learn_noise": False}}, "test"))
-    assert ate(fixed.trajectory(), gt)["rmse"] > odometry + 5e-4
+    bent, bent_configured = (ate(s.trajectory(), gt)["rmse"] - odometry for s in (slam, fixed))
+    assert bent_configured > 5e-4
+    assert bent < bent_configured / 2.0
     records = slam.records
     assert records[0].view_is_new and records[0].event == "new"
     # The second lap re-recognises views learned on the first.
