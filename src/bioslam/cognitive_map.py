@@ -384,15 +384,18 @@ def _incidence_t(src: NDArray[np.int64], dst: NDArray[np.int64], v: FloatArray, 
 
 def _chain_headings(
     poses: FloatArray,
-    src: NDArray[np.int64],
-    dst: NDArray[np.int64],
+    ends: tuple[NDArray[np.int64], NDArray[np.int64]],
+    ls: NDArray[np.int64],
+    lt: NDArray[np.int64],
     turns: FloatArray,
     weights: FloatArray,
     lo: int,
 ) -> None:
-    """Sets the headings of experiences ``lo``.. (in place) to those composed along each one's
-    most certain chain of links (least summed heading variance, ``1 / weights``) from the
-    fixed experiences, the links' ``turns`` added up unwrapped.
+    """Sets the headings of the free experiences, ``lo``.. (in place), to those composed
+    along each one's most certain chain of links (least summed heading variance,
+    ``1 / weights``) from the fixed experiences, the links' ``turns`` added up unwrapped.
+    ``ends``: the links' source and target experiences; ``ls``, ``lt``: the same as the solve
+    numbers them, the free ones from 0 and every fixed one as the last index, the ground.
 
     The heading solve is linear only once every cycle of the graph knows how many times it
     winds round: its residuals wrap at ±π, and a linear step leaves the sum of a cycle's
@@ -405,10 +408,8 @@ def _chain_headings(
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import dijkstra
 
-    free = poses.shape[0] - lo
-    ground = free  # every fixed experience, as in the Laplacian
-    ls = np.where(src >= lo, src - lo, ground)
-    lt = np.where(dst >= lo, dst - lo, ground)
+    src, dst = ends
+    ground = free = poses.shape[0] - lo
     usable = (ls != lt) & (weights > 0.0)
     cost = np.where(usable, 1.0 / np.maximum(weights, 1e-300), np.inf)
     # the most certain of parallel links, once per pair (a sparse matrix would add them up)
@@ -461,7 +462,7 @@ def _solve_fixed_point(
     # Fixed experiences all map to one ground index (the last), dropped from the system.
     ls = np.where(src >= lo, src - lo, free)
     lt = np.where(dst >= lo, dst - lo, free)
-    _chain_headings(poses, src, dst, dps[:, 2], weights[:, 1], lo)
+    _chain_headings(poses, (src, dst), ls, lt, dps[:, 2], weights[:, 1], lo)
     lu = _laplacian_lu(ls, lt, weights[:, 1], free + 1)
     r = wrap_angle(poses[src, 2] + dps[:, 2] - poses[dst, 2])
     step = lu.solve(_incidence_t(ls, lt, weights[:, 1] * r, free + 1)[:free])

@@ -13,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from collections.abc import Callable, Iterator, MutableSequence, Sequence
+from collections.abc import Callable, Iterator, MutableSequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, overload
@@ -826,7 +826,8 @@ class BioSLAM:
             measured = Measurement(verdict.pose, shape, doubted=chained, covariance=covariance)
         # a correction only the breaks' widening of the window let in: checks that matched
         # the same old scans share its error, and cannot vouch for one another
-        read = (*members, anchor) if not within(between(predicted, verdict.pose), *bound) else ()
+        beyond = not within(between(predicted, verdict.pose), *bound)
+        read = frozenset((*members, anchor)) if beyond else frozenset()
         if not self._confirmed(experience, measured, alone and not verdict.needs_partner, read):
             return None
         if self.config.cognitive_map.learn_noise:
@@ -880,7 +881,7 @@ class BioSLAM:
         return np.array([pinned[0, 0], pinned[0, 1], pinned[1, 1]])
 
     def _confirmed(
-        self, experience: Experience, measured: Measurement, alone: bool, read: Sequence[int]
+        self, experience: Experience, measured: Measurement, alone: bool, read: frozenset[int]
     ) -> bool:
         """Whether a verified closure enters the map now: at once without the pairwise
         test, or when it may stand ``alone`` (the odometry relates the robot to the place
@@ -899,7 +900,7 @@ class BioSLAM:
             self.self_motion.pose.copy(), self._odometry_at[eid].copy(), self._travelled,
             float(self._made_at[eid]), self.self_motion.jumps, int(self._jumps_at[eid]),
             link=cmap.loop_link(eid, measured, self._stamp), check=len(self.checks) - 1,
-            read=frozenset(read),
+            read=read,
         )  # fmt: skip
         confirmed = self.consensus.offer(candidate, alone)
         check = self.checks[candidate.check]
