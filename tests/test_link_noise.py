@@ -10,6 +10,7 @@ from bioslam.link_noise import (
     LinkNoiseEstimator,
     _descend,
     _nll_and_derivatives,
+    fit_drift,
     fit_random_walk,
 )
 
@@ -113,3 +114,24 @@ def test_the_descent_ends_where_a_general_minimiser_does(seed):
         ours = np.array([a, b])[keep]
         assert cost(ours)[0] <= general.fun + 1e-9
         assert ours == pytest.approx(general.x, abs=1e-3)
+
+
+@pytest.mark.parametrize("seed", [11, 12])
+def test_the_likeliest_drift_is_the_median_of_those_allowed_or_the_fit_where_one_shows(seed):
+    # The map is finished with the drift the closures make likeliest (LinkNoise.likely):
+    # where they show none, far below the largest they cannot rule out (which the run's map
+    # keeps, to follow a slide the odometry did not notice), under a third of the
+    # registrations' variance over the longest span; where they show one, the fit.
+    spans, r = residuals(rate=0.0, floor=2e-5, n=40, seed=seed)
+    rate, floor, likely = fit_drift(spans, r**2, (1e-4, 4e-4), 1.0)
+    assert 0.0 < likely < rate / 2.5
+    assert likely * spans.max() < 0.3 * floor
+    spans, r = residuals(rate=3e-5, floor=1e-5, n=200, seed=seed)
+    rate, _, likely = fit_drift(spans, r**2, (1e-4, 4e-4), 1.0)
+    assert likely == rate == pytest.approx(3e-5, rel=0.4)
+
+
+def test_the_likeliest_model_keeps_the_closures_own_noise():
+    noise = LinkNoise(8e-7, 2e-5, 4e-3, 2e-6, likely_var_per_m=1e-8, likely_heading_scale=1e-3)
+    assert noise.likely() == LinkNoise(1e-8, 2e-5, 1e-3, 2e-6)
+    assert LinkNoise(8e-7, 2e-5).likely() == LinkNoise(8e-7, 2e-5)

@@ -86,20 +86,23 @@ def test_drift_free_run_stays_accurate(ring_drive):
     slam = run(scans, SLAMConfig())
     assert ate(slam.trajectory(), gt)["rmse"] < 0.05
     # The closures' residuals against this odometry are their own errors, not growing with
-    # the loop: the learned link noise gives the odometry only the drift they cannot rule
-    # out, far below the configured one, and the closures' errors bend its loops less than
-    # half as much as with the configured model (1 cm a metre, 2 cm a closure): 0.3 mm and
-    # 0.7 mm of ATE. (With no drift at all they bent nothing here, and a slide the odometry
-    # did not notice could not bend either: a maze corridor's 1.2 m.)
+    # the loop. While the run goes on the map keeps only the drift they cannot rule out, far
+    # below the configured one (and not none: a slide the odometry did not notice must be
+    # able to bend, a maze corridor's 1.2 m); the finished map is solved with the likeliest
+    # drift, lower still, and the closures' errors bend the odometry's loops by 0.1 mm of
+    # ATE, where the configured model (1 cm a metre, 2 cm a closure) bends them by 0.7 mm
+    # (and the drift not ruled out, finished with, by 0.3 mm).
     summary = slam.summary()
     configured = SLAMConfig().cognitive_map.odometry_var_per_m
     assert summary["loop_closures"] >= 10
-    assert 0.0 < summary["link_noise_odometry_var_per_m"] < 0.01 * configured
+    kept = slam.link_noise.model.odometry_var_per_m
+    assert 0.0 < summary["link_noise_odometry_var_per_m"] < kept / 2.5
+    assert kept < 0.01 * configured
     odometry = ate(slam.odometry_trajectory(), gt)["rmse"]
     fixed = run(scans, config_from_dict({"cognitive_map": {"learn_noise": False}}, "test"))
     bent, bent_configured = (ate(s.trajectory(), gt)["rmse"] - odometry for s in (slam, fixed))
     assert bent_configured > 5e-4
-    assert bent < bent_configured / 2.0
+    assert bent < bent_configured / 4.0
     records = slam.records
     assert records[0].view_is_new and records[0].event == "new"
     # The second lap re-recognises views learned on the first.

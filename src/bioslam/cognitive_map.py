@@ -31,8 +31,9 @@ Relaxation (Eq. 14) — the choices the paper leaves open, written down:
   its odometry can have drifted. How much the odometry drifts and how far a registration
   errs is learned from the closures themselves (:mod:`bioslam.link_noise`,
   :meth:`CognitiveMap.set_noise`): where the closures' residuals against the odometry do not
-  grow with the loop, the odometry gets the least drift they cannot rule out, and the
-  closures bend it little but where it broke. A robust
+  grow with the loop, the odometry gets, while the run goes on, the largest drift they cannot
+  rule out, and the closures bend it little but where it broke; the finished map is solved
+  with the drift they show, none (:meth:`bioslam.slam.BioSLAM.finish`). A robust
   kernel (dynamic covariance scaling, :func:`robust_scale`) then demotes loop links that the
   solved map contradicts. With equal
   weights (all links alike) this is Eq. 14 as printed.

@@ -19,9 +19,12 @@ registration's, ``rate * distance + floor`` (a random walk plus a constant); the
 both by maximum likelihood under a Student-t (a false or slid closure among true ones does not
 inflate the fit), with a log-normal prior centred on the configured values, so that a few
 closures move the model little and many set it. Unless the residuals grow with the distance
-significantly (:func:`fit_random_walk`), the drift is the largest they cannot rule out, small
+significantly (:func:`fit_drift`), the drift is the largest they cannot rule out, small
 enough that the map's odometry bends mostly where it broke, and never so small that a slide
-the odometry did not notice cannot bend at all.
+the odometry did not notice cannot bend at all; that is the model the map keeps while the run
+goes on. The finished map is solved with the drift the closures make likeliest (where they
+show none, the median of what they allow: :meth:`LinkNoise.likely`), so that their
+registrations' own errors do not bend an odometry better than them.
 """
 
 from __future__ import annotations
@@ -55,12 +58,31 @@ class LinkNoise:
     """The noise model of the map's links: ``odometry_var_per_m`` (m² per metre travelled),
     ``closure_var`` (m², one registration's position variance), ``heading_scale`` (times the
     odometry's measured heading variance) and ``closure_heading_var`` (rad², one
-    registration's heading variance)."""
+    registration's heading variance).
+
+    ``likely_var_per_m`` and ``likely_heading_scale``: the drift the closures make likeliest,
+    where the two above are the largest they do not rule out (:func:`fit_drift`); None where
+    the two are the drift the closures show. The run's map keeps the largest, so that its
+    predictions of where the robot is can follow a slide the odometry did not notice; the
+    finished map is solved with the likeliest (:meth:`likely`)."""
 
     odometry_var_per_m: float
     closure_var: float
     heading_scale: float = 1.0
     closure_heading_var: float = 2.5e-5
+    likely_var_per_m: float | None = None
+    likely_heading_scale: float | None = None
+
+    def likely(self) -> LinkNoise:
+        """The model with the drift the closures make likeliest in place of the largest they
+        do not rule out."""
+        rate, scale = self.likely_var_per_m, self.likely_heading_scale
+        return LinkNoise(
+            self.odometry_var_per_m if rate is None else rate,
+            self.closure_var,
+            self.heading_scale if scale is None else scale,
+            self.closure_heading_var,
+        )
 
 
 def random_walk_nll(
@@ -184,20 +206,33 @@ def fit_random_walk(
     prior: tuple[float, float],
     prior_decades: float,
 ) -> tuple[float, float]:
-    """The (rate, floor) of the variance ``rate * span + floor`` that best explains one-axis
-    residuals (``squared``, over ``spans``; :func:`random_walk_nll`, its scales taken to
-    variances by :data:`T_SCALE_OF_UNIT_VARIANCE`) with a log-normal prior centred on
-    ``prior`` (``prior_decades``: its standard deviation, in decades), from six decades
-    below the prior to two above: the best of a coarse grid of log10 values (a flat or
-    two-valleyed likelihood does not trap it), refined by a bounded Newton descent
-    (:func:`_descend`).
+    """:func:`fit_drift`'s (rate, floor): where the residuals show no drift, the rate is the
+    largest they do not rule out."""
+    rate, floor, _ = fit_drift(spans, squared, prior, prior_decades)
+    return rate, floor
+
+
+def fit_drift(
+    spans: FloatArray,
+    squared: FloatArray,
+    prior: tuple[float, float],
+    prior_decades: float,
+) -> tuple[float, float, float]:
+    """The (rate, floor, likeliest rate) of the variance ``rate * span + floor`` that best
+    explains one-axis residuals (``squared``, over ``spans``; :func:`random_walk_nll`, its scales
+    taken to variances by :data:`T_SCALE_OF_UNIT_VARIANCE`) with a log-normal prior centred on
+    ``prior`` (``prior_decades``: its standard deviation, in decades), from six decades below the
+    prior to two above: the best of a coarse grid of log10 values (a flat or two-valleyed likelihood
+    does not trap it), refined by a bounded Newton descent (:func:`_descend`).
 
     The rate is fitted only where the model with it explains the residuals significantly
     better than the one without (the Bayesian information criterion: its gain must exceed
     half the log of the number of residuals): residuals that do not grow are the
     registrations' and the odometry's own local errors, which no correction of the path
     between them removes, and a rate fitted to them would bend every loop by part of them.
-    Otherwise it is the largest rate they do not rule out (:func:`_unrefuted_rate`). The
+    Otherwise it is the largest rate they do not rule out (:func:`_unrefuted_rate`), and the
+    third value returned, the likeliest rate, the median of those they allow (as likely above
+    it as below: :data:`LIKELY_MARGIN`); else both are the rate fitted. The
     two are compared with their priors' penalties above the settings (:func:`_posterior_cost`):
     where every closure spans the same loop the residuals alone cannot tell a drift from a
     registration floor, and a floor decades above the registrations' prior is the less
@@ -228,35 +263,41 @@ def fit_random_walk(
         _posterior_cost(drift[0], drift[1], spans, squared, centre, prior_decades)
     )
     if gain < 0.5 * math.log(max(spans.size, 2)):
-        unrefuted = _unrefuted_rate(still, lo[0], hi[0], spans, squared, centre, prior_decades)
-        return unrefuted / T_SCALE_OF_UNIT_VARIANCE, 10.0**still / T_SCALE_OF_UNIT_VARIANCE
-    return rate / T_SCALE_OF_UNIT_VARIANCE, floor / T_SCALE_OF_UNIT_VARIANCE
+        unrefuted, likely = (
+            _unrefuted_rate(still, lo[0], hi[0], spans, squared, centre, prior_decades, margin)
+            / T_SCALE_OF_UNIT_VARIANCE
+            for margin in (UNREFUTED_MARGIN, LIKELY_MARGIN)
+        )
+        return unrefuted, 10.0**still / T_SCALE_OF_UNIT_VARIANCE, likely
+    rate /= T_SCALE_OF_UNIT_VARIANCE
+    return rate, floor / T_SCALE_OF_UNIT_VARIANCE, rate
 
 
 #: How much worse (in log-likelihood) than none a drift may fit the residuals and still not
 #: be ruled out by them (:func:`_unrefuted_rate`): a two-sided 95 % profile bound.
 UNREFUTED_MARGIN = 1.92
-#: log10 step of the search for that drift
+#: ... and the margin of the median of the drifts they allow: a two-sided 50 % profile bound.
+LIKELY_MARGIN = 0.228
+#: log10 step of the search for those drifts
 UNREFUTED_STEP = 0.125
 
 
 def _unrefuted_rate(
     log_floor: float, lo: float, hi: float, spans: FloatArray, squared: FloatArray,
-    centre: FloatArray, prior_decades: float,
+    centre: FloatArray, prior_decades: float, margin: float = UNREFUTED_MARGIN,
 ) -> float:
     """The largest drift rate (between ``10**lo`` and ``10**hi``) that fits the residuals
-    within :data:`UNREFUTED_MARGIN` of no drift at all, the floor ``10**log_floor`` kept;
-    0 if none does. Where the closures show no drift they have not shown that there is
-    none, only that it is smaller than they could see, and they never span the slides the
-    odometry did not notice. A rate of exactly 0 made every odometry link as stiff as the
-    variance floor: a 1.2 m slide in a maze corridor (SICK, reversing, two people) could
-    not bend, the true closures beyond it dragged the whole first lap a metre off (61 cm
-    against the odometry's 47), and the Laplacian's weights, 1e-1 to 1e10, cost its solve
-    millimetres a link."""
+    within ``margin`` (:data:`UNREFUTED_MARGIN`) of no drift at all, the floor ``10**log_floor``
+    kept; 0 if none does. Where the closures show no drift they have not shown that there is none,
+    only that it is smaller than they could see, and they never span the slides the odometry did not
+    notice. A rate of exactly 0 made every odometry link as stiff as the variance floor: a 1.2 m
+    slide in a maze corridor (SICK, reversing, two people) could not bend, the true closures beyond
+    it dragged the whole first lap a metre off (61 cm against the odometry's 47), and the
+    Laplacian's weights, 1e-1 to 1e10, cost its solve millimetres a link."""
     base = _posterior_cost(None, log_floor, spans, squared, centre, prior_decades)
     for log_rate in np.arange(hi, lo - 0.5 * UNREFUTED_STEP, -UNREFUTED_STEP):
         cost = _posterior_cost(float(log_rate), log_floor, spans, squared, centre, prior_decades)
-        if cost - base <= UNREFUTED_MARGIN:
+        if cost - base <= margin:
             return float(10.0**log_rate)
     return 0.0
 
@@ -304,6 +345,11 @@ class LinkNoiseEstimator:
         """The closures taken in so far (the fit reads the last ``max_samples``)."""
         return self._added
 
+    @property
+    def model(self) -> LinkNoise:
+        """The model the closures so far give (the prior until ``min_samples``)."""
+        return self._fitted
+
     def add(
         self, distance: float, position: float, heading: float, heading_var: float
     ) -> LinkNoise:
@@ -335,11 +381,11 @@ class LinkNoiseEstimator:
     def _fit(self) -> LinkNoise:
         rows = np.asarray(self._rows)
         p = self.prior
-        rate, floor = fit_random_walk(
+        rate, floor, likely_rate = fit_drift(
             rows[:, 0], rows[:, 1], (p.odometry_var_per_m, p.closure_var), self.prior_decades
         )
-        scale, heading_floor = fit_random_walk(
+        scale, heading_floor, likely_scale = fit_drift(
             rows[:, 2], rows[:, 3], (p.heading_scale, p.closure_heading_var),
             self.prior_decades,
         )  # fmt: skip
-        return LinkNoise(rate, floor, scale, heading_floor)
+        return LinkNoise(rate, floor, scale, heading_floor, likely_rate, likely_scale)

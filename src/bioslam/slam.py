@@ -1111,11 +1111,25 @@ class BioSLAM:
 
     def finish(self) -> None:
         """Settle the cognitive map after the last scan (the final trajectory is re-derived
-        from it)."""
+        from it), its links weighed by the drift the closures make likeliest rather than the
+        largest they do not rule out (:meth:`bioslam.link_noise.LinkNoise.likely`): while the
+        run goes on, the map must be able to follow a slide the odometry did not notice, so
+        that its predictions of where the robot is hold; the finished map is the one the
+        evidence makes likeliest. Where the closures show no drift, the largest they could
+        not rule out let their registrations' millimetres bend an odometry better than them
+        (the rooms' SICK weaving route: 0.35 cm against the odometry's 0.30; 0.31 so)."""
         self._relax_now()
-        if not self.cognitive_map.converged:
-            self.cognitive_map.solve()
-            self.cognitive_map.relax()
+        cmap = self.cognitive_map
+        reweighed = False
+        if self.config.cognitive_map.learn_noise and len(self.link_noise):
+            before = cmap.noise
+            cmap.set_noise(before.likely())
+            reweighed = cmap.noise != before
+        if reweighed:
+            cmap.solve(window=None)  # the whole map: the weights changed everywhere
+        if not cmap.converged:
+            cmap.solve()
+            cmap.relax()
 
     # --- read-outs ---------------------------------------------------------------------------
 
