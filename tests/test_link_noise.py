@@ -11,7 +11,6 @@ from bioslam.link_noise import (
     _descend,
     _nll_and_derivatives,
     fit_drift,
-    fit_random_walk,
 )
 
 PRIOR = LinkNoise(odometry_var_per_m=1e-4, closure_var=4e-4)
@@ -28,7 +27,7 @@ def residuals(rate: float, floor: float, n: int, seed: int) -> tuple[np.ndarray,
 def test_the_fit_recovers_a_drift_and_a_registration_floor(seed):
     # the drift's share equals the floor's at 25 m: both are measured
     spans, r = residuals(rate=2e-6, floor=5e-5, n=2000, seed=seed)
-    rate, floor = fit_random_walk(spans, r**2, (1e-4, 4e-4), 1.0)
+    rate, floor, _ = fit_drift(spans, r**2, (1e-4, 4e-4), 1.0)
     assert rate == pytest.approx(2e-6, rel=0.2)
     assert floor == pytest.approx(5e-5, rel=0.3)
 
@@ -42,7 +41,7 @@ def test_residuals_that_do_not_grow_with_the_span_give_only_the_drift_they_canno
     # one that would double their variance at the longest span, and not none (no
     # odometry link is ever exact), far below the configured 1e-4 m² a metre
     spans, r = residuals(rate=0.0, floor=2e-5, n=40, seed=seed)
-    rate, floor = fit_random_walk(spans, r**2, (1e-4, 4e-4), 1.0)
+    rate, floor, _ = fit_drift(spans, r**2, (1e-4, 4e-4), 1.0)
     assert floor == pytest.approx(2e-5, rel=0.6)
     assert 0.1 * floor < rate * spans.max() < 2.0 * floor
 
@@ -57,7 +56,7 @@ def test_closures_all_a_loop_away_that_disagree_with_the_odometry_measure_its_dr
     rng = np.random.default_rng(count)
     spans = rng.uniform(69.0, 73.0, count)
     r = rng.choice([-1.0, 1.0], count) * rng.uniform(0.1, 0.4, count)
-    rate, floor = fit_random_walk(spans, r**2, (1e-4, 4e-4), 1.0)
+    rate, floor, _ = fit_drift(spans, r**2, (1e-4, 4e-4), 1.0)
     assert rate * 70.0 > 10.0 * floor  # the residual is the odometry's
     assert rate * 70.0 == pytest.approx(np.mean(r**2), rel=0.5)
 
@@ -65,7 +64,7 @@ def test_closures_all_a_loop_away_that_disagree_with_the_odometry_measure_its_dr
 def test_a_few_false_closures_do_not_inflate_the_fit():
     spans, r = residuals(rate=2e-6, floor=5e-5, n=300, seed=4)
     r[:6] = 1.0  # six closures a metre off
-    rate, floor = fit_random_walk(spans, r**2, (1e-4, 4e-4), 1.0)
+    rate, floor, _ = fit_drift(spans, r**2, (1e-4, 4e-4), 1.0)
     assert rate == pytest.approx(2e-6, rel=0.35)
     assert floor == pytest.approx(5e-5, rel=0.4)
 

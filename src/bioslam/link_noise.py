@@ -200,18 +200,6 @@ def _descend(a, b, drifting, lo, hi, spans, squared, centre, prior_decades):
     return a, b
 
 
-def fit_random_walk(
-    spans: FloatArray,
-    squared: FloatArray,
-    prior: tuple[float, float],
-    prior_decades: float,
-) -> tuple[float, float]:
-    """:func:`fit_drift`'s (rate, floor): where the residuals show no drift, the rate is the
-    largest they do not rule out."""
-    rate, floor, _ = fit_drift(spans, squared, prior, prior_decades)
-    return rate, floor
-
-
 def fit_drift(
     spans: FloatArray,
     squared: FloatArray,
