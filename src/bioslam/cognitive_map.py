@@ -33,7 +33,8 @@ Relaxation (Eq. 14) — the choices the paper leaves open, written down:
   :meth:`CognitiveMap.set_noise`): where the closures' residuals against the odometry do not
   grow with the loop, the odometry gets, while the run goes on, the largest drift they cannot
   rule out, and the closures bend it little but where it broke; the finished map is solved
-  with the drift they show, none (:meth:`bioslam.slam.BioSLAM.finish`). A robust
+  with the likeliest, the median of those they allow (:meth:`bioslam.slam.BioSLAM.finish`).
+  A robust
   kernel (dynamic covariance scaling, :func:`robust_scale`) then demotes loop links that the
   solved map contradicts. With equal
   weights (all links alike) this is Eq. 14 as printed.

@@ -30,7 +30,7 @@ registrations' own errors do not bend an odometry better than them.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numba
 import numpy as np
@@ -77,11 +77,12 @@ class LinkNoise:
         """The model with the drift the closures make likeliest in place of the largest they
         do not rule out."""
         rate, scale = self.likely_var_per_m, self.likely_heading_scale
-        return LinkNoise(
-            self.odometry_var_per_m if rate is None else rate,
-            self.closure_var,
-            self.heading_scale if scale is None else scale,
-            self.closure_heading_var,
+        return replace(
+            self,
+            odometry_var_per_m=self.odometry_var_per_m if rate is None else rate,
+            heading_scale=self.heading_scale if scale is None else scale,
+            likely_var_per_m=None,
+            likely_heading_scale=None,
         )
 
 
@@ -218,7 +219,7 @@ def fit_drift(
     half the log of the number of residuals): residuals that do not grow are the
     registrations' and the odometry's own local errors, which no correction of the path
     between them removes, and a rate fitted to them would bend every loop by part of them.
-    Otherwise it is the largest rate they do not rule out (:func:`_unrefuted_rate`), and the
+    Otherwise it is the largest rate they do not rule out (:func:`_unrefuted_rates`), and the
     third value returned, the likeliest rate, the median of those they allow (as likely above
     it as below: :data:`LIKELY_MARGIN`); else both are the rate fitted. The
     two are compared with their priors' penalties above the settings (:func:`_posterior_cost`):
@@ -251,18 +252,18 @@ def fit_drift(
         _posterior_cost(drift[0], drift[1], spans, squared, centre, prior_decades)
     )
     if gain < 0.5 * math.log(max(spans.size, 2)):
-        unrefuted, likely = (
-            _unrefuted_rate(still, lo[0], hi[0], spans, squared, centre, prior_decades, margin)
-            / T_SCALE_OF_UNIT_VARIANCE
-            for margin in (UNREFUTED_MARGIN, LIKELY_MARGIN)
-        )
-        return unrefuted, 10.0**still / T_SCALE_OF_UNIT_VARIANCE, likely
+        unrefuted, likely = _unrefuted_rates(
+            still, lo[0], hi[0], spans, squared, centre, prior_decades,
+            (UNREFUTED_MARGIN, LIKELY_MARGIN),
+        )  # fmt: skip
+        scale = T_SCALE_OF_UNIT_VARIANCE
+        return unrefuted / scale, 10.0**still / scale, likely / scale
     rate /= T_SCALE_OF_UNIT_VARIANCE
     return rate, floor / T_SCALE_OF_UNIT_VARIANCE, rate
 
 
 #: How much worse (in log-likelihood) than none a drift may fit the residuals and still not
-#: be ruled out by them (:func:`_unrefuted_rate`): a two-sided 95 % profile bound.
+#: be ruled out by them (:func:`_unrefuted_rates`): a two-sided 95 % profile bound.
 UNREFUTED_MARGIN = 1.92
 #: ... and the margin of the median of the drifts they allow: a two-sided 50 % profile bound.
 LIKELY_MARGIN = 0.228
@@ -270,24 +271,28 @@ LIKELY_MARGIN = 0.228
 UNREFUTED_STEP = 0.125
 
 
-def _unrefuted_rate(
+def _unrefuted_rates(
     log_floor: float, lo: float, hi: float, spans: FloatArray, squared: FloatArray,
-    centre: FloatArray, prior_decades: float, margin: float = UNREFUTED_MARGIN,
-) -> float:
-    """The largest drift rate (between ``10**lo`` and ``10**hi``) that fits the residuals
-    within ``margin`` (:data:`UNREFUTED_MARGIN`) of no drift at all, the floor ``10**log_floor``
-    kept; 0 if none does. Where the closures show no drift they have not shown that there is none,
-    only that it is smaller than they could see, and they never span the slides the odometry did not
-    notice. A rate of exactly 0 made every odometry link as stiff as the variance floor: a 1.2 m
-    slide in a maze corridor (SICK, reversing, two people) could not bend, the true closures beyond
-    it dragged the whole first lap a metre off (61 cm against the odometry's 47), and the
-    Laplacian's weights, 1e-1 to 1e10, cost its solve millimetres a link."""
+    centre: FloatArray, prior_decades: float, margins: tuple[float, ...],
+) -> list[float]:
+    """For each of ``margins`` (largest first), the largest drift rate (between ``10**lo``
+    and ``10**hi``) that fits the residuals within that margin of no drift at all, the floor
+    ``10**log_floor`` kept; 0 where none does. One descent from the top serves them all.
+    Where the closures show no drift they have not shown that there is none, only that it is
+    smaller than they could see, and they never span the slides the odometry did not notice.
+    A rate of exactly 0 made every odometry link as stiff as the variance floor: a 1.2 m
+    slide in a maze corridor (SICK, reversing, two people) could not bend, the true closures
+    beyond it dragged the whole first lap a metre off (61 cm against the odometry's 47), and
+    the Laplacian's weights, 1e-1 to 1e10, cost its solve millimetres a link."""
     base = _posterior_cost(None, log_floor, spans, squared, centre, prior_decades)
+    found: list[float] = []
     for log_rate in np.arange(hi, lo - 0.5 * UNREFUTED_STEP, -UNREFUTED_STEP):
         cost = _posterior_cost(float(log_rate), log_floor, spans, squared, centre, prior_decades)
-        if cost - base <= margin:
-            return float(10.0**log_rate)
-    return 0.0
+        while len(found) < len(margins) and cost - base <= margins[len(found)]:
+            found.append(float(10.0**log_rate))
+        if len(found) == len(margins):
+            break
+    return found + [0.0] * (len(margins) - len(found))
 
 
 def _posterior_cost(

@@ -1125,10 +1125,9 @@ class BioSLAM:
             before = cmap.noise
             cmap.set_noise(before.likely())
             reweighed = cmap.noise != before
-        if reweighed:
-            cmap.solve(window=None)  # the whole map: the weights changed everywhere
-        if not cmap.converged:
-            cmap.solve()
+        if reweighed or not cmap.converged:
+            # after a re-weighing the whole map: the weights changed everywhere
+            cmap.solve(window=None if reweighed else -1)
             cmap.relax()
 
     # --- read-outs ---------------------------------------------------------------------------
