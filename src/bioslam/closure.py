@@ -36,6 +36,7 @@ from bioslam.config import LoopClosureConfig
 from bioslam.geometry import between, compose, inverse, rotation, transform_points, wrap_angle
 from bioslam.matching.branch_and_bound import WideBasinConfig, WideBasinMatcher, refine
 from bioslam.matching.gauss_newton import MatchReport, levels_up_to
+from bioslam.matching.point_to_line import LineMap, refine_point_to_line
 from bioslam.matching.registration import RegistrationConfig, densify_scan, hit_shares
 from bioslam.occupancy_grid import (
     NORMAL_MAX_GAP,
@@ -464,6 +465,14 @@ class Submap:
     points: NDArray[np.float32]
     seen: SeenArea
     pyramid: MapPyramid | None = field(default=None, repr=False)
+    _lines: LineMap | None = field(default=None, repr=False)
+
+    def lines(self) -> LineMap:
+        """The fused points as lines (:mod:`bioslam.matching.point_to_line`), built when
+        first asked for: only accepted checks are polished on them (:func:`polish_on_lines`)."""
+        if self._lines is None:
+            self._lines = LineMap.build(self.points)
+        return self._lines
 
 
 class SubmapCache:
@@ -895,6 +904,38 @@ def refine_where_seen(
         if np.count_nonzero(covered) >= 3:
             query = query[covered]
     return refine(pyramid, start, query, iterations)
+
+
+def polish_on_lines(
+    lines: LineMap,
+    pose: FloatArray,
+    query: FloatArray,
+    seen: SeenArea | None,
+    config: LoopClosureConfig,
+) -> FloatArray:
+    """``pose``, a registration of ``query`` accepted on the submap's grid, polished by
+    matching the points the submap can judge there (:meth:`SeenArea.judges`) to the lines
+    of its own points (:func:`bioslam.matching.point_to_line.refine_point_to_line`): the
+    grid's blur pulls its optimum a fraction of a cell off, alike at every revisit of a
+    place. Kept only where it stays within ``line_reach`` / ``line_reach_angle`` of
+    ``pose`` on at least ``MIN_JUDGED`` points; farther, the two disagree about more than
+    the blur, and the grid's pose, which the checks judged, stands. Nor where the points
+    scatter about their lines by more than ``line_max_spread``
+    (:class:`bioslam.matching.point_to_line.LineFit`): lines
+    fitted to such points tilt and shift by more than the grid's blur."""
+    points = np.asarray(query, dtype=np.float64)
+    if seen is not None:
+        points = points[seen.judges(transform_points(pose, points), pose)]
+    if points.shape[0] < MIN_JUDGED:
+        return pose
+    fit = refine_point_to_line(lines, pose, points, config.line_distance, config.line_huber)
+    if (
+        fit.matched < MIN_JUDGED
+        or fit.spread > config.line_max_spread
+        or not within(between(pose, fit.pose), config.line_reach, config.line_reach_angle)
+    ):
+        return pose
+    return fit.pose
 
 
 def judged_shape(

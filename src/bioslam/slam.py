@@ -42,6 +42,7 @@ from bioslam.closure import (
     odometry_doubted,
     pass_neighbours,
     place_covariance,
+    polish_on_lines,
     score_plateau,
     settle_weak_direction,
     submap_anchor,
@@ -765,6 +766,9 @@ class BioSLAM:
             submap.pyramid, None if trusted else self._rival_window(drift, drift_angle, broken),
         )  # fmt: skip
         pts = np.ascontiguousarray(points, dtype=np.float64)
+        if verdict.accepted and cfg.polish:
+            polished = polish_on_lines(submap.lines(), verdict.pose, pts, submap.seen, cfg)
+            verdict = dataclasses.replace(verdict, pose=polished)
         ratio = self.config.cognitive_map.closure_shape_ratio
         # the scan's own constraint shape, which weighs the closure, and the weak modes of
         # what the registration matched, which say which of its corrections must earn their
