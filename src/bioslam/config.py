@@ -249,9 +249,9 @@ class LoopClosureConfig:
             :mod:`bioslam.matching.point_to_line`): each point to the line of its nearest
             submap point within ``line_distance`` (m), Huber-weighted beyond ``line_huber``
             (m). The grid's bilinear map function pulls its optimum a fraction of a cell off,
-            alike at every revisit; the rooms' SICK reversing route's loop links were off by
-            3.6 mm (median, along what each scan pins best), 1.3 mm polished, and its ATE went
-            from 0.62 to 0.28 cm (odometry 0.26). A polish that moves the pose farther than
+            alike at every revisit; the rooms' SICK reversing route's loop links were off the
+            truth by 0.53 cm (median), 0.26 polished, and its ATE went from 0.62 to 0.45 cm
+            (odometry 0.26). A polish that moves the pose farther than
             ``line_reach`` (m) or ``line_reach_angle`` (rad) is not kept: the two then
             disagree about more than the grid's blur. Nor is one whose points scatter about
             their lines by more than ``line_max_spread`` (m, robust spread): lines fitted to
