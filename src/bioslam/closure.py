@@ -431,6 +431,11 @@ class SeenArea:
         out[ok] = self.mask[cells[ok, 1], cells[ok, 0]]
         return out
 
+    def judges_scan(self, pose: FloatArray, points: FloatArray) -> NDArray[np.bool_]:
+        """:meth:`judges` for a scan's sensor-frame ``points`` taken at ``pose`` (the
+        anchor's frame)."""
+        return self.judges(transform_points(pose, points), pose)
+
     def judges(self, world: FloatArray, sensor: FloatArray) -> NDArray[np.bool_]:
         """Whether each anchor-frame point, seen from ``sensor``, is one the submap can judge:
         where its scans looked (:meth:`covers`) and not on a far face (:meth:`faces_away`)."""
@@ -900,7 +905,7 @@ def refine_where_seen(
     a wall's far face (:meth:`SeenArea.faces_away`): they would pull the pose onto the face
     the old pass saw, a partition's thickness off."""
     if seen is not None:
-        covered = seen.judges(transform_points(start, query), start)
+        covered = seen.judges_scan(start, query)
         if np.count_nonzero(covered) >= 3:
             query = query[covered]
     return refine(pyramid, start, query, iterations)
@@ -925,7 +930,7 @@ def polish_on_lines(
     fitted to such points tilt and shift by more than the grid's blur."""
     points = np.asarray(query, dtype=np.float64)
     if seen is not None:
-        points = points[seen.judges(transform_points(pose, points), pose)]
+        points = points[seen.judges_scan(pose, points)]
     if points.shape[0] < MIN_JUDGED:
         return pose
     fit = refine_point_to_line(lines, pose, points, config.line_distance, config.line_huber)
@@ -949,7 +954,7 @@ def judged_shape(
     row, but the old pass saw only their other faces, and the closures slid 7-10 cm along
     the row while the whole scan's shape said they were pinned there, so that
     :func:`settle_weak_direction` kept the slide."""
-    judged = seen.judges(transform_points(pose, points), pose)
+    judged = seen.judges_scan(pose, points)
     if np.count_nonzero(judged) >= MIN_JUDGED:
         points, normals = points[judged], normals[judged]
     return registration_shape(points, normals, ratio)

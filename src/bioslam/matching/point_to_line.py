@@ -48,11 +48,10 @@ LENGTH_SCALE = 1.0
 
 @dataclass(frozen=True)
 class LineMap:
-    """Map points, each with the line fitted to its neighbours: a point on it (their
-    centroid: a line through the noisy point itself would carry its noise whole) and its
-    normal (zero where they form no line); and a k-d tree to find the nearest."""
+    """Map points in a k-d tree to find the nearest, each with the line fitted to its
+    neighbours: a point on it (their centroid: a line through the noisy point itself would
+    carry its noise whole) and its normal (zero where they form no line)."""
 
-    points: FloatArray
     anchors: FloatArray
     normals: FloatArray
     tree: cKDTree
@@ -66,7 +65,7 @@ class LineMap:
 
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
         tree = cKDTree(pts)
-        return cls(pts, *local_lines(pts, tree, radius), tree)
+        return cls(*local_lines(pts, tree, radius), tree)
 
 
 def local_lines(points: FloatArray, tree: cKDTree, radius: float) -> tuple[FloatArray, FloatArray]:
