@@ -53,8 +53,10 @@ Relaxation (Eq. 14) — the choices the paper leaves open, written down:
 * Sweeps on a long loop converge slowly (the error diffuses ~one node per sweep), so after a loop
   closure ``relax`` jumps to the fixed point of Eq. 14 — the state where every node's
   correction Δp^i is zero — by solving that sparse linear system directly (headings, then
-  positions with the headings fixed). Its cost is linear in the map (band-like Laplacian); on
-  long runs only the ``solve_window`` most recent experiences move, which bounds it. Between
+  positions with the headings fixed), on the junctions of the map's chains only
+  (:mod:`bioslam.link_solve`: the experiences between two junctions follow from their
+  links). Its cost is linear in the map; on long runs only the ``solve_window`` most recent
+  experiences move, which bounds it. Between
   loop closures the map is consistent by construction (new links equal the odometry), so
   ``relax`` costs nothing.
 """
@@ -76,6 +78,7 @@ from bioslam.compiled import wrap_scalar
 from bioslam.geometry import between, compose, inverse, wrap_angle
 from bioslam.growing import GrowingArray, IdRows
 from bioslam.link_noise import LinkNoise
+from bioslam.link_solve import solve_links
 from bioslam.pose_cells import PoseCellConfig, wrapped_cell_distance
 
 FloatArray = NDArray[np.float64]
@@ -357,33 +360,6 @@ def _relax_sweep(poses, src, dst, dps, weights, out_ptr, out_e, in_ptr, in_e, a)
     return max_move, max_turn
 
 
-def _laplacian_lu(
-    src: NDArray[np.int64], dst: NDArray[np.int64], weights: FloatArray, n: int
-) -> Any:
-    """LU of the weighted graph Laplacian ``Bᵀ W B`` without its last node (the fixed
-    ground). The loop links
-    join nodes far apart in creation order, so a minimum-degree ordering is used: on the demo
-    maze's final map (3163 nodes) it leaves 8x fewer non-zeros than the natural order and
-    factorises in 4.3 instead of 12.7 ms."""
-    # SciPy's sparse solver (20 MB) only where a map is solved: not by the odometry alone
-    import scipy.sparse as sp
-    from scipy.sparse.linalg import splu
-
-    rows = np.concatenate([src, dst, src, dst])
-    cols = np.concatenate([src, dst, dst, src])
-    vals = np.concatenate([weights, weights, -weights, -weights])
-    lap = sp.csc_matrix((vals, (rows, cols)), shape=(n, n))[:-1, :-1]
-    return splu(
-        lap.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-        options={"SymmetricMode": True},
-    )  # fmt: skip
-
-
-def _incidence_t(src: NDArray[np.int64], dst: NDArray[np.int64], v: FloatArray, n: int):
-    """Bᵀ v for the incidence matrix B (-1 at a link's source, +1 at its target)."""
-    return np.bincount(dst, v, minlength=n) - np.bincount(src, v, minlength=n)
-
-
 def _chain_headings(
     poses: FloatArray,
     ends: tuple[NDArray[np.int64], NDArray[np.int64]],
@@ -465,9 +441,8 @@ def _solve_fixed_point(
     ls = np.where(src >= lo, src - lo, free)
     lt = np.where(dst >= lo, dst - lo, free)
     _chain_headings(poses, (src, dst), ls, lt, dps[:, 2], weights[:, 1], lo)
-    lu = _laplacian_lu(ls, lt, weights[:, 1], free + 1)
     r = wrap_angle(poses[src, 2] + dps[:, 2] - poses[dst, 2])
-    step = lu.solve(_incidence_t(ls, lt, weights[:, 1] * r, free + 1)[:free])
+    step = solve_links(ls, lt, weights[:, 1], r, free + 1)
     poses[lo:, 2] = wrap_angle(poses[lo:, 2] + step)
     c, sn = np.cos(poses[src, 2]), np.sin(poses[src, 2])
     rel = np.stack([c * dps[:, 0] - sn * dps[:, 1], sn * dps[:, 0] + c * dps[:, 1]], 1)
@@ -475,18 +450,11 @@ def _solve_fixed_point(
     rel = rel + np.where(src < lo, 1.0, 0.0)[:, None] * poses[src, :2]
     rel = rel - np.where(dst < lo, 1.0, 0.0)[:, None] * poses[dst, :2]
     if shapes is None:
-        lu = _laplacian_lu(ls, lt, weights[:, 0], free + 1)
-        rhs = np.stack(
-            [_incidence_t(ls, lt, weights[:, 0] * rel[:, k], free + 1)[:free] for k in range(2)],
-            1,
-        )
-        poses[lo:, :2] = lu.solve(rhs)
+        for k in range(2):
+            poses[lo:, k] = solve_links(ls, lt, weights[:, 0], rel[:, k], free + 1)
         return
     omega = _map_frame_information(weights[:, 0], shapes, c, sn)
-    lu = _block_laplacian_lu(ls, lt, omega, free + 1)
-    flow = np.einsum("eij,ej->ei", omega, rel)
-    rhs = np.stack([_incidence_t(ls, lt, flow[:, k], free + 1)[:free] for k in range(2)], 1)
-    poses[lo:, :2] = lu.solve(rhs.reshape(-1)).reshape(-1, 2)
+    poses[lo:, :2] = solve_links(ls, lt, omega, rel, free + 1)
 
 
 def _map_frame_information(
@@ -500,31 +468,6 @@ def _map_frame_information(
     rot = np.empty_like(shape)
     rot[:, 0, 0], rot[:, 0, 1], rot[:, 1, 0], rot[:, 1, 1] = c, -s, s, c
     return weight[:, None, None] * (rot @ shape @ rot.transpose(0, 2, 1))
-
-
-def _block_laplacian_lu(
-    src: NDArray[np.int64], dst: NDArray[np.int64], omega: FloatArray, n: int
-) -> Any:
-    """LU of the graph Laplacian with a 2x2 block ``omega[e]`` per link (x and y of node i at
-    rows 2i, 2i+1), without its last node (the fixed ground); as :func:`_laplacian_lu`."""
-    import scipy.sparse as sp
-    from scipy.sparse.linalg import splu
-
-    rows, cols, vals = [], [], []
-    for a in range(2):
-        for b in range(2):
-            w = omega[:, a, b]
-            for u, v, sign in ((src, src, 1.0), (dst, dst, 1.0), (src, dst, -1), (dst, src, -1)):
-                rows.append(2 * u + a)
-                cols.append(2 * v + b)
-                vals.append(sign * w)
-    lap = sp.csc_matrix(
-        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(2 * n, 2 * n)
-    )[:-2, :-2]
-    return splu(
-        lap.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-        options={"SymmetricMode": True},
-    )  # fmt: skip
 
 
 def _link_chi2(
