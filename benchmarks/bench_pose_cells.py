@@ -17,9 +17,14 @@ Tables printed (all measured in this run, one thread):
 4. cognitive map vs size (100 / 1,000 / 10,000 experiences): ``update`` per call, ``relax``
    on a consistent map (the cost on all scans between closures), ``relax`` right after a loop
    closure (direct solve + confirming sweep), one Eq. 14 sweep, and the error left after the
-   closure's relaxation on a route with a gyro-like heading bias.
+   closure's relaxation on a route with a gyro-like heading bias;
+5. the solve a closure runs, on the map the full system builds on the demo's simulated maze
+   (``--map-seconds`` of its route, 0 to skip): on the map's junctions
+   (:mod:`bioslam.link_solve`) against the whole Laplacian factorised, as before it, on
+   the same map in this run, and how far apart their solutions are.
 
     python benchmarks/bench_pose_cells.py [--updates 4000] [--sizes 100,1000,10000]
+        [--map-seconds 600]
 """
 
 from __future__ import annotations
@@ -37,8 +42,10 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 from scipy import ndimage
 
+import bioslam.cognitive_map as cognitive_map
 from bioslam.cognitive_map import CognitiveMap, CognitiveMapConfig, _relax_sweep
 from bioslam.geometry import between, compose
+from bioslam.link_solve import _eliminate, block_laplacian_lu, incidence_t, laplacian_lu
 from bioslam.pose_cells import (
     PoseCellConfig,
     PoseCellNetwork,
@@ -263,10 +270,11 @@ def bench_relaxation(sizes: list[int]) -> None:
         src, dst, out_ptr, out_e, in_ptr, in_e = cm._adjacency()
         poses = cm.experience_poses
         dps = np.array([lk.dp for lk in cm.links])
+        weights = cm.link_weights()
         sweeps = []
         for _ in range(20):
             t0 = time.perf_counter()
-            _relax_sweep(poses, src, dst, dps, out_ptr, out_e, in_ptr, in_e, 0.5)
+            _relax_sweep(poses, src, dst, dps, weights, out_ptr, out_e, in_ptr, in_e, 0.5)
             sweeps.append(time.perf_counter() - t0)
         print(
             f"| {label} | {r['loops']} | {r['update'] * 1e3:.4f} | {r['quiet'] * 1e3:.4f} |"
@@ -275,10 +283,81 @@ def bench_relaxation(sizes: list[int]) -> None:
         )
 
 
+def whole_laplacian_solve(
+    src: np.ndarray, dst: np.ndarray, info: np.ndarray, rel: np.ndarray, n: int
+) -> np.ndarray:
+    """``bioslam.link_solve.solve_links`` without the elimination: the whole Laplacian of
+    every experience factorised, the solve as it was before the junctions (the baseline)."""
+    if info.ndim == 1:
+        lu = laplacian_lu(src, dst, info, n)
+        return lu.solve(incidence_t(src, dst, info * rel, n)[:-1])
+    lu = block_laplacian_lu(src, dst, info, n)
+    flow = np.einsum("eij,ej->ei", info, rel)
+    rhs = np.stack([incidence_t(src, dst, flow[:, k], n)[:-1] for k in range(2)], 1)
+    return lu.solve(rhs.reshape(-1)).reshape(-1, 2)
+
+
+def timed_solves(cm: CognitiveMap, repeats: int) -> tuple[list[float], np.ndarray]:
+    """Wall times of ``repeats`` solves of ``cm`` as a closure runs it, and the poses."""
+    poses = cm._poses.view()
+    start = poses.copy()
+    scale = cm._link_scale.view()
+    robust = scale.copy()  # the robust kernel's weights, which a solve updates
+    times = []
+    for _ in range(repeats):
+        poses[:] = start
+        scale[:] = robust
+        t0 = time.perf_counter()
+        cm.solve()
+        times.append(time.perf_counter() - t0)
+    solved = poses.copy()
+    poses[:] = start
+    scale[:] = robust
+    return times, solved
+
+
+def bench_map_solve(seconds: float, repeats: int = 20) -> None:
+    from bioslam.config import SLAMConfig
+    from bioslam.sim import LIDAR_PRESETS, make_route, maze_world, simulate_scans
+    from bioslam.slam import BioSLAM
+
+    world = maze_world()
+    route = make_route(world, duration=seconds, seed=0)
+    slam = BioSLAM(SLAMConfig())
+    for scan, _ in simulate_scans(world, LIDAR_PRESETS["utm30lx"], route, seed=0):
+        slam.process(scan)
+    cm = slam.cognitive_map
+    src, dst, *_ = cm._adjacency()
+    n = len(cm)
+    window = cm.config.solve_window
+    lo = 1 if window is None else max(1, n - window)  # as the solve numbers its nodes
+    ls, lt = np.where(src >= lo, src - lo, n - lo), np.where(dst >= lo, dst - lo, n - lo)
+    ones = np.ones((src.size, 1, 1))
+    kept = _eliminate(n - lo + 1, ls, lt, ones, np.zeros((src.size, 1)))[0]
+    print(f"\n## The solve after a closure on the demo maze's map ({seconds:g} s, UTM-30LX)\n")
+    print(f"{n} experiences, {cm.num_links} links ({cm.loop_closures} loops), "
+          f"{kept.size - 1} junctions left to factorise; ms per solve over {repeats} solves:\n")
+    print("| solve | median ms | p90 ms |\n|---|---|---|")
+    junctions, by_junctions = timed_solves(cm, repeats)
+    saved = cognitive_map.solve_links
+    cognitive_map.solve_links = whole_laplacian_solve  # type: ignore[assignment]
+    try:
+        whole, by_whole = timed_solves(cm, repeats)
+    finally:
+        cognitive_map.solve_links = saved
+    for name, times in (("on the junctions", junctions), ("whole Laplacian", whole)):
+        print(f"| {name} | {statistics.median(times) * 1e3:.2f} |"
+              f" {percentile(times, 90) * 1e3:.2f} |")
+    gap = np.abs(by_junctions[:, :2] - by_whole[:, :2]).max()
+    print(f"\nratio of medians {statistics.median(whole) / statistics.median(junctions):.2f}; "
+          f"largest difference between the two solutions {gap:.1e} m")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--updates", type=int, default=4000)
     parser.add_argument("--sizes", default="100,1000,10000")
+    parser.add_argument("--map-seconds", type=float, default=600.0)
     args = parser.parse_args()
     # Compile the Numba kernels outside the timings.
     warm = PoseCellNetwork()
@@ -288,6 +367,8 @@ def main() -> None:
     bench_tracking()
     bench_ambiguity()
     bench_relaxation([int(s) for s in args.sizes.split(",")])
+    if args.map_seconds > 0:
+        bench_map_solve(args.map_seconds)
 
 
 if __name__ == "__main__":
