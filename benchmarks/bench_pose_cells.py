@@ -43,9 +43,14 @@ import numpy as np
 from scipy import ndimage
 
 import bioslam.cognitive_map as cognitive_map
-from bioslam.cognitive_map import CognitiveMap, CognitiveMapConfig, _relax_sweep
+from bioslam.cognitive_map import (
+    CognitiveMap,
+    CognitiveMapConfig,
+    _ground_numbered,
+    _relax_sweep,
+)
 from bioslam.geometry import between, compose
-from bioslam.link_solve import _eliminate, block_laplacian_lu, incidence_t, laplacian_lu
+from bioslam.link_solve import _eliminate, factorised_solve
 from bioslam.pose_cells import (
     PoseCellConfig,
     PoseCellNetwork,
@@ -288,13 +293,9 @@ def whole_laplacian_solve(
 ) -> np.ndarray:
     """``bioslam.link_solve.solve_links`` without the elimination: the whole Laplacian of
     every experience factorised, the solve as it was before the junctions (the baseline)."""
-    if info.ndim == 1:
-        lu = laplacian_lu(src, dst, info, n)
-        return lu.solve(incidence_t(src, dst, info * rel, n)[:-1])
-    lu = block_laplacian_lu(src, dst, info, n)
-    flow = np.einsum("eij,ej->ei", info, rel)
-    rhs = np.stack([incidence_t(src, dst, flow[:, k], n)[:-1] for k in range(2)], 1)
-    return lu.solve(rhs.reshape(-1)).reshape(-1, 2)
+    d = 1 if info.ndim == 1 else 2
+    x = factorised_solve(src, dst, info.reshape(-1, d, d), rel.reshape(-1, d), n)
+    return x[:, 0] if d == 1 else x
 
 
 def timed_solves(cm: CognitiveMap, repeats: int) -> tuple[list[float], np.ndarray]:
@@ -330,8 +331,8 @@ def bench_map_solve(seconds: float, repeats: int = 20) -> None:
     src, dst, *_ = cm._adjacency()
     n = len(cm)
     window = cm.config.solve_window
-    lo = 1 if window is None else max(1, n - window)  # as the solve numbers its nodes
-    ls, lt = np.where(src >= lo, src - lo, n - lo), np.where(dst >= lo, dst - lo, n - lo)
+    lo = 1 if window is None else max(1, n - window)  # the first experience the solve moves
+    ls, lt = _ground_numbered(src, lo, n - lo), _ground_numbered(dst, lo, n - lo)
     ones = np.ones((src.size, 1, 1))
     kept = _eliminate(n - lo + 1, ls, lt, ones, np.zeros((src.size, 1)))[0]
     print(f"\n## The solve after a closure on the demo maze's map ({seconds:g} s, UTM-30LX)\n")

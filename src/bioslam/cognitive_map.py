@@ -86,6 +86,11 @@ EventKind = Literal["none", "new", "link", "loop"]
 LinkKind = Literal["odometry", "loop"]
 
 
+def _kind(loop: bool) -> LinkKind:
+    """A link's kind from its loop flag."""
+    return "loop" if loop else "odometry"
+
+
 @dataclass
 class CognitiveMapConfig:
     """Parameters of the cognitive map."""
@@ -422,6 +427,12 @@ def _chain_headings(
     poses[lo + nodes, 2] = wrap_angle(total[nodes])
 
 
+def _ground_numbered(nodes: NDArray[np.int64], lo: int, free: int) -> NDArray[np.int64]:
+    """Experiences as the solve numbers them: the free ones, ``lo``.., from 0, and every
+    fixed one as the ground (``free``, the last index), dropped from the system."""
+    return np.where(nodes >= lo, nodes - lo, free)
+
+
 def _solve_fixed_point(
     poses: FloatArray,
     src: NDArray[np.int64],
@@ -437,9 +448,7 @@ def _solve_fixed_point(
     in each link's source frame) makes a link's position information anisotropic
     (:func:`registration_shape`); None = isotropic."""
     free = poses.shape[0] - lo
-    # Fixed experiences all map to one ground index (the last), dropped from the system.
-    ls = np.where(src >= lo, src - lo, free)
-    lt = np.where(dst >= lo, dst - lo, free)
+    ls, lt = _ground_numbered(src, lo, free), _ground_numbered(dst, lo, free)
     _chain_headings(poses, (src, dst), ls, lt, dps[:, 2], weights[:, 1], lo)
     r = wrap_angle(poses[src, 2] + dps[:, 2] - poses[dst, 2])
     step = solve_links(ls, lt, weights[:, 1], r, free + 1)
@@ -765,9 +774,9 @@ class CognitiveMap:
         self._link_dp = GrowingArray(np.float64, 3, capacity=64)
         self._link_dt = GrowingArray(np.float64, capacity=64)
         self._link_stamp = GrowingArray(np.float64, capacity=64)
-        self._link_kind: list[LinkKind] = []
-        # which links are loops, as the solve's robust kernel reads them (a scan of the kinds
-        # per solve cost a fifth of a millisecond on the demo maze's map)
+        # each link's kind, a flag per link: loop or odometry (the solve's robust kernel reads
+        # the loops; a list of the kinds' names, scanned each solve, cost a fifth of a
+        # millisecond on the demo maze's map)
         self._link_loop = GrowingArray(np.bool_, capacity=64)
         # Eq. 14's weights: each link's (position, heading) information, and the robust
         # kernel's factor on it (loop links; 1 = fully trusted)
@@ -930,13 +939,13 @@ class CognitiveMap:
             dp=self._link_dp.view()[index].copy(),
             dt=float(self._link_dt[index]),
             stamp=float(self._link_stamp[index]),
-            kind=self._link_kind[index],
+            kind=_kind(bool(self._link_loop[index])),
         )
 
     def link_table(self) -> tuple[NDArray[np.int64], list[LinkKind]]:
         """Every link's ``(source, target)`` (an (E, 2) array) and kind, without a
         :class:`Link` object each (an hour's map has 35,000 links: 15 MB of them)."""
-        return self._link_ends.view().astype(np.int64), list(self._link_kind)
+        return self._link_ends.view().astype(np.int64), [_kind(v) for v in self._link_loop.view()]
 
     @property
     def links(self) -> list[Link]:
@@ -1157,7 +1166,6 @@ class CognitiveMap:
         self._link_dp.append(link.dp)
         self._link_dt.append(link.dt)
         self._link_stamp.append(link.stamp)
-        self._link_kind.append(kind)
         self._link_loop.append(kind == "loop")
         if link.info is None:
             self._link_terms.append(link.terms)
@@ -1462,6 +1470,7 @@ class CognitiveMap:
         ends = self._link_ends.view()
         dps = self._link_dp.view()
         link_dt, link_stamp = self._link_dt.view(), self._link_stamp.view()
+        loops = self._link_loop.view()
         for k in range(self.num_links):
             yield {
                 "from": int(ends[k, 0]),
@@ -1469,5 +1478,5 @@ class CognitiveMap:
                 "dp": [float(v) for v in dps[k]],
                 "dt": float(link_dt[k]),
                 "time": float(link_stamp[k]),
-                "kind": self._link_kind[k],
+                "kind": _kind(bool(loops[k])),
             }

@@ -106,18 +106,25 @@ def solve_links(
     if kept.size > 1:  # junctions besides the ground: solve them
         label = np.full(n, -1, dtype=np.int64)
         label[kept] = np.arange(kept.size)
-        ks, kt = label[ls], label[lt]
-        if scalar:
-            lu = laplacian_lu(ks, kt, lw[:, 0, 0], kept.size)
-            rhs = incidence_t(ks, kt, lw[:, 0, 0] * lr[:, 0], kept.size)[:-1]
-            x[kept[:-1], 0] = lu.solve(rhs)
-        else:
-            lu = block_laplacian_lu(ks, kt, lw, kept.size)
-            flow = np.einsum("eij,ej->ei", lw, lr)
-            rhs = np.stack([incidence_t(ks, kt, flow[:, k], kept.size)[:-1] for k in range(2)], 1)
-            x[kept[:-1]] = lu.solve(rhs.reshape(-1)).reshape(-1, 2)
+        x[kept[:-1]] = factorised_solve(label[ls], label[lt], lw, lr, kept.size)
     _put_back(x, ops, ends, gains, steps)
     return x[:-1, 0] if scalar else x[:-1]
+
+
+def factorised_solve(
+    src: NDArray[np.int64], dst: NDArray[np.int64], info: FloatArray, rel: FloatArray, n: int
+) -> FloatArray:
+    """The same least-squares problem as :func:`solve_links`, ``info`` (E, d, d) and ``rel``
+    (E, d) with d 1 or 2, solved by factorising its whole Laplacian (every node kept);
+    returns (n-1, d)."""
+    if info.shape[1] == 1:
+        weights = info[:, 0, 0]
+        lu = laplacian_lu(src, dst, weights, n)
+        return lu.solve(incidence_t(src, dst, weights * rel[:, 0], n)[:-1])[:, None]
+    lu = block_laplacian_lu(src, dst, info, n)
+    flow = np.einsum("eij,ej->ei", info, rel)
+    rhs = np.stack([incidence_t(src, dst, flow[:, k], n)[:-1] for k in range(2)], 1)
+    return lu.solve(rhs.reshape(-1)).reshape(-1, 2)
 
 
 @njit(cache=True, inline="always")
