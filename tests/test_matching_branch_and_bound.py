@@ -284,3 +284,22 @@ def test_search_needs_a_map_and_checks_its_window():
         WideBasinMatcher().search(np.zeros((3, 2)), np.zeros(3))
     with pytest.raises(ValueError, match="non-negative"):
         WideBasinConfig(distance=-1.0)
+
+
+def test_a_window_where_nothing_lands_scores_zero_without_expanding_its_nodes():
+    # A check against a submap out of the scan's reach: every pose ties at 0. The answer is
+    # the brute force's (score 0 at the window's first lattice pose) and no rival, found from
+    # the top nodes' bounds alone, not by expanding every node to order the ties.
+    grid = OccupancyGrid(0.1, 16.0)
+    grid.weights[5:9, 5:60] = 0.8  # a wall far from where the scan can land
+    points = np.random.default_rng(3).uniform(-1.0, 1.0, (40, 2))
+    centre = np.array([4.0, 4.0, 0.3])
+    matcher = WideBasinMatcher(WideBasinConfig(distance=1.5, angle=math.radians(45.0)))
+    matcher.set_map(grid)
+    found = matcher.search(points, centre)
+    best, _, pose = _brute_force_reference(matcher, points, centre, with_pose=True)
+    assert best == 0.0 and found.score == 0.0
+    assert np.array_equal(found.pose, pose)
+    assert found.rival_pose is None and found.ambiguity == 0.0
+    headings, positions = found.lattice
+    assert found.nodes < headings * positions**2 / 50
