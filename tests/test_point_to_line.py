@@ -45,7 +45,7 @@ def test_a_straight_wall_gets_its_normal_and_a_corner_none():
     on_wall = lines.normals[5:25]
     assert np.allclose(np.abs(on_wall[:, 1]), 1.0) and np.allclose(on_wall[:, 0], 0.0)
     assert np.all(lines.normals[34] == 0.0)
-    assert np.all(local_lines(points[:2], lines.tree, NORMAL_RADIUS)[1] == 0.0)
+    assert np.all(local_lines(points[:2], NORMAL_RADIUS)[1] == 0.0)
 
 
 @pytest.mark.parametrize(

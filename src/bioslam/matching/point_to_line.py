@@ -15,16 +15,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
-from bioslam.geometry import transform_points, wrap_angle
-
-if TYPE_CHECKING:
-    from scipy.spatial import cKDTree
+from bioslam.geometry import wrap_angle
 
 FloatArray = NDArray[np.float64]
 
@@ -47,65 +43,187 @@ LENGTH_SCALE = 1.0
 
 
 @dataclass(frozen=True)
-class LineMap:
-    """Map points in a k-d tree to find the nearest, each with the line fitted to its
-    neighbours: a point on it (their centroid: a line through the noisy point itself would
-    carry its noise whole) and its normal (zero where they form no line)."""
+class PointIndex:
+    """Points binned into square cells (a counting sort by cell): the points of cell
+    (col, row) are ``order[starts[k]:starts[k + 1]]``, ``k = row * width + col``, the
+    cells counted from ``origin``. A submap's few thousand points are searched within a
+    few cells of a query point in compiled code, where a k-d tree's queries cost a
+    Python call and its result arrays each time (the polish iterates a dozen times)."""
 
+    origin: FloatArray
+    cell: float
+    width: int
+    height: int
+    order: NDArray[np.int64]
+    starts: NDArray[np.int64]
+
+    @classmethod
+    def build(cls, points: FloatArray, cell: float) -> PointIndex:
+        """The index of ``points`` (n, 2) in cells of ``cell`` metres, coarsened where the
+        points spread so far that the cells would number more than ``MAX_CELLS`` a side."""
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        if pts.shape[0] == 0:
+            return cls(np.zeros(2), cell, 1, 1, np.zeros(0, np.int64), np.zeros(2, np.int64))
+        origin = pts.min(axis=0)
+        extent = float(np.max(pts.max(axis=0) - origin))
+        cell = max(cell, extent / MAX_CELLS)
+        width, height = (int((pts.max(axis=0)[k] - origin[k]) / cell) + 1 for k in range(2))
+        order, starts = _bin_points(pts, origin[0], origin[1], cell, width, height)
+        return cls(origin, cell, width, height, order, starts)
+
+    def arrays(self) -> tuple:
+        """The index as the compiled kernels take it."""
+        return (self.order, self.starts, self.origin[0], self.origin[1], self.cell,
+                self.width, self.height)  # fmt: skip
+
+
+#: The most cells a :class:`PointIndex` has a side (a 25 cm cell over 500 m).
+MAX_CELLS = 2048
+
+
+@njit(cache=True)
+def _bin_points(points, x0, y0, cell, width, height):
+    """:meth:`PointIndex.build`'s counting sort: (order, starts)."""
+    n = points.shape[0]
+    keys = np.empty(n, dtype=np.int64)
+    starts = np.zeros(width * height + 1, dtype=np.int64)
+    for i in range(n):
+        col = min(int((points[i, 0] - x0) / cell), width - 1)
+        row = min(int((points[i, 1] - y0) / cell), height - 1)
+        keys[i] = row * width + col
+        starts[keys[i] + 1] += 1
+    for k in range(width * height):
+        starts[k + 1] += starts[k]
+    filled = starts[:-1].copy()
+    order = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        order[filled[keys[i]]] = i
+        filled[keys[i]] += 1
+    return order, starts
+
+
+@njit(cache=True)
+def _cells_near(index, x, y, radius):
+    """The rows [r0, r1) and columns [c0, c1) of ``index``'s cells that hold every point
+    nearer than ``radius`` to (x, y)."""
+    x0, y0, cell, width, height = index[2], index[3], index[4], index[5], index[6]
+    reach = math.ceil(radius / cell)
+    col = math.floor((x - x0) / cell)
+    row = math.floor((y - y0) / cell)
+    return (max(row - reach, 0), min(row + reach + 1, height),
+            max(col - reach, 0), min(col + reach + 1, width))  # fmt: skip
+
+
+@njit(cache=True)
+def _nearest_k(points, index, x, y, radius, found, dist2):
+    """The ``found.size`` points of ``index`` nearest (x, y), nearer than ``radius``, into
+    ``found`` nearest first, their squared distances into ``dist2``; returns how many.
+    Kept by insertion into the short sorted list: in clutter hundreds of points may lie
+    within the radius, and sorting them all cost ten times a k-d tree's query."""
+    order, starts, width = index[0], index[1], index[5]
+    r0, r1, c0, c1 = _cells_near(index, x, y, radius)
+    k = found.size
+    limit = radius * radius
+    count = 0
+    for r in range(r0, r1):
+        for c in range(c0, c1):
+            cell = r * width + c
+            for t in range(starts[cell], starts[cell + 1]):
+                j = order[t]
+                dx = points[j, 0] - x
+                dy = points[j, 1] - y
+                d2 = dx * dx + dy * dy
+                if d2 >= limit or (count == k and d2 >= dist2[k - 1]):
+                    continue
+                slot = min(count, k - 1)
+                while slot > 0 and dist2[slot - 1] > d2:
+                    found[slot] = found[slot - 1]
+                    dist2[slot] = dist2[slot - 1]
+                    slot -= 1
+                found[slot] = j
+                dist2[slot] = d2
+                count = min(count + 1, k)
+    return count
+
+
+@njit(cache=True)
+def _nearest(points, index, x, y, radius):
+    """The index of the point of ``index`` nearest (x, y), nearer than ``radius``; -1 for
+    none."""
+    order, starts, width = index[0], index[1], index[5]
+    r0, r1, c0, c1 = _cells_near(index, x, y, radius)
+    best, best_d2 = -1, radius * radius
+    for r in range(r0, r1):
+        for c in range(c0, c1):
+            k = r * width + c
+            for t in range(starts[k], starts[k + 1]):
+                j = order[t]
+                dx = points[j, 0] - x
+                dy = points[j, 1] - y
+                d2 = dx * dx + dy * dy
+                if d2 < best_d2 or (d2 == best_d2 and best >= 0 and j < best):
+                    best, best_d2 = j, d2
+    return best
+
+
+@dataclass(frozen=True)
+class LineMap:
+    """Map points binned for finding the nearest (:class:`PointIndex`), each with the line
+    fitted to its neighbours: a point on it (their centroid: a line through the noisy point
+    itself would carry its noise whole) and its normal (zero where they form no line)."""
+
+    points: FloatArray
     anchors: FloatArray
     normals: FloatArray
-    tree: cKDTree
+    index: PointIndex
 
     @classmethod
     def build(cls, points: ArrayLike, radius: float = LINE_RADIUS) -> LineMap:
         """The line map of ``points`` (n, 2), each one's line fitted to its nearest
         neighbours within ``radius`` (m)."""
-        # SciPy is imported only where a run polishes a closure
-        from scipy.spatial import cKDTree
-
-        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-        tree = cKDTree(pts)
-        return cls(*local_lines(pts, tree, radius), tree)
+        pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 2))
+        index = PointIndex.build(pts, radius)
+        return cls(pts, *local_lines(pts, radius, index), index)
 
 
-def local_lines(points: FloatArray, tree: cKDTree, radius: float) -> tuple[FloatArray, FloatArray]:
+def local_lines(
+    points: FloatArray, radius: float, index: PointIndex | None = None
+) -> tuple[FloatArray, FloatArray]:
     """The lines fitted to each point's ``NEIGHBOURS`` nearest neighbours within ``radius``:
     (n, 2) centroids and (n, 2) unit normals, zero where fewer than three lie there or they
-    spread more than ``MAX_THICKNESS`` across their line."""
-    n = points.shape[0]
-    if n < 3:
-        return points.copy(), np.zeros((n, 2))
-    dist, idx = tree.query(points, k=min(NEIGHBOURS, n), distance_upper_bound=radius)
-    return _fit_lines(points, np.asarray(idx, dtype=np.int64), np.isfinite(dist), MAX_THICKNESS)
+    spread more than ``MAX_THICKNESS`` across their line. ``index``: the points' own
+    :class:`PointIndex`, else built here."""
+    pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 2))
+    index = index or PointIndex.build(pts, radius)
+    return _fit_lines(pts, index.arrays(), radius, NEIGHBOURS, MAX_THICKNESS)
 
 
 @njit(cache=True)
-def _fit_lines(
-    points: FloatArray, idx: NDArray[np.int64], found: NDArray[np.bool_], thickness: float
-) -> tuple[FloatArray, FloatArray]:
-    """:func:`local_lines` from each point's neighbours (``idx`` where ``found``)."""
+def _fit_lines(points, index, radius, neighbours, thickness):
+    """:func:`local_lines` in compiled code: each point's nearest ``neighbours`` within
+    ``radius``, nearest first."""
     n = points.shape[0]
     anchors = points.copy()
     normals = np.zeros((n, 2))
+    found = np.empty(neighbours, dtype=np.int64)
+    dist2 = np.empty(neighbours)
     for i in range(n):
-        count, mx, my = 0, 0.0, 0.0
-        for j in range(idx.shape[1]):
-            if found[i, j]:
-                count += 1
-                mx += points[idx[i, j], 0]
-                my += points[idx[i, j], 1]
+        count = _nearest_k(points, index, points[i, 0], points[i, 1], radius, found, dist2)
         if count < 3:
             continue
+        mx, my = 0.0, 0.0
+        for j in found[:count]:
+            mx += points[j, 0]
+            my += points[j, 1]
         mx /= count
         my /= count
         sxx, sxy, syy = 0.0, 0.0, 0.0
-        for j in range(idx.shape[1]):
-            if found[i, j]:
-                dx = points[idx[i, j], 0] - mx
-                dy = points[idx[i, j], 1] - my
-                sxx += dx * dx
-                sxy += dx * dy
-                syy += dy * dy
+        for j in found[:count]:
+            dx = points[j, 0] - mx
+            dy = points[j, 1] - my
+            sxx += dx * dx
+            sxy += dx * dy
+            syy += dy * dy
         half_trace = 0.5 * (sxx + syy)
         spread = math.hypot(0.5 * (sxx - syy), sxy)
         along, across = half_trace + spread, half_trace - spread
@@ -143,48 +261,64 @@ def refine_point_to_line(
     the directions the matched lines constrain (``MIN_CONSTRAINT``): along a corridor it
     keeps ``start``'s position."""
     pose = np.asarray(start, dtype=np.float64).copy()
-    pts = np.asarray(query, dtype=np.float64).reshape(-1, 2)
+    pts = np.ascontiguousarray(np.asarray(query, dtype=np.float64).reshape(-1, 2))
     residual = np.zeros(0)
     for _ in range(max_iterations):
-        step, residual = _line_step(line_map, pose, pts, max_distance, huber)
-        if step is None:
+        step, residual = _line_step(
+            line_map.points, line_map.anchors, line_map.normals, line_map.index.arrays(),
+            pose, pts, max_distance, huber,
+        )  # fmt: skip
+        if residual.size < 3:
             break
         pose = pose + step
-        pose[2] = float(wrap_angle(pose[2]))
-        if np.hypot(step[0], step[1]) + LENGTH_SCALE * abs(step[2]) < tolerance:
+        pose[2] = wrap_angle(float(pose[2]))
+        if math.hypot(step[0], step[1]) + LENGTH_SCALE * abs(step[2]) < tolerance:
             break
     spread = 1.4826 * float(np.median(np.abs(residual))) if residual.size else math.inf
     return LineFit(pose, int(residual.size), spread)
 
 
-def _line_step(
-    line_map: LineMap, pose: FloatArray, pts: FloatArray, max_distance: float, huber: float
-) -> tuple[FloatArray | None, FloatArray]:
+@njit(cache=True)
+def _line_step(points, anchors, normals, index, pose, pts, max_distance, huber):
     """One Gauss-Newton step of :func:`refine_point_to_line` and the residuals of the
-    points it matched (m); no step when fewer than three points match."""
-    world = transform_points(pose, pts)
-    dist, idx = line_map.tree.query(world, distance_upper_bound=max_distance)
-    ok = np.isfinite(dist)
-    ok[ok] = np.any(line_map.normals[idx[ok]] != 0.0, axis=1)
-    normal = line_map.normals[idx[ok]]
-    offset = world[ok] - line_map.anchors[idx[ok]]
-    residual = np.einsum("ij,ij->i", normal, offset)
-    if residual.size < 3:
-        return None, residual
-    # d(world)/dθ is the point's offset from the sensor turned a quarter
-    lever = world[ok] - pose[:2]
-    jacobian = np.column_stack(
-        [normal[:, 0], normal[:, 1], normal[:, 1] * lever[:, 0] - normal[:, 0] * lever[:, 1]]
-    )
-    weight = np.minimum(1.0, huber / np.maximum(np.abs(residual), 1e-12))
-    scale = np.array([1.0, 1.0, 1.0 / LENGTH_SCALE])
-    scaled = jacobian * scale
-    hessian = scaled.T @ (scaled * weight[:, None])
-    gradient = scaled.T @ (weight * residual)
+    points it matched (m); a zero step when fewer than three points match."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    residual = np.empty(pts.shape[0])
+    hessian = np.zeros((3, 3))
+    gradient = np.zeros(3)
+    jac = np.empty(3)
+    matched = 0
+    for i in range(pts.shape[0]):
+        # the point's offset from the sensor, turned; d(world)/dθ is it turned a quarter
+        lx = c * pts[i, 0] - s * pts[i, 1]
+        ly = s * pts[i, 0] + c * pts[i, 1]
+        wx, wy = lx + pose[0], ly + pose[1]
+        j = _nearest(points, index, wx, wy, max_distance)
+        if j < 0 or (normals[j, 0] == 0.0 and normals[j, 1] == 0.0):
+            continue
+        nx, ny = normals[j, 0], normals[j, 1]
+        r = nx * (wx - anchors[j, 0]) + ny * (wy - anchors[j, 1])
+        residual[matched] = r
+        matched += 1
+        weight = min(1.0, huber / max(abs(r), 1e-12))
+        jac[0], jac[1], jac[2] = nx, ny, (ny * lx - nx * ly) / LENGTH_SCALE
+        for a in range(3):
+            gradient[a] += jac[a] * weight * r
+            for b in range(3):
+                hessian[a, b] += jac[a] * weight * jac[b]
+    step = np.zeros(3)
+    if matched < 3:
+        return step, residual[:matched]
     values, vectors = np.linalg.eigh(hessian)
-    keep = values > MIN_CONSTRAINT * max(float(values[-1]), 1e-12)
-    step = -(vectors[:, keep] @ ((vectors[:, keep].T @ gradient) / values[keep]))
-    return step * scale, residual
+    floor = MIN_CONSTRAINT * max(values[2], 1e-12)
+    for k in range(3):
+        if values[k] > floor:
+            along = (vectors[0, k] * gradient[0] + vectors[1, k] * gradient[1]
+                     + vectors[2, k] * gradient[2]) / values[k]  # fmt: skip
+            for a in range(3):
+                step[a] -= vectors[a, k] * along
+    step[2] /= LENGTH_SCALE
+    return step, residual[:matched]
 
 
-__all__ = ["LineFit", "LineMap", "local_lines", "refine_point_to_line"]
+__all__ = ["LineFit", "LineMap", "PointIndex", "local_lines", "refine_point_to_line"]
