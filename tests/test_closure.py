@@ -671,25 +671,47 @@ def test_a_registration_pinned_by_the_corridors_end_keeps_its_correction_along_i
     assert abs(settled[0]) < 1e-9 and abs(settled[1]) < 1e-9
 
 
-def test_hit_shares_are_map_hits_of_each_group_of_points():
-    from bioslam.matching.registration import hit_shares, map_hits
-    from bioslam.occupancy_grid import MapPyramid
+def _seen_score_by_groups(grid, pose, query, level, seen, min_seen):
+    """:func:`seen_hit_fraction` from its definition, in NumPy: the share of hits among the
+    points inside the grid that the submap saw or that land on its walls, points on a far
+    face judged neither way, at least ``min_seen`` of those inside counted."""
+    from bioslam.geometry import transform_points
+    from bioslam.matching.registration import map_hits
 
-    rng = np.random.default_rng(3)
-    angles = np.sort(rng.uniform(-np.pi, np.pi, 300))
-    scan = np.column_stack([np.cos(angles), np.sin(angles)]) * rng.uniform(1.0, 3.0, (300, 1))
-    grid = MapPyramid(0.05, 8.0, 1).grids[0]
-    grid.insert_scan(np.zeros(3), scan)
-    world = scan + rng.normal(0.0, 0.04, scan.shape)  # near the walls, some off them
-    world[:20] += 5.0  # outside the grid
-    extent = (-3.5, -3.5, 3.5, 3.5)
-    near = rng.random(300) < 0.5
-    groups = [np.ones(300, dtype=bool), near, ~near, np.zeros(300, dtype=bool)]
-    shares = hit_shares(grid, world, extent, 0.5, groups)
-    for group, (share, count) in zip(groups, shares, strict=True):
-        expected, _, expected_count = map_hits(grid, world[group], extent, 0.5)
-        assert (share, count) == (expected, expected_count)
-    assert 0.0 < shares[0][0] < 1.0 and shares[0][1] < 300
+    world = transform_points(pose, query)
+    far = grid.origin + grid.resolution * np.array(grid.shape[::-1])
+    extent = (grid.origin[0], grid.origin[1], far[0], far[1])
+    near = ~seen.faces_away(world, pose)
+    covered = seen.covers(world)
+    _, _, inside = map_hits(grid, world, extent, level)
+    seen_share, _, seen_count = map_hits(grid, world[covered & near], extent, level)
+    other_share, _, other_count = map_hits(grid, world[~covered & near], extent, level)
+    hits = seen_share * seen_count + other_share * other_count
+    return hits / max(seen_count + other_share * other_count, min_seen * inside)
+
+
+def test_the_seen_score_counts_the_points_its_definition_does():
+    # Off the truth, turned, and with the far face of a partition in view: every group of
+    # points (unseen, seen, on a far face, outside the grid) is met.
+    from bioslam.closure import _submap_pyramid
+
+    submap, seen, truth, query = _partition_revisit()
+    grid = _submap_pyramid(submap, LoopClosureConfig().registration).grids[0]
+    rng = np.random.default_rng(5)
+    for k in range(30):
+        pose = compose(truth, (*rng.normal(0.0, 0.3, 2), rng.normal(0.0, 0.2)))
+        if k == 0:
+            pose = truth
+        got = seen_hit_fraction(grid, pose, query, 0.5, seen, 0.6)
+        assert got == _seen_score_by_groups(grid, pose, query, 0.5, seen, 0.6)
+    # without a seen area, the share of hits among the points inside
+    from bioslam.geometry import transform_points
+    from bioslam.matching.registration import map_hits
+
+    far = grid.origin + grid.resolution * np.array(grid.shape[::-1])
+    extent = (grid.origin[0], grid.origin[1], far[0], far[1])
+    share, _, _ = map_hits(grid, transform_points(truth, query), extent, 0.5)
+    assert seen_hit_fraction(grid, truth, query, 0.5) == share and 0.0 < share < 1.0
 
 
 def test_a_person_standing_elsewhere_does_not_slide_a_closure_along_a_corridor():

@@ -37,7 +37,7 @@ from bioslam.geometry import between, compose, inverse, rotation, transform_poin
 from bioslam.matching.branch_and_bound import WideBasinConfig, WideBasinMatcher, refine
 from bioslam.matching.gauss_newton import MatchReport, levels_up_to
 from bioslam.matching.point_to_line import LineMap, refine_point_to_line
-from bioslam.matching.registration import RegistrationConfig, densify_scan, hit_shares
+from bioslam.matching.registration import RegistrationConfig, densify_scan
 from bioslam.occupancy_grid import (
     NORMAL_MAX_GAP,
     NORMAL_RADIUS,
@@ -407,16 +407,9 @@ class SeenArea:
         self.origin = grid.origin
         self.mask = grid.known_mask()
         cells, ok = self._cells(np.concatenate(behind))
-        self.mask[cells[ok, 1], cells[ok, 0]] = True
-        # each wall cell's (and the cells a wall's thickness behind it) direction back to
-        # the scanners that saw it
-        facing = np.zeros((self.mask.shape[0] + 2, self.mask.shape[1] + 2, 2))
-        np.add.at(facing, (cells[ok, 1] + 1, cells[ok, 0] + 1), np.concatenate(towards)[ok])
-        # and the cells beside them: a wall's face the submap never saw lies within a cell of
-        # the one it saw, where a beam grazing along it may have crossed a cell as free
-        rows, cols = self.mask.shape
-        near = sum(facing[i : i + rows, j : j + cols] for i in range(3) for j in range(3))
-        self.facing = np.asarray(near, dtype=np.float32)
+        facing = np.zeros((*self.mask.shape, 2))
+        _mark_walls(self.mask, facing, cells[ok], np.concatenate(towards)[ok])
+        self.facing = facing.astype(np.float32)
 
     def _cells(self, world: FloatArray) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
         cells = np.floor((world - self.origin) / self.resolution).astype(np.int64)
@@ -455,6 +448,27 @@ class SeenArea:
         looking = np.asarray(sensor, dtype=np.float64)[:2] - world[ok]
         out[ok] = np.einsum("ij,ij->i", facing, looking) < 0.0
         return out
+
+
+#: where a check without a submap's seen area looked: nowhere (:func:`seen_hit_fraction`)
+_NOWHERE = SeenArea(np.zeros((1, 3)), [None], 0, [], 1.0)
+
+
+@njit(cache=True)
+def _mark_walls(mask, facing, cells, towards):
+    """:class:`SeenArea`'s wall cells (``cells``: column, row; each endpoint and the cells
+    a wall's thickness behind it) marked seen in ``mask``, and each one's direction back to
+    the scanner that saw it (``towards``) added to ``facing`` there and in the cells beside
+    it: a wall's face the submap never saw lies within a cell of the one it saw, where a
+    beam grazing along it may have crossed a cell as free."""
+    rows, cols = mask.shape
+    for k in range(cells.shape[0]):
+        col, row = cells[k, 0], cells[k, 1]
+        mask[row, col] = True
+        for r in range(max(row - 1, 0), min(row + 2, rows)):
+            for c in range(max(col - 1, 0), min(col + 2, cols)):
+                facing[r, c, 0] += towards[k, 0]
+                facing[r, c, 1] += towards[k, 1]
 
 
 @dataclass
@@ -989,22 +1003,58 @@ def seen_hit_fraction(
     ``register_scans`` scores.
     At least ``min_seen`` of the points inside count (as misses when unseen), so a pose that
     puts most of the scan where the submap never looked cannot pass on the few left."""
-    far = grid.origin + grid.resolution * np.array(grid.shape[::-1])
-    extent = (grid.origin[0], grid.origin[1], far[0], far[1])
     world = transform_points(pose, query)
-    every = np.ones(world.shape[0], dtype=bool)
-    covered = None if seen is None else seen.covers(world)
-    # a point on a wall's far face is judged neither way: the submap never saw that face
-    near = None if seen is None else ~seen.faces_away(world, pose)
-    groups = [every] if covered is None else [every, covered & near, ~covered & near]
-    (share, inside), *parts = hit_shares(grid, world, extent, level, groups)
-    if covered is None or inside == 0:
-        return share
+    values, _ = grid.value_and_gradient(world, subcell_sigma=1.0)
+    far = grid.origin + grid.resolution * np.array(grid.shape[::-1])
+    bounds = np.array([*grid.origin, *far]) + grid.resolution * np.array([1.0, 1.0, -1.0, -1.0])
+    area = seen or _NOWHERE
+    inside, hits, seen_count, seen_hits, other_count, other_hits = _judged_hits(
+        values, world, np.asarray(pose, dtype=np.float64), bounds, level, area.mask,
+        area.facing, area.origin, area.resolution,
+    )  # fmt: skip
+    if seen is None or inside == 0:
+        return hits / inside if inside else 0.0
     # a point on a wall of the submap is judged (a hit) wherever it lies
-    (seen_share, seen_count), (other_share, other_count) = parts
-    hits = seen_share * seen_count + other_share * other_count
+    other_share = other_hits / other_count if other_count else 0.0
+    seen_share = seen_hits / seen_count if seen_count else 0.0
+    hit = seen_share * seen_count + other_share * other_count
     judged = seen_count + other_share * other_count
-    return hits / max(judged, min_seen * inside)
+    return hit / max(judged, min_seen * inside)
+
+
+@njit(cache=True)
+def _judged_hits(values, world, sensor, bounds, level, mask, facing, origin, resolution):
+    """:func:`seen_hit_fraction`'s counts of the points (``world``, map function
+    ``values``) at least a cell inside the grid (``bounds``: xmin, ymin, xmax, ymax, that
+    cell in): (inside, hits among them), and of those not on a far face
+    (:meth:`SeenArea.faces_away`, seen from ``sensor``) the ones in the cells ``mask``
+    says the submap saw (count, hits) and the rest (count, hits). A hit: the map function
+    at least ``level``."""
+    rows, cols = mask.shape
+    inside = hits = seen_count = seen_hits = other_count = other_hits = 0
+    for k in range(world.shape[0]):
+        x, y = world[k, 0], world[k, 1]
+        if not (bounds[0] <= x < bounds[2] and bounds[1] <= y < bounds[3]):
+            continue
+        hit = values[k] >= level
+        inside += 1
+        hits += hit
+        col = math.floor((x - origin[0]) / resolution)
+        row = math.floor((y - origin[1]) / resolution)
+        covered = False
+        if 0 <= col < cols and 0 <= row < rows:
+            # a point on a wall's far face is judged neither way: the submap never saw it
+            toward = facing[row, col, 0] * (sensor[0] - x) + facing[row, col, 1] * (sensor[1] - y)
+            if toward < 0.0:
+                continue
+            covered = mask[row, col]
+        if covered:
+            seen_count += 1
+            seen_hits += hit
+        else:
+            other_count += 1
+            other_hits += hit
+    return inside, hits, seen_count, seen_hits, other_count, other_hits
 
 
 def score_plateau(

@@ -315,21 +315,6 @@ def map_hits(
     return float(np.mean(values[inside] >= level)), float(np.mean(values[inside])), n_in
 
 
-def hit_shares(
-    judge: OccupancyGrid, world: FloatArray, extent: tuple[float, float, float, float],
-    level: float, groups: list[NDArray[np.bool_]],
-) -> list[tuple[float, int]]:
-    """:func:`map_hits`'s share and count inside for each group of the points (a mask), the
-    map function evaluated once for them all."""
-    values, inside = _placed_values(judge, world, extent)
-    shares = []
-    for group in groups:
-        chosen = inside & group
-        n_in = int(chosen.sum())
-        shares.append((float(np.mean(values[chosen] >= level)) if n_in else 0.0, n_in))
-    return shares
-
-
 def _placed_values(
     judge: OccupancyGrid, world: FloatArray, extent: tuple[float, float, float, float]
 ) -> tuple[FloatArray, NDArray[np.bool_]]:
