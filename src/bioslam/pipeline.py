@@ -360,6 +360,7 @@ def warm_up(config: SLAMConfig, odometry_only: bool = False) -> float:
             # map's solve and its relaxation sweeps
             stored = scans[0].endpoints().astype(np.float32)
             register_scans(stored, scans[-1].endpoints())
+            _verify_a_revisit(config, [scan.endpoints() for scan in scans])
             _close_a_square(config)
     except Exception:
         pass  # a configuration the maze does not suit: the run then compiles as it goes
@@ -380,6 +381,24 @@ def _drive(world: Any, seconds: float = 1.0, speed: float = 0.5) -> Any:
     return Route(np.array([0.0, seconds]), poses)
 
 
+def _verify_a_revisit(config: SLAMConfig, endpoints: list[FloatArray]) -> None:
+    """What a loop-closure check runs on a candidate (:meth:`bioslam.slam.BioSLAM._refine`):
+    a submap of stored scans and where they looked, the wide-basin search and the scores
+    judged where the submap looked, the polish on the submap's lines."""
+    from bioslam.closure import SeenArea, fuse_submap, polish_on_lines, verify
+    from bioslam.matching.point_to_line import LineMap
+
+    cfg = config.loop_closure
+    payloads = [points.astype(np.float32) for points in (endpoints[0], endpoints[-1])]
+    poses = np.zeros((len(payloads), 3))
+    members = list(range(len(payloads)))
+    submap = fuse_submap(poses, payloads, 0, members, cfg.submap_spacing)
+    seen = SeenArea(poses, payloads, 0, members, cfg.registration.resolution)
+    query = endpoints[len(endpoints) // 2]
+    verdict = verify(submap, query, np.zeros(3), (0.3, 0.1), cfg, seen, None, (1.0, 0.5))
+    polish_on_lines(LineMap.build(submap), verdict.pose, query, seen, cfg)
+
+
 def _close_a_square(config: SLAMConfig) -> None:
     """Four experiences around a square and a loop closure back onto the first."""
     cmap = CognitiveMap.from_pose_cells(config.cognitive_map, config.pose_cells)
@@ -389,6 +408,7 @@ def _close_a_square(config: SLAMConfig) -> None:
     cmap.relax()
     cmap.mark_dirty()
     cmap.relax(iterations=2)
+    cmap.link_distance(0, 2, 10.0)
     # and what refits the links' noise model after it (its compiled descent)
     LinkNoiseEstimator(configured_noise(config.cognitive_map)).add(10.0, 0.01, 0.001, 1e-4)
 
