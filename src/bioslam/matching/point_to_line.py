@@ -107,11 +107,10 @@ def _cells_near(index, x, y, radius):
     """The rows [r0, r1) and columns [c0, c1) of ``index``'s cells that hold every point
     nearer than ``radius`` to (x, y)."""
     x0, y0, cell, width, height = index[2], index[3], index[4], index[5], index[6]
-    reach = math.ceil(radius / cell)
-    col = math.floor((x - x0) / cell)
-    row = math.floor((y - y0) / cell)
-    return (max(row - reach, 0), min(row + reach + 1, height),
-            max(col - reach, 0), min(col + reach + 1, width))  # fmt: skip
+    return (max(math.floor((y - radius - y0) / cell), 0),
+            min(math.floor((y + radius - y0) / cell) + 1, height),
+            max(math.floor((x - radius - x0) / cell), 0),
+            min(math.floor((x + radius - x0) / cell) + 1, width))  # fmt: skip
 
 
 @njit(cache=True)
