@@ -362,6 +362,8 @@ def warm_up(config: SLAMConfig, odometry_only: bool = False) -> float:
             register_scans(stored, scans[-1].endpoints())
             _verify_a_revisit(config, [scan.endpoints() for scan in scans])
             _close_a_square(config)
+            _learn_partial_views(config, system, scans[-1])
+        _learn_steps_and_scroll(config, system)
     except Exception:
         pass  # a configuration the maze does not suit: the run then compiles as it goes
     return time.perf_counter() - started
@@ -399,6 +401,33 @@ def _verify_a_revisit(config: SLAMConfig, endpoints: list[FloatArray]) -> None:
     polish_on_lines(LineMap.build(submap), verdict.pose, query, seen, cfg)
 
 
+def _learn_steps_and_scroll(config: SLAMConfig, system: Any) -> None:
+    """What a longer or thinned run reaches that a second of driving does not: the learned
+    density of the odometry's steps and its typical steps (a thinned log's first scans
+    stalled 0.6 and 3.6 s compiling them), and the local map scrolled as the robot leaves
+    its centre."""
+    from bioslam.step_prior import StepPrior
+
+    prior = StepPrior(config.odometry.step_prior)
+    for k in range(config.odometry.step_prior.window + 2):  # past a full window
+        prior.add((0.5 + 0.01 * k, 0.001 * k, 0.005 * k))
+    prior.density((0.6, 0.0, 0.1))
+    prior.modes(2)
+    odometry = system.self_motion.odometry
+    odometry.pyramid.recenter(odometry.pose[0] + 20.0, odometry.pose[1] + 20.0)
+
+
+def _learn_partial_views(config: SLAMConfig, system: BioSLAM, scan: LaserScan) -> None:
+    """Views of a 180° scanner, more than the view cells compare in full: past that many,
+    a partial view's candidates are the views of nearest ring keys (compiled)."""
+    cells = system.view_cells
+    activity = system.boundary_cells.activity(scan)
+    cover = system.boundary_cells.coverage_span(-0.5 * math.pi, 0.5 * math.pi)
+    rng = np.random.default_rng(0)
+    for _ in range(config.views.partial_candidates + 2):
+        cells.observe(activity * rng.uniform(0.0, 2.0, activity.shape), coverage=cover)
+
+
 def _close_a_square(config: SLAMConfig) -> None:
     """Four experiences around a square and a loop closure back onto the first."""
     cmap = CognitiveMap.from_pose_cells(config.cognitive_map, config.pose_cells)
@@ -410,7 +439,9 @@ def _close_a_square(config: SLAMConfig) -> None:
     cmap.relax(iterations=2)
     cmap.link_distance(0, 2, 10.0)
     # and what refits the links' noise model after it (its compiled descent)
-    LinkNoiseEstimator(configured_noise(config.cognitive_map)).add(10.0, 0.01, 0.001, 1e-4)
+    estimator = LinkNoiseEstimator(configured_noise(config.cognitive_map))
+    for k in range(estimator.min_samples + 1):
+        estimator.add(10.0 + k, 0.01 * (k + 1), 0.001 * (k + 1), 1e-4)
 
 
 def run_slam(
