@@ -937,3 +937,51 @@ def test_a_long_map_costs_few_bytes_an_experience_and_link():
     assert cm.update(1, False, (20.0, 5.0, 3.0), stamp=2.0).kind == "new"
     assert cm.experiences_of_view(1) == [0, 2] and cm.experiences_of_view(2) == [1]
     assert cm.experiences_of_view(3) == []
+
+
+def test_shortest_chain_walks_links_from_a_to_b_and_skips_doubted_ones_when_asked():
+    """The compiled Dijkstra's chain: its link ends lead from ``a`` to ``b`` one link at a
+    time, sum to its length, and avoid the doubted links when only undoubted ones count."""
+    import heapq
+
+    from bioslam.cognitive_map import Adjacency
+
+    rng = np.random.default_rng(9)
+    nodes = 80
+    adjacency = Adjacency()
+    for a, b in rng.integers(0, nodes, size=(200, 2)):
+        adjacency.add(int(a), int(b), float(rng.uniform(0.1, 2.0)), bool(rng.random() < 0.3))
+    ends = {}  # end -> (node it is at, node it leads to, length, doubted)
+    for node in range(nodes):
+        for end, other, length in adjacency.of(node):
+            ends[end] = (node, other, length, end not in {e for e, *_ in adjacency.of(node, True)})
+
+    def reference(a: int, b: int, undoubted: bool) -> float:
+        best, queue = {a: 0.0}, [(0.0, a)]
+        while queue:
+            dist, node = heapq.heappop(queue)
+            for _, other, length in adjacency.of(node, undoubted):
+                if dist + length < best.get(other, np.inf):
+                    best[other] = dist + length
+                    heapq.heappush(queue, (dist + length, other))
+        return best.get(b, np.inf)
+
+    found = 0
+    for a, b in rng.integers(0, nodes, size=(60, 2)):
+        for undoubted in (False, True):
+            true = reference(int(a), int(b), undoubted)
+            chain = adjacency.shortest_chain(int(a), int(b), 1e9, undoubted)
+            if not np.isfinite(true):
+                assert chain is None
+                continue
+            found += 1
+            length, walked = chain
+            assert length == pytest.approx(true, abs=1e-12)
+            at = int(a)
+            for end in walked:
+                node, other, _, doubted = ends[end]
+                assert node == at and not (undoubted and doubted)
+                at = other
+            assert at == b
+            assert sum(ends[end][2] for end in walked) == pytest.approx(length, abs=1e-12)
+    assert found > 60
