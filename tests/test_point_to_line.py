@@ -118,3 +118,27 @@ def test_points_that_scatter_more_than_the_grid_blurs_are_not_polished():
     noisy = _points(HALL, robot, noise=0.03, seed=7)
     assert refine_point_to_line(lines, start, noisy, 0.1, 0.02).spread > config.line_max_spread
     assert np.array_equal(polish_on_lines(lines, start, noisy, seen, config), start)
+
+
+def test_the_point_index_finds_what_a_search_of_every_point_finds():
+    # The nearest point within a radius, and the nearest k within it (nearest first), from
+    # the cells the index keeps, against every point's distance; clustered and spread points,
+    # query points inside and outside the points' box, radii under and over a cell.
+    from bioslam.matching.point_to_line import PointIndex, _nearest, _nearest_k
+
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        points = np.concatenate([rng.normal(0.0, 0.3, (200, 2)), rng.uniform(-3, 3, (100, 2))])
+        index = PointIndex.build(points, float(rng.choice([0.1, 0.25, 0.5])))
+        for query in rng.uniform(-3.5, 3.5, (30, 2)):
+            radius = float(rng.uniform(0.05, 0.8))
+            d2 = np.sum((points - query) ** 2, axis=1)
+            within = np.flatnonzero(d2 < radius * radius)
+            nearest = _nearest(points, index.arrays(), query[0], query[1], radius)
+            assert nearest == (within[np.argmin(d2[within])] if within.size else -1)
+            found, dist2 = np.empty(8, dtype=np.int64), np.empty(8)
+            count = _nearest_k(points, index.arrays(), query[0], query[1], radius, found, dist2)
+            expected = within[np.argsort(d2[within], kind="stable")][:8]
+            assert count == expected.size
+            assert np.array_equal(np.sort(d2[found[:count]]), d2[expected])
+            assert np.all(np.diff(dist2[:count]) >= 0.0)
