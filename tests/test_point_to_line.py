@@ -121,10 +121,10 @@ def test_points_that_scatter_more_than_the_grid_blurs_are_not_polished():
 
 
 def test_the_point_index_finds_what_a_search_of_every_point_finds():
-    # The nearest point within a radius, and the nearest k within it (nearest first), from
+    # The nearest point within a radius, and the nearest 8 within it (nearest first), from
     # the cells the index keeps, against every point's distance; clustered and spread points,
     # query points inside and outside the points' box, radii under and over a cell.
-    from bioslam.matching.point_to_line import PointIndex, _nearest, _nearest_k
+    from bioslam.matching.point_to_line import PointIndex, _nearest_k
 
     rng = np.random.default_rng(4)
     for _ in range(20):
@@ -134,8 +134,11 @@ def test_the_point_index_finds_what_a_search_of_every_point_finds():
             radius = float(rng.uniform(0.05, 0.8))
             d2 = np.sum((points - query) ** 2, axis=1)
             within = np.flatnonzero(d2 < radius * radius)
-            nearest = _nearest(points, index.arrays(), query[0], query[1], radius)
-            assert nearest == (within[np.argmin(d2[within])] if within.size else -1)
+            found, dist2 = np.empty(1, dtype=np.int64), np.empty(1)
+            count = _nearest_k(points, index.arrays(), query[0], query[1], radius, found, dist2)
+            assert count == min(within.size, 1)
+            if count:
+                assert d2[found[0]] == d2[within].min()
             found, dist2 = np.empty(8, dtype=np.int64), np.empty(8)
             count = _nearest_k(points, index.arrays(), query[0], query[1], radius, found, dist2)
             expected = within[np.argsort(d2[within], kind="stable")][:8]

@@ -145,26 +145,6 @@ def _nearest_k(points, index, x, y, radius, found, dist2):
     return count
 
 
-@njit(cache=True)
-def _nearest(points, index, x, y, radius):
-    """The index of the point of ``index`` nearest (x, y), nearer than ``radius``; -1 for
-    none."""
-    order, starts, width = index[0], index[1], index[5]
-    r0, r1, c0, c1 = _cells_near(index, x, y, radius)
-    best, best_d2 = -1, radius * radius
-    for r in range(r0, r1):
-        for c in range(c0, c1):
-            k = r * width + c
-            for t in range(starts[k], starts[k + 1]):
-                j = order[t]
-                dx = points[j, 0] - x
-                dy = points[j, 1] - y
-                d2 = dx * dx + dy * dy
-                if d2 < best_d2 or (d2 == best_d2 and best >= 0 and j < best):
-                    best, best_d2 = j, d2
-    return best
-
-
 @dataclass(frozen=True)
 class LineMap:
     """Map points binned for finding the nearest (:class:`PointIndex`), each with the line
@@ -286,14 +266,17 @@ def _line_step(points, anchors, normals, index, pose, pts, max_distance, huber):
     hessian = np.zeros((3, 3))
     gradient = np.zeros(3)
     jac = np.empty(3)
+    nearest, dist2 = np.empty(1, dtype=np.int64), np.empty(1)
     matched = 0
     for i in range(pts.shape[0]):
         # the point's offset from the sensor, turned; d(world)/dθ is it turned a quarter
         lx = c * pts[i, 0] - s * pts[i, 1]
         ly = s * pts[i, 0] + c * pts[i, 1]
         wx, wy = lx + pose[0], ly + pose[1]
-        j = _nearest(points, index, wx, wy, max_distance)
-        if j < 0 or (normals[j, 0] == 0.0 and normals[j, 1] == 0.0):
+        if _nearest_k(points, index, wx, wy, max_distance, nearest, dist2) == 0:
+            continue
+        j = nearest[0]
+        if normals[j, 0] == 0.0 and normals[j, 1] == 0.0:
             continue
         nx, ny = normals[j, 0], normals[j, 1]
         r = nx * (wx - anchors[j, 0]) + ny * (wy - anchors[j, 1])
