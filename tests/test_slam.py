@@ -1174,3 +1174,27 @@ def test_only_a_degenerate_steps_own_position_variance_weakens_the_maps_link():
     # the map does not take it: nothing to sum
     motion = BioSLAM(SLAMConfig()).self_motion
     assert weak_var(True, along_corridor) == 0.0
+
+
+def test_recognitions_beyond_any_checks_reach_are_refused_as_the_checks_bound_would(monkeypatch):
+    """Identical rooms: the view cells recognise other rooms' views metres away. Those the
+    map puts beyond the reach of any check (:meth:`BioSLAM._beyond_any_check`) are refused
+    before the chain searches; the run is the one that computes every check's own bound."""
+    world = load_world("rooms")
+    route = ROUTES["tour"](world, duration=90.0, seed=0)
+    scans = [scan for scan, _ in simulate_scans(world, LIDAR_PRESETS["utm30lx"], route, seed=0)]
+    early = []
+    original = BioSLAM._beyond_any_check
+
+    def counted(self, experience_id, predicted):
+        beyond = original(self, experience_id, predicted)
+        early.append(beyond)
+        return beyond
+
+    monkeypatch.setattr(BioSLAM, "_beyond_any_check", counted)
+    quick = run(scans, SLAMConfig())
+    monkeypatch.setattr(BioSLAM, "_beyond_any_check", lambda self, *a: False)
+    full = run(scans, SLAMConfig())
+    assert sum(early) > 10
+    assert np.array_equal(quick.trajectory().poses, full.trajectory().poses)
+    assert [c.verdict.reason for c in quick.checks] == [c.verdict.reason for c in full.checks]

@@ -721,6 +721,8 @@ class BioSLAM:
         if self._travelled - self._last_registration < cfg.registration_interval:
             return None
         predicted = between(experience.pose, self.cognitive_map.pose())
+        if self._beyond_any_check(experience.id, predicted):
+            return None
         linked, since = self._odometry_relation(experience.id)
         anchor, members = self._submap_members(experience.id)
         trusted, since, by_chain = self._trust(min(anchor, experience.id), since, anchor)
@@ -971,6 +973,23 @@ class BioSLAM:
         if not within(between(mapped, predicted), cfg.link_floor, cfg.link_angle_floor):
             return False, since, None
         return True, span, predicted
+
+    def _beyond_any_check(self, experience_id: int, predicted: FloatArray) -> bool:
+        """Whether the map puts the robot (``predicted``, in ``experience_id``'s frame)
+        farther from the place than any check to it may look: the recognition radius, the
+        drift bound's cap and the breaks since the earliest experience its submap may be
+        anchored at (:meth:`_submap_members`). The check's own bound (below, in
+        :meth:`_refine`) is never wider, so this decides as it would, before the chain
+        searches that make it: a view recognised across the building (the rooms' UTM-30LX
+        tour: 1098 of 1154 recognitions past the registration interval, 4 m or more away)."""
+        cfg = self.config.loop_closure
+        made_at = self._made_at[: len(self.cognitive_map)]
+        earliest = min(submap_anchor(made_at, experience_id, cfg.submap_step), experience_id)
+        reach = cfg.recognition_radius + cfg.max_drift
+        broken = self._break_since(earliest)
+        if broken is not None:
+            reach += float(broken[0])
+        return math.hypot(predicted[0], predicted[1]) > reach
 
     def _jumped_beyond_search(self, experience_id: int) -> bool:
         """Whether a break since ``experience_id`` was made departed from the robot's motion
