@@ -937,7 +937,7 @@ class CognitiveMap:
         ``within``). ``undoubted``: only through links whose odometry crossed no step the
         odometry doubted or broke (:meth:`integrate_odometry`), along which the drift bound
         holds."""
-        found = self._shortest_chain(a, b, within, undoubted)
+        found = self._neighbours.shortest_chain(a, b, within, undoubted)
         return None if found is None else found[0]
 
     def chain_pose(
@@ -948,7 +948,7 @@ class CognitiveMap:
         measurements (odometry and registrations), or None. The drift bound of a chain is a
         bound on this composition; the relaxed poses may differ from it by what other
         links, across doubted steps, pulled them."""
-        found = self._shortest_chain(a, b, within, undoubted)
+        found = self._neighbours.shortest_chain(a, b, within, undoubted)
         if found is None:
             return None
         length, ends = found
@@ -958,13 +958,6 @@ class CognitiveMap:
             dp = dps[end // 2]
             pose = compose(pose, dp if end % 2 == 0 else inverse(dp))
         return length, pose
-
-    def _shortest_chain(
-        self, a: int, b: int, within: float, undoubted: bool
-    ) -> tuple[float, list[int]] | None:
-        """Dijkstra from ``a`` to ``b`` over the links, either direction, stopped at
-        ``within`` metres: the length and the link ends (:meth:`Adjacency.of`) walked."""
-        return self._neighbours.shortest_chain(a, b, within, undoubted)
 
     def experience(self, eid: int) -> Experience:
         """A snapshot of experience ``eid``."""

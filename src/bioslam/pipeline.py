@@ -401,7 +401,7 @@ def _verify_a_revisit(config: SLAMConfig, endpoints: list[FloatArray]) -> None:
     polish_on_lines(LineMap.build(submap), verdict.pose, query, seen, cfg)
 
 
-def _learn_steps_and_scroll(config: SLAMConfig, system: Any) -> None:
+def _learn_steps_and_scroll(config: SLAMConfig, system: BioSLAM | OdometryOnly) -> None:
     """What a longer or thinned run reaches that a second of driving does not: the learned
     density of the odometry's steps and its typical steps (a thinned log's first scans
     stalled 0.6 and 3.6 s compiling them), and the local map scrolled as the robot leaves

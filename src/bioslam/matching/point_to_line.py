@@ -242,11 +242,9 @@ def refine_point_to_line(
     pose = np.asarray(start, dtype=np.float64).copy()
     pts = np.ascontiguousarray(np.asarray(query, dtype=np.float64).reshape(-1, 2))
     residual = np.zeros(0)
+    lines = (line_map.points, line_map.anchors, line_map.normals, line_map.index.arrays())
     for _ in range(max_iterations):
-        step, residual = _line_step(
-            line_map.points, line_map.anchors, line_map.normals, line_map.index.arrays(),
-            pose, pts, max_distance, huber,
-        )  # fmt: skip
+        step, residual = _line_step(*lines, pose, pts, max_distance, huber)
         if residual.size < 3:
             break
         pose = pose + step
