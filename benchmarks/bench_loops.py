@@ -48,6 +48,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np
 
+from bioslam.cognitive_map import configured_noise
 from bioslam.config import SLAMConfig, config_from_dict
 from bioslam.consistency import find_revisits, revisit_residuals
 from bioslam.evaluation import (
@@ -185,9 +186,10 @@ def correction_lines(slam: BioSLAM, truth: Trajectory) -> list[str]:
     between the two experiences' stamps), and the ATE of the whole map re-solved with every
     link given the truth's relative pose ("true closures": each loop link's, the odometry's
     kept; "all true": every link's, the floor left by the per-scan odometry), and with the
-    loop links left out (the odometry's own, through the map). A full ATE above the true
-    closures' is the registrations' error; true closures no better than none say that the
-    closures have nothing to correct there."""
+    loop links left out (the odometry's own, through the map), and with the links weighed
+    by the configured link noise instead of the one the closures taught (:func:`noise_line`).
+    A full ATE above the true closures' is the registrations' error; true closures no better
+    than none say that the closures have nothing to correct there."""
     cmap = slam.cognitive_map
     if cmap.num_links == 0:
         return []
@@ -210,12 +212,30 @@ def correction_lines(slam: BioSLAM, truth: Trajectory) -> list[str]:
         f"percentile {100 * np.percentile(metres, 90):.2f} cm / {np.percentile(degrees, 90):.2f}"
         f" deg" if loop.any() else "-"
     )
+    configured = ate_cm(cmap.solved(noise=configured_noise(cmap.config)))
     return [
         f"  loop links against the truth: {spread}",
         f"  ATE re-solved: as run {ate_cm(cmap.solved()):.2f} cm, true closures "
         f"{ate_cm(cmap.solved(with_true_loops)):.2f}, all links true "
-        f"{ate_cm(cmap.solved(true)):.2f}, no closures {ate_cm(cmap.solved(loops=False)):.2f}",
+        f"{ate_cm(cmap.solved(true)):.2f}, no closures {ate_cm(cmap.solved(loops=False)):.2f}"
+        f", the configured link noise {configured:.2f}",
+        noise_line(slam),
     ]
+
+
+def noise_line(slam: BioSLAM) -> str:
+    """The link noise the finished map was solved with, and how many of the accepted
+    closures taught it: only those the odometry relates to their place without a break or
+    a jump (:meth:`bioslam.slam.BioSLAM._learn_noise`); the model is the settings' until
+    ``noise_min_closures`` have."""
+    noise = slam.cognitive_map.noise
+    accepted = sum(check.verdict.accepted for check in slam.checks)
+    return (
+        f"  link noise from {len(slam.link_noise)} of {accepted} closures: odometry "
+        f"{noise.odometry_var_per_m:.1e} m²/m, heading scale {noise.heading_scale:.1e}; "
+        f"closure {100 * math.sqrt(noise.closure_var):.2f} cm / "
+        f"{math.degrees(math.sqrt(noise.closure_heading_var)):.3f} deg"
+    )
 
 
 #: Heading-offset classes of revisits (degrees from the earlier pass), as reported.

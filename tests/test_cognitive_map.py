@@ -670,6 +670,24 @@ def test_solved_with_true_links_recovers_the_truth_and_leaves_the_map_as_it_was(
     assert np.allclose(cm.solved(), before, atol=1e-6)  # as run: its own fixed point
 
 
+def test_solved_under_another_noise_model_weighs_the_links_by_it_and_leaves_the_map_as_it_was():
+    # drifting odometry, exact closures: weighed as trusting the odometry far more than any
+    # closure, the solve keeps the odometry's chain (and its drift); as trusting the
+    # closures, it takes them; the map itself, its noise model and its own solve stay put
+    cm, made = revisited_square(0.0005, {}, CognitiveMapConfig())
+    before, noise = cm.experience_poses, cm.noise
+    stiff = cm.solved(noise=LinkNoise(1e-12, 1.0, 1e-9, 1.0))
+    loose = cm.solved(noise=LinkNoise(1e-2, 1e-8, 1e3, 1e-10))
+    chain = cm.solved(loops=False)
+    drift = errors(_relative(chain), _relative(made))[0]
+    assert drift > 0.15
+    assert errors(_relative(stiff), _relative(chain))[0] < 0.01 * drift
+    assert errors(_relative(loose), _relative(made))[0] < 0.2 * drift
+    assert cm.noise == noise
+    assert np.array_equal(cm.experience_poses, before)
+    assert np.allclose(cm.solved(), before, atol=1e-6)
+
+
 def test_biased_closures_still_beat_a_drifting_odometry():
     # every closure of the second lap 2 cm / 0.17 deg off (a registration's bias, the same
     # each time so that no robust kernel can tell): the map corrects the odometry's 22 cm

@@ -1184,9 +1184,16 @@ class CognitiveMap:
             *self._travel, registrations, self.config, self._broken_var, self._heading_var
         )
 
-    def _weigh(self, terms: FloatArray) -> FloatArray:
-        """:func:`information_of` ``terms`` under the map's noise model."""
-        return information_of(terms, self.noise, self.config.link_var_floor)
+    def _weigh(self, terms: FloatArray, noise: LinkNoise | None = None) -> FloatArray:
+        """:func:`information_of` ``terms`` under ``noise`` (the map's noise model)."""
+        return information_of(terms, noise or self.noise, self.config.link_var_floor)
+
+    def _modelled_weights(self, noise: LinkNoise) -> tuple[NDArray[np.bool_], FloatArray]:
+        """Which links the noise model weighs (not those given their information as
+        measured) and their weights under ``noise``."""
+        terms = self._link_terms.view()
+        modelled = np.isfinite(terms[:, 0])
+        return modelled, self._weigh(terms[modelled], noise)
 
     def set_noise(self, noise: LinkNoise) -> None:
         """Weigh every link by the noise model ``noise`` from now on (:mod:`bioslam.link_noise`);
@@ -1196,10 +1203,8 @@ class CognitiveMap:
         self.noise = noise
         if self.num_links == 0:
             return
-        terms = self._link_terms.view()
-        modelled = np.isfinite(terms[:, 0])
+        modelled, new = self._modelled_weights(noise)
         info = self._link_info.view()
-        new = self._weigh(terms[modelled])
         if np.allclose(new, info[modelled], rtol=1e-3, atol=0.0):
             return
         info[modelled] = new
@@ -1460,19 +1465,26 @@ class CognitiveMap:
             if not changed.any():
                 break
 
-    def solved(self, dps: ArrayLike | None = None, loops: bool = True) -> FloatArray:
+    def solved(
+        self, dps: ArrayLike | None = None, loops: bool = True, noise: LinkNoise | None = None
+    ) -> FloatArray:
         """(N, 3) the experience poses the whole map solves to (:meth:`solve`, every
         experience free, the robust kernel started afresh) with every link's Δp replaced by
-        ``dps`` ((E, 3), e.g. the true relative poses) and, with ``loops`` False, without
-        its loop links; the map itself is left as it was. Measures how much of the
-        trajectory's error the closures' own errors cause (the closures given the truth)
-        and how much they correct (none at all)."""
+        ``dps`` ((E, 3), e.g. the true relative poses), with ``loops`` False without its
+        loop links, and with ``noise`` its links weighed by that model instead of the map's
+        (:func:`information_of`); the map itself is left as it was. Measures how much of
+        the trajectory's error the closures' own errors cause (the closures given the
+        truth), how much they correct (none at all) and what the learned link noise does
+        (the configured model instead)."""
         view = self._poses.view()
         saved = (view.copy(), self._link_dp.view().copy(), self._link_scale.view().copy(),
                  self._link_info.view().copy())  # fmt: skip
         try:
             if dps is not None:
                 self._link_dp.view()[:] = np.asarray(dps, dtype=np.float64).reshape(-1, 3)
+            if noise is not None:
+                modelled, weights = self._modelled_weights(noise)
+                self._link_info.view()[modelled] = weights
             self._link_scale.view()[:] = 1.0
             if not loops:
                 loop = self._link_loop.view()
