@@ -66,7 +66,7 @@ from bioslam.cognitive_map import (
 from bioslam.config import SLAMConfig
 from bioslam.geometry import Pose2D, between, compose, inverse
 from bioslam.growing import GrowingArray, RowsFactory
-from bioslam.link_noise import LinkNoiseEstimator
+from bioslam.link_noise import LinkNoise, LinkNoiseEstimator
 from bioslam.occupancy_grid import NORMAL_MAX_GAP, NORMAL_RADIUS, scan_normals, subsample_by_spacing
 from bioslam.odometry import LidarOdometry, MatchReport
 from bioslam.pose_cells import PoseCellNetwork
@@ -1140,18 +1140,30 @@ class BioSLAM:
         that its predictions of where the robot is hold; the finished map is the one the
         evidence makes likeliest. Where the closures show no drift, the largest they could
         not rule out let their registrations' millimetres bend an odometry better than them
-        (the rooms' SICK weaving route: 0.35 cm against the odometry's 0.30; 0.31 so)."""
+        (the rooms' SICK weaving route: 0.35 cm against the odometry's 0.30; 0.31 so). Taught
+        by fewer than ``noise_min_closures_finished`` closures, the model is the settings'
+        (:meth:`_finished_noise`)."""
         self._relax_now()
         cmap = self.cognitive_map
         reweighed = False
         if self.config.cognitive_map.learn_noise and len(self.link_noise):
             before = cmap.noise
-            cmap.set_noise(before.likely())
+            cmap.set_noise(self._finished_noise())
             reweighed = cmap.noise != before
         if reweighed or not cmap.converged:
             # after a re-weighing the whole map: the weights changed everywhere
             cmap.solve(window=None if reweighed else -1)
             cmap.relax()
+
+    def _finished_noise(self) -> LinkNoise:
+        """The link noise the finished map is solved with: the drift the closures make
+        likeliest, once ``noise_min_closures_finished`` closures have taught the model; the
+        settings' model before (a fit from a few closures, those that happened to cross no
+        break or jump, is no measure of the rest)."""
+        config = self.config.cognitive_map
+        if len(self.link_noise) < config.noise_min_closures_finished:
+            return configured_noise(config)
+        return self.cognitive_map.noise.likely()
 
     # --- read-outs ---------------------------------------------------------------------------
 
