@@ -212,10 +212,12 @@ def correction_lines(slam: BioSLAM, truth: Trajectory) -> list[str]:
         f"percentile {100 * np.percentile(metres, 90):.2f} cm / {np.percentile(degrees, 90):.2f}"
         f" deg" if loop.any() else "-"
     )
-    configured = ate_cm(cmap.solved(noise=configured_noise(cmap.config)))
+    as_run = ate_cm(cmap.solved())
+    settings = configured_noise(cmap.config)
+    configured = as_run if cmap.noise == settings else ate_cm(cmap.solved(noise=settings))
     return [
         f"  loop links against the truth: {spread}",
-        f"  ATE re-solved: as run {ate_cm(cmap.solved()):.2f} cm, true closures "
+        f"  ATE re-solved: as run {as_run:.2f} cm, true closures "
         f"{ate_cm(cmap.solved(with_true_loops)):.2f}, all links true "
         f"{ate_cm(cmap.solved(true)):.2f}, no closures {ate_cm(cmap.solved(loops=False)):.2f}"
         f", the configured link noise {configured:.2f}",
@@ -227,7 +229,8 @@ def noise_line(slam: BioSLAM) -> str:
     """The link noise the finished map was solved with, and how many of the accepted
     closures taught it: only those the odometry relates to their place without a break or
     a jump (:meth:`bioslam.slam.BioSLAM._learn_noise`); the model is the settings' until
-    ``noise_min_closures`` have."""
+    ``noise_min_closures`` have, and the finished map's until ``noise_min_closures_finished``
+    have (:meth:`bioslam.slam.BioSLAM._finished_noise`)."""
     noise = slam.cognitive_map.noise
     accepted = sum(check.verdict.accepted for check in slam.checks)
     return (

@@ -1197,16 +1197,16 @@ class CognitiveMap:
             *self._travel, registrations, self.config, self._broken_var, self._heading_var
         )
 
-    def _weigh(self, terms: FloatArray, noise: LinkNoise | None = None) -> FloatArray:
-        """:func:`information_of` ``terms`` under ``noise`` (the map's noise model)."""
-        return information_of(terms, noise or self.noise, self.config.link_var_floor)
+    def _weigh(self, terms: FloatArray) -> FloatArray:
+        """:func:`information_of` ``terms`` under the map's noise model."""
+        return information_of(terms, self.noise, self.config.link_var_floor)
 
     def _modelled_weights(self, noise: LinkNoise) -> tuple[NDArray[np.bool_], FloatArray]:
         """Which links the noise model weighs (not those given their information as
         measured) and their weights under ``noise``."""
         terms = self._link_terms.view()
         modelled = np.isfinite(terms[:, 0])
-        return modelled, self._weigh(terms[modelled], noise)
+        return modelled, information_of(terms[modelled], noise, self.config.link_var_floor)
 
     def set_noise(self, noise: LinkNoise) -> None:
         """Weigh every link by the noise model ``noise`` from now on (:mod:`bioslam.link_noise`);
