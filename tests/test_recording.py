@@ -452,3 +452,36 @@ def test_the_file_is_closed_when_the_run_disappears(ring_scans, tmp_path):
     output.process.stdin.close()  # what the writing process sees when the run is killed
     assert output.process.wait(timeout=120) == 0
     assert summarize(path).counts()[tp.SCAN] == 50
+
+
+def test_every_event_since_the_last_look_is_logged_once():
+    """Two closures accepted and two refused between looks, and a packet that died out
+    twice: each is a message of its own, counted, and none is logged again at the next look."""
+    from types import SimpleNamespace
+
+    from bioslam.recording.tap import Tap
+
+    links = [SimpleNamespace(kind="odometry", source=0, target=1)]
+    cmap = SimpleNamespace(
+        num_links=1, loop_closures=0, rejected_closures=0, link=lambda k: links[k]
+    )
+    system = SimpleNamespace(cognitive_map=cmap, pose_cells=SimpleNamespace(collapses=0))
+    tap = Tap(lambda batch: None)
+    tap._events(1, system)
+    links += [SimpleNamespace(kind="loop", source=5, target=1),
+              SimpleNamespace(kind="odometry", source=1, target=6),
+              SimpleNamespace(kind="loop", source=6, target=2)]  # fmt: skip
+    cmap.num_links, cmap.loop_closures, cmap.rejected_closures = 4, 2, 2
+    system.pose_cells.collapses = 2
+    tap._events(2, system)
+    tap._events(3, system)  # nothing new
+    logs = [(item[1], item[3]) for item in tap._batch if item[0] == "log"]
+    assert [text for _, text in logs] == [
+        "loop closure accepted: experience 5 -> 1 (1 so far)",
+        "loop closure accepted: experience 6 -> 2 (2 so far)",
+        "loop closure rejected: the scan registration did not fit (1 so far)",
+        "loop closure rejected: the scan registration did not fit (2 so far)",
+        "pose cells: the activity packet died out and was re-seeded at its last centre",
+        "pose cells: the activity packet died out and was re-seeded at its last centre",
+    ]
+    assert {ns for ns, _ in logs} == {2}
