@@ -172,24 +172,23 @@ class Tap:
         several (a closure that confirms one held back enters both at once, :class:`bioslam.
         closure.ClosureConsensus`; two checks may be refused on one scan), and each counts."""
         cmap = system.cognitive_map
-        closures = cmap.loop_closures - sum(
-            cmap.link(k).kind == "loop" for k in range(self._seen["links"], cmap.num_links)
-        )
-        for k in range(self._seen["links"], cmap.num_links):
-            link = cmap.link(k)
-            if link.kind == "loop":
-                closures += 1
-                self._log(ns, "Info", f"loop closure accepted: experience {link.source} -> "
-                          f"{link.target} ({closures} so far)", "cognitive_map")
+        loops = [
+            link for link in (cmap.link(k) for k in range(self._seen["links"], cmap.num_links))
+            if link.kind == "loop"
+        ]
         self._seen["links"] = cmap.num_links
+        first = cmap.loop_closures - len(loops) + 1
+        for count, link in enumerate(loops, start=first):
+            self._log(ns, "Info", f"loop closure accepted: experience {link.source} -> "
+                      f"{link.target} ({count} so far)", "cognitive_map")
         for count in range(self._seen["rejected"] + 1, cmap.rejected_closures + 1):
             self._log(ns, "Warning", "loop closure rejected: the scan registration did not fit "
                       f"({count} so far)", "cognitive_map")
-        self._seen["rejected"] = max(self._seen["rejected"], cmap.rejected_closures)
+        self._seen["rejected"] = cmap.rejected_closures
         for _ in range(self._seen["collapses"], system.pose_cells.collapses):
             self._log(ns, "Warning", "pose cells: the activity packet died out and was "
                       "re-seeded at its last centre", "pose_cells")
-        self._seen["collapses"] = max(self._seen["collapses"], system.pose_cells.collapses)
+        self._seen["collapses"] = system.pose_cells.collapses
 
     def _scene(self, ns: int, system: BioSLAM) -> Item:
         """The experiences' relaxed poses (all: relaxation moves them) and the links made since
