@@ -421,7 +421,7 @@ class BioSLAM:
         self._scans_since_look = 0
         self._last_forced = -np.inf
         # a relaxation after a closure, left for a later scan (``SLAMConfig.defer_relaxation``),
-        # and the scans it has waited for one the odometry fuses
+        # and the scans it has waited for a look or one the odometry fuses
         self._relax_due = False
         self._relax_waited = 0
         self._scans_waited = 0
@@ -499,14 +499,18 @@ class BioSLAM:
         self.bridges += 1
 
     def _relax_if_due(self) -> None:
-        """The relaxation a closure left for a later scan (``defer_relaxation``): the next one
-        the odometry fuses into its map, which is slow already, or the ``view_wait``-th
-        (:meth:`_relax_now` runs it sooner when the map is read)."""
+        """The relaxation a closure left for a later scan (``defer_relaxation``): the next
+        look's (:meth:`_perceive` runs it, as anything that reads the map does, through
+        :meth:`_relax_now`) within ``relax_wait`` scans; failing one, the next scan the
+        odometry fuses into its map, which is slow already, or the ``view_wait``-th after."""
         if not self._relax_due:
             return
+        cfg = self.config
+        self._relax_waited += 1
+        if self._relax_waited <= cfg.relax_wait:
+            return
         fused = self.self_motion.odometry.last_report.inserted
-        if not fused and self._relax_waited < self.config.view_wait:
-            self._relax_waited += 1
+        if not fused and self._relax_waited <= cfg.relax_wait + cfg.view_wait:
             return
         self._relax_now()
 
@@ -676,15 +680,17 @@ class BioSLAM:
         then ``pending`` motion not yet integrated, after ``travelled`` metres of odometry),
         made long enough ago to be a loop and not already joined to the current one by a
         short chain of links (:func:`bioslam.closure.nearest_experience`); None while no
-        registration is due. A relaxation left for later runs first: the cue reads the map's
-        poses (:meth:`_relax_now`)."""
+        registration is due. A relaxation left for later runs first at a look (``pending``
+        None), where the cue's candidate is checked; between looks the cue reads the map as
+        the last look left it, and a look it forces asks again, relaxed."""
         cfg = self.config.loop_closure
         cmap = self.cognitive_map
         if not (cfg.proximity and cfg.refine) or len(cmap) < 2:
             return None
         if travelled - self._last_registration < cfg.registration_interval:
             return None
-        self._relax_now()
+        if pending is None:
+            self._relax_now()
         pose = cmap.pose() if pending is None else compose(cmap.pose(), pending)
         drift, _ = self._drift_bound(travelled, False)
         found = nearest_experience(
