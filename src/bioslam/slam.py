@@ -587,13 +587,22 @@ class BioSLAM:
         matched against it, carry the motion during the sweep. A closure to it measures the
         place well and then bends the whole loop by the first step's error (simulated hall,
         SICK scanner: 3.5 cm / 0.68 deg; one closure to it doubled the ATE, 1.42 ->
-        2.86 cm, with the closure given the truth as well)."""
+        2.86 cm, with the closure given the truth as well). None too for a scan bent by its
+        sweep (:meth:`_bent`)."""
         first = len(self.cognitive_map) == 0 and self.self_motion.odometry.num_scans <= 1
         cfg = self.config
         skewed = scan.time_increment > 0.0 and cfg.odometry.deskew
         if first and skewed and not cfg.loop_closure.close_to_first_scan:
             return None
+        if self._bent():
+            return None
         return _scan_payload(points, cfg.loop_closure.payload_spacing)
+
+    def _bent(self) -> bool:
+        """Whether the scan just matched is bent by its sweep beyond what a closure takes
+        (``loop_closure.max_scan_bend``): it neither checks one nor is kept for one."""
+        bend = self.self_motion.odometry.last_report.bend
+        return bend > self.config.loop_closure.max_scan_bend
 
     def _perceive(self, scan: LaserScan, dp: FloatArray) -> None:
         """The view cells, pose cells and cognitive map for one scan, after motion ``dp``."""
@@ -722,7 +731,7 @@ class BioSLAM:
         :func:`bioslam.cognitive_map.registration_shape`), or None to reject the
         recognition."""
         cfg = self.config.loop_closure
-        if experience.payload is None or points.shape[0] < 3:
+        if experience.payload is None or points.shape[0] < 3 or self._bent():
             return None
         if self._travelled - self._last_registration < cfg.registration_interval:
             return None

@@ -81,6 +81,9 @@ class MatchReport:
             earlier passes in conflict with them (``OdometryConfig.rebuild_scans``): the
             steps that led here were matched against a map found wrong, a break for the
             closures (:func:`bioslam.closure.odometry_broke`).
+        bend: how far the scan's sweep is bent (rad): the turn its de-skewing put through the
+            sweep less the turn at the rate of the step matched (set by
+            :class:`bioslam.odometry.LidarOdometry`; 0 for a scan taken at one instant).
         covariance: 3x3 covariance of (x, y, theta) in the map frame from the scan alone
             (:func:`match_covariance`); NaN where no match was made. Along a direction the
             scan does not constrain it is large: there the pose kept the motion prior.
@@ -106,6 +109,7 @@ class MatchReport:
     broken: bool = False
     vetoed: bool = False
     overruled: bool = False
+    bend: float = 0.0
     #: :func:`match_covariance`'s arguments, kept so that the covariance is computed only for
     #: the report someone reads (the searches' and closures' candidates are never read)
     covariance_terms: tuple | None = field(default=None, repr=False)

@@ -41,7 +41,7 @@ from bioslam.odometry.choice import MatchChoice
 from bioslam.odometry.guards import PredictionGuards
 from bioslam.odometry.local_map import Fusion, LocalMap
 from bioslam.odometry.search import WideSearch
-from bioslam.odometry.sweep import SweepMotion, sweep_seconds
+from bioslam.odometry.sweep import SweepMotion, sweep_bend
 from bioslam.odometry_config import OdometryConfig
 from bioslam.scan import LaserScan, farthest_return
 from bioslam.step_prior import StepPrior
@@ -322,6 +322,7 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
             self.last_report.inserted = True
         if self.last_report.inserted and not self._scores:
             self._remember_score(self._score_at(self.pose, kept_rows(pts, keep)))
+        self._note_bend(scan, previous, dt)
         self._motion.update(scan.stamp, self.pose, *(constraint or (1.0, None, None)))
         self._last_stamp = scan.stamp
         self._last_dt = dt
@@ -329,6 +330,23 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         self._heading += float(self._last_delta[2])
         self._body.observe(measured, self._heading)
         return self._last_delta.copy()
+
+    def _note_bend(self, scan: LaserScan, previous: FloatArray, dt: float) -> None:
+        """The report's ``bend``: how far the scan's sweep, de-skewed with the motion model's
+        twist, is bent against the turn rate of the step just matched. As a turn begins or
+        ends the twist, a mean over its window, lags the rate: a 360° scanner's sweep is
+        then bent by up to 2.5° (simulated maze, RPLIDAR), and the match of the bent scan,
+        and the pose it gives, by as much. Left at 0 where the steps are a gap or a thinned
+        log's (:meth:`_gapless`, :meth:`_sparse`): a step's mean rate over seconds says
+        nothing of the turn through a sweep (a 360° scanner's is then measured on the scan,
+        :meth:`_sweep_unknown`)."""
+        report = self.last_report
+        if dt <= 0.0 or report.predicted_only or not self.config.deskew:
+            return
+        if not self._gapless(dt) or self._sparse():
+            return
+        step_rate = float(between(previous, self.pose)[2]) / dt
+        report.bend = sweep_bend(float(self._motion.twist[2]), step_rate, scan)
 
     def steps_to_insert(self, step: ArrayLike) -> float:
         """How many more steps like ``step`` (the last one, in the robot's frame) until the
@@ -399,7 +417,7 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         settled = self._settle_sweep(scan, previous, found.pose, dt)
         if settled is None:
             return found
-        bend = abs(settled.rate - float(self._motion.twist[2])) * sweep_seconds(scan)
+        bend = sweep_bend(float(self._motion.twist[2]), settled.rate, scan)
         if bend >= self.config.sweep_rematch:
             return self._match_scan(settled.points, settled.keep, scan, previous, predicted, dt)
         return replace(

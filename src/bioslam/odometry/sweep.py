@@ -43,6 +43,13 @@ def sweep_seconds(scan: LaserScan) -> float:
     return max(float(scan.time_increment), 0.0) * max(scan.num_beams - 1, 0)
 
 
+def sweep_bend(deskew_rate: float, step_rate: float, scan: LaserScan) -> float:
+    """How far a scan de-skewed at ``deskew_rate`` is bent if the robot turned at
+    ``step_rate`` (rad/s) through its sweep (rad): the turn the de-skewing put between its
+    first and last beams less the turn at that rate."""
+    return abs(step_rate - deskew_rate) * sweep_seconds(scan)
+
+
 def closes_circle(scan: LaserScan) -> bool:
     """Whether the scan's beams go round the whole circle (to within two beams)."""
     if scan.num_beams < 2:
