@@ -420,8 +420,8 @@ class SLAMConfig:
         relax_wait: scans a deferred relaxation waits for a look before it falls back to
             the next fused scan: looks come at least every ``view_min_scans`` scans while
             the robot moves ``view_distance`` in that many, so 8 covers a robot at a
-            quarter of a metre a second with a 40 Hz scanner and a stopped robot's map is
-            corrected within a second at 10 Hz.
+            quarter of a metre a second with a 40 Hz scanner, and a stopped robot's map is
+            corrected within 11 scans (1.1 s at 10 Hz).
         heading_bias: an artificial gyro-like heading drift (rad/s) added to every odometry
             step before it reaches the pose cells and the map; 0 in normal use. It exists for
             ablations that show loop closure pulling an extra drift back down.
