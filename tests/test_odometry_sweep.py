@@ -11,9 +11,11 @@ from _sim_runs import largest_error, odometry_run
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bioslam.odometry import OdometryConfig
+from bioslam.odometry import LidarOdometry, OdometryConfig
 from bioslam.odometry.sweep import best_rate, closes_circle
 from bioslam.scan import LaserScan
+from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world, simulate_scans
+from bioslam.sim.route import Route
 
 
 @settings(max_examples=60, deadline=None)
@@ -111,10 +113,6 @@ def test_sweep_settings_out_of_range_are_refused():
 def _bends_through_a_spin(lidar: str) -> tuple[np.ndarray, np.ndarray]:
     """(stamps, degrees) of each scan's reported bend, the robot standing on the maze's
     tour start for 3 s, then turning on the spot at 1 rad/s from one instant to the next."""
-    from bioslam.odometry import LidarOdometry
-    from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world, simulate_scans
-    from bioslam.sim.route import Route
-
     world = load_world("maze")
     x, y, th = ROUTES["tour"](world, duration=10.0, seed=0).poses[0]
     poses = np.array([(x, y, th), (x, y, th), (x, y, th + 4.0)])

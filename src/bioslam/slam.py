@@ -689,17 +689,15 @@ class BioSLAM:
         then ``pending`` motion not yet integrated, after ``travelled`` metres of odometry),
         made long enough ago to be a loop and not already joined to the current one by a
         short chain of links (:func:`bioslam.closure.nearest_experience`); None while no
-        registration is due. A relaxation left for later runs first at a look (``pending``
-        None), where the cue's candidate is checked; between looks the cue reads the map as
-        the last look left it, and a look it forces asks again, relaxed."""
+        registration is due. It reads the map as it is: at a look relaxed already
+        (:meth:`_perceive`), between looks as the last look left it (a relaxation left for
+        later waits for the next look; one the cue forces asks the cue again, relaxed)."""
         cfg = self.config.loop_closure
         cmap = self.cognitive_map
         if not (cfg.proximity and cfg.refine) or len(cmap) < 2:
             return None
         if travelled - self._last_registration < cfg.registration_interval:
             return None
-        if pending is None:
-            self._relax_now()
         pose = cmap.pose() if pending is None else compose(cmap.pose(), pending)
         drift, _ = self._drift_bound(travelled, False)
         found = nearest_experience(

@@ -322,18 +322,19 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
             self.last_report.inserted = True
         if self.last_report.inserted and not self._scores:
             self._remember_score(self._score_at(self.pose, kept_rows(pts, keep)))
-        self._note_bend(scan, previous, dt)
+        self._last_delta = between(previous, self.pose)
+        self._note_bend(scan, float(self._last_delta[2]), dt)
         self._motion.update(scan.stamp, self.pose, *(constraint or (1.0, None, None)))
         self._last_stamp = scan.stamp
         self._last_dt = dt
-        self._last_delta = between(previous, self.pose)
         self._heading += float(self._last_delta[2])
         self._body.observe(measured, self._heading)
         return self._last_delta.copy()
 
-    def _note_bend(self, scan: LaserScan, previous: FloatArray, dt: float) -> None:
+    def _note_bend(self, scan: LaserScan, turned: float, dt: float) -> None:
         """The report's ``bend``: how far the scan's sweep, de-skewed with the motion model's
-        twist, is bent against the turn rate of the step just matched. As a turn begins or
+        twist (before the step updates it), is bent against the turn rate of the step just
+        matched (``turned`` radians in ``dt`` seconds). As a turn begins or
         ends the twist, a mean over its window, lags the rate: a 360° scanner's sweep is
         then bent by up to 2.5° (simulated maze, RPLIDAR), and the match of the bent scan,
         and the pose it gives, by as much. Left at 0 where the steps are a gap or a thinned
@@ -341,12 +342,9 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         nothing of the turn through a sweep (a 360° scanner's is then measured on the scan,
         :meth:`_sweep_unknown`)."""
         report = self.last_report
-        if dt <= 0.0 or report.predicted_only or not self.config.deskew:
-            return
-        if not self._gapless(dt) or self._sparse():
-            return
-        step_rate = float(between(previous, self.pose)[2]) / dt
-        report.bend = sweep_bend(float(self._motion.twist[2]), step_rate, scan)
+        steps_at_rate = dt > 0.0 and self._gapless(dt) and not self._sparse()
+        if steps_at_rate and self.config.deskew and not report.predicted_only:
+            report.bend = sweep_bend(float(self._motion.twist[2]), turned / dt, scan)
 
     def steps_to_insert(self, step: ArrayLike) -> float:
         """How many more steps like ``step`` (the last one, in the robot's frame) until the
