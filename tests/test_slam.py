@@ -232,6 +232,33 @@ def test_a_closure_across_a_jump_of_the_odometry_measures_the_jump_or_is_refused
         assert slam.summary()["closure_refused_odometry_broke"] == len(refused)
 
 
+def test_jumps_each_within_the_search_window_that_add_up_past_it_refuse_the_closures_across(
+    ring_drive,
+):
+    """Three jumps of 1.1 m, each one the verification's 3 m window covers, put the map's
+    prediction 3.3 m off: together beyond what it searches, where a look-alike may fit as
+    well as the place and no rival is searched for (simulated library, a 360° scanner of 3.5 m
+    among tables 4 m apart: the odometry slid back by a table in steps of 0.1-0.9 m and four
+    closures confirmed the slide, 4.0 m off). Checks to the places made before them are
+    refused; the places made after the last still close."""
+    scans, gt = ring_drive
+    slam = BioSLAM(SLAMConfig())
+    first = len(scans) // 4
+    at = (first, first + 20, first + 40)
+    for k in at:
+        _jumping(slam, k, 1.1)
+    for scan in scans:
+        slam.process(scan)
+    assert slam.self_motion.breaks == len(at)
+    before, after = scans[at[0]].stamp, scans[at[-1]].stamp
+    across = [c for c in slam.checks if c.experience_stamp < before and c.verdict.accepted]
+    later = [c for c in slam.checks if c.experience_stamp > after and c.verdict.accepted]
+    refused = [c for c in slam.checks if c.verdict.reason == "odometry broke"]
+    assert not across
+    assert refused and all(c.experience_stamp < after for c in refused)
+    assert later and max(_closure_errors(slam, gt, later)) < 0.15
+
+
 def test_a_jittered_stamp_breaks_nothing_a_jump_still_breaks():
     """freiburg-079 with its stamps jittered by 0.2 s (scans 0.22 s apart): the motion
     scaled by a stamp's interval overshoots or falls short of steady steps, and searched

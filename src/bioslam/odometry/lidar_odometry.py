@@ -342,9 +342,14 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         nothing of the turn through a sweep (a 360° scanner's is then measured on the scan,
         :meth:`_sweep_unknown`)."""
         report = self.last_report
-        steps_at_rate = dt > 0.0 and self._gapless(dt) and not self._sparse()
-        if steps_at_rate and self.config.deskew and not report.predicted_only:
+        if self.at_scanner_rate(dt) and self.config.deskew and not report.predicted_only:
             report.bend = sweep_bend(float(self._motion.twist[2]), turned / dt, scan)
+
+    def at_scanner_rate(self, dt: float) -> bool:
+        """Whether a step ``dt`` seconds after the scan before is one at the scanner's rate:
+        no gap (:meth:`_gapless`), and the scans not a thinned log's (:meth:`_sparse`), where
+        the motion between two scans is seconds of driving."""
+        return dt > 0.0 and self._gapless(dt) and not self._sparse()
 
     def steps_to_insert(self, step: ArrayLike) -> float:
         """How many more steps like ``step`` (the last one, in the robot's frame) until the
