@@ -259,6 +259,31 @@ def test_jumps_each_within_the_search_window_that_add_up_past_it_refuse_the_clos
     assert later and max(_closure_errors(slam, gt, later)) < 0.15
 
 
+@pytest.mark.parametrize("at_rate", [True, False])
+def test_breaks_are_summed_against_the_search_window_only_at_the_scanners_rate(
+    ring_drive, at_rate
+):
+    """Four breaks since a place, each departing 0.9 m from the robot's motion (within the
+    3 m window alone): at the scanner's rate they are a slide of up to 3.6 m, past what a
+    check searches, and its checks are refused; after gaps or on a thinned log's steps they
+    are the robot's own changes of motion over seconds (intel) and only a single departure
+    past the window refuses. Then one break of 3.5 m does."""
+    scans, _ = ring_drive
+    slam = BioSLAM(SLAMConfig())
+    slam.process(scans[0])
+    place = len(slam.cognitive_map) - 1
+    motion = slam.self_motion
+    for _ in range(4):
+        motion.breaks += 1
+        motion.break_departures.append((0.9, 0.01))
+        motion.break_at_rate.append(at_rate)
+    assert slam._jumped_beyond_search(place) is at_rate
+    motion.breaks += 1
+    motion.break_departures.append((3.5, 0.0))
+    motion.break_at_rate.append(False)
+    assert slam._jumped_beyond_search(place)
+
+
 def test_a_jittered_stamp_breaks_nothing_a_jump_still_breaks():
     """freiburg-079 with its stamps jittered by 0.2 s (scans 0.22 s apart): the motion
     scaled by a stamp's interval overshoots or falls short of steady steps, and searched
