@@ -276,11 +276,11 @@ def test_breaks_are_summed_against_the_search_window_only_at_the_scanners_rate(
     for _ in range(4):
         motion.breaks += 1
         motion.break_departures.append((0.9, 0.01))
-        motion.break_at_rate.append(at_rate)
+        if at_rate:
+            motion.paced_departure += (0.9, 0.01)
     assert slam._jumped_beyond_search(place) is at_rate
     motion.breaks += 1
-    motion.break_departures.append((3.5, 0.0))
-    motion.break_at_rate.append(False)
+    motion.break_departures.append((3.5, 0.0))  # after a gap: not paced
     assert slam._jumped_beyond_search(place)
 
 

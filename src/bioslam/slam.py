@@ -207,9 +207,9 @@ class SelfMotion:
         #: each break's departure (m, rad) from the robot's motion
         #: (:func:`bioslam.closure.break_departure`), in the order they came
         self.break_departures: list[tuple[float, float]] = []
-        #: for each, whether it came at the scanner's rate
+        #: the same summed (m, rad) over the breaks that came at the scanner's rate
         #: (:meth:`bioslam.odometry.LidarOdometry.at_scanner_rate`)
-        self.break_at_rate: list[bool] = []
+        self.paced_departure = np.zeros(2)
         #: the same summed over the breaks and every other step no robot can make
         #: (:func:`bioslam.closure.jumped`: a slide, and the return to the robot's motion
         #: after it), each at most what a closure can measure
@@ -290,8 +290,10 @@ class SelfMotion:
             self._since_break = 0
             self.breaks += 1
             self.break_extent += extent
-            self.break_departures.append(break_departure(dp, expected, self._last_step))
-            self.break_at_rate.append(self.odometry.at_scanner_rate(dt))
+            departure = break_departure(dp, expected, self._last_step)
+            self.break_departures.append(departure)
+            if self.odometry.at_scanner_rate(dt):
+                self.paced_departure += departure
         self.jumps += int(broke or self.closure.distrust_jumps)
         if broke or self.closure.weigh_jumps:
             self.jump_extent += link_extent(extent, self.closure)
@@ -387,6 +389,7 @@ class BioSLAM:
         # ... and of its breaks and jumps (:attr:`SelfMotion.jumps`)
         self._jumps_at = np.empty(1024, dtype=np.int64)
         self._extent_at = np.empty((1024, 2))
+        self._paced_at = np.empty((1024, 2))
         # the odometry's pose when each experience was made: the old pass's chain of
         # relative poses for the closures' pairwise test (:class:`bioslam.closure.Candidate`)
         self._odometry_at = np.empty((1024, 3))
@@ -674,8 +677,8 @@ class BioSLAM:
     def _note_made(self, experience_id: int, verifiable: bool = True) -> None:
         if experience_id >= self._made_at.size:
             for name in (
-                "_made_at", "_breaks_at", "_jumps_at", "_extent_at", "_odometry_at",
-                "_doubts_at", "_heading_var_at", "_verifiable",
+                "_made_at", "_breaks_at", "_jumps_at", "_extent_at", "_paced_at",
+                "_odometry_at", "_doubts_at", "_heading_var_at", "_verifiable",
             ):  # fmt: skip
                 column = getattr(self, name)
                 setattr(self, name, np.concatenate([column, np.empty_like(column)]))
@@ -686,6 +689,7 @@ class BioSLAM:
         self._breaks_at[experience_id] = self.self_motion.breaks
         self._jumps_at[experience_id] = self.self_motion.jumps
         self._extent_at[experience_id] = self.self_motion.break_extent
+        self._paced_at[experience_id] = self.self_motion.paced_departure
         self._verifiable[experience_id] = verifiable
 
     def _nearby(self, travelled: float, pending: FloatArray | None = None) -> int | None:
@@ -1025,13 +1029,10 @@ class BioSLAM:
         meanwhile, and one gap refused every later closure to the places before it (intel:
         165-210 of its 245-287 checks, its 23 breaks all true steps)."""
         cfg = self.config.loop_closure
-        first = int(self._breaks_at[experience_id])
-        since = self.self_motion.break_departures[first:]
+        since = self.self_motion.break_departures[int(self._breaks_at[experience_id]) :]
         if any(m > cfg.search_distance or a > cfg.search_angle for m, a in since):
             return True
-        at_rate = self.self_motion.break_at_rate[first:]
-        paced = [d for d, at in zip(since, at_rate, strict=True) if at]
-        moved, turned = np.sum(np.reshape(paced, (-1, 2)), axis=0)
+        moved, turned = self.self_motion.paced_departure - self._paced_at[experience_id]
         return bool(moved > cfg.search_distance or turned > cfg.search_angle)
 
     def _rival_window(
