@@ -198,3 +198,38 @@ def test_info_and_demo_stop_cleanly_and_say_so(tmp_path):
         assert "interrupted by SIGINT" in info.err
     summary = check_outcome(demo, 1600)
     assert demo.proc.returncode == 143 and (tmp_path / "demo" / "gt.tum").is_file()
+
+
+@pytest.mark.parametrize("command", ["run", "demo"])
+def test_a_signal_just_after_the_output_directory_is_made_still_writes_the_summary(
+    tmp_path, monkeypatch, capsys, command
+):
+    """The output directory's marker says "running" from the moment it is made; a signal
+    arriving just then (the start-up test's SIGINT, sent as soon as the marker appears,
+    once in a few hundred runs) was raised before the section that writes the results, and
+    the run exited 130 with the marker and no summary. It is now recorded and the results
+    are written, marked interrupted."""
+    import importlib
+
+    from bioslam.cli import main
+
+    module = importlib.import_module(f"bioslam.cli.{command}")
+    made = module.open_output
+
+    def open_then_signal(*args, **kwargs):
+        out = made(*args, **kwargs)
+        os.kill(os.getpid(), signal.SIGINT)  # handled as soon as control is back in Python
+        return out
+
+    monkeypatch.setattr(module, "open_output", open_then_signal)
+    out = tmp_path / "out"
+    if command == "run":
+        argv = ["run", str(write_carmen(tmp_path / "short.log", scans=120)), "--out", str(out)]
+    else:
+        argv = ["demo", "--out", str(out), "--duration", "5"]
+    code = main([*argv, "--no-progress"])
+    assert code == 130
+    summary = strict_json((out / "summary.json").read_text())
+    assert summary["interrupted"] is True
+    assert strict_json(capsys.readouterr().out.strip().splitlines()[-1]) == summary
+    assert json.loads((out / MARKER).read_text())["status"] == "interrupted"

@@ -102,7 +102,10 @@ def read_reference(path: Path) -> Trajectory:
 
 
 def open_output(path: Path, overwrite: bool, needed_bytes: int, argv: list[str]) -> OutputDir:
-    """Check ``--out`` (see :func:`check_output_dir`), then create it with its marker."""
+    """Check ``--out`` (see :func:`check_output_dir`), then create it with its marker. The
+    caller opens it inside the :func:`bioslam.signals.protected` section that goes on to
+    write the results: a signal arriving between the two once found the marker written
+    ("running") and raised before anything could write the summary."""
     check_output_dir(path, overwrite, needed_bytes)
     out = OutputDir(path, command=["bioslam", *argv])
     with signals.protected():

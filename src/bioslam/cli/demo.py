@@ -101,8 +101,8 @@ def demo_command(args: argparse.Namespace) -> dict[str, Any]:
     stamps = scan_stamps(lidar, route)
     gt = route.trajectory(stamps)
     needed = expected_output_bytes(scans=int(stamps.size))
-    out = open_output(args.out, args.overwrite, needed, getattr(args, "argv", []))
     with signals.protected():
+        out = open_output(args.out, args.overwrite, needed, getattr(args, "argv", []))
         out.save(GT_NAME, write_tum, gt)
         stopped = False
         try:

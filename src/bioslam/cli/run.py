@@ -147,8 +147,8 @@ def _run(args: argparse.Namespace, source: Any, config: Any, gt: Trajectory | No
     from bioslam.pipeline import RunOptions, run_slam, write_results
 
     needed = expected_output_bytes(input_bytes=path_bytes(args.input))
-    out = open_output(args.out, args.overwrite, needed, getattr(args, "argv", []))
     with signals.protected():
+        out = open_output(args.out, args.overwrite, needed, getattr(args, "argv", []))
         options = RunOptions(
             odometry_only=args.odometry_only, progress=not args.no_progress, release=True,
             scan_store_dir=out.path,  # the experiences' scans on disk, beside the outputs
