@@ -128,6 +128,40 @@ def test_a_look_alike_beyond_reach_never_replaces_a_rejected_prediction_between_
     assert report.ambiguous
 
 
+def test_a_match_that_takes_back_a_slide_along_the_weak_direction_is_no_jump():
+    """A robot turned on the spot into an aisle longer than the range and drove off along it
+    (simulated URG-04LX, library, reversing route, seed 131): the pose lagged 0.8 m, and
+    when the walls came back into view the prior's match put 7 % of its endpoints in known
+    free space. The search's match 0.78 m on along the aisle put none there and fitted
+    better, yet as a jump from every motion hypothesis, not overwhelming, it fell back on
+    the prior's. Along the direction the scan pins least it is kept; across it, or where
+    the walls do not contradict the prior's match, the jump rule stands. The weak direction
+    is the sensor frame's: a robot heading along y has its aisle along y."""
+    odo = LidarOdometry()
+    jump = odo._jump_limits()
+    reach = (jump[0] + 0.2, jump[1] + 0.3)
+    for heading in (0.0, np.pi / 2):
+        ahead = np.array([np.cos(heading), np.sin(heading), 0.0])
+        side = np.array([-np.sin(heading), np.cos(heading), 0.0])
+        previous = np.array([0.0, 0.0, heading])
+        motion = (previous + 0.02 * ahead,)
+        # the prior's match fits as poorly each time (quality 0.78), short of plausible
+        for offset, score, free, kept in (
+            (0.78 * ahead, 0.854, 0.074, 1),  # along the aisle: the slide taken back
+            (0.78 * side, 0.854, 0.074, 0),  # across it: a look-alike in the next aisle
+            (0.78 * ahead, 0.78, 0.0, 0),  # nothing in free space: no slide to take back
+        ):
+            lagging = MatchReport(
+                score=score, free_fraction=free, num_points=122,
+                weakest_direction=np.array([1.0, 0.0, 0.0]),
+            )  # fmt: skip
+            searched = MatchReport(score=0.895, free_fraction=0.0, num_points=122)
+            found = [(motion[0].copy(), lagging, False), (motion[0] + offset, searched, False)]
+            pose, report = odo._choose(found, motion, previous, reach, jump, True)
+            np.testing.assert_array_equal(pose, found[kept][0])
+            assert report.recovered == (kept == 1)
+
+
 def test_the_short_range_maze_route_is_never_turned_round_in_a_tenth_of_a_second():
     """Simulated URG-04LX (240 degrees, 5.6 m, 10 Hz), maze, seed 3: 205 s in, the prediction's
     match on a revisit was rejected by walls an earlier pass had fused 0.3 m off, and the
