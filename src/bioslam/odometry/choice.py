@@ -201,13 +201,14 @@ class MatchChoice:
         was left 0.8 m behind; the search found the true pose with no endpoint in free space
         against the prior's 7 %, and the jump rule put it back, the pose lagging 0.8 m with
         10 % of its endpoints in free space for nine scans more."""
+        c = self.config
         report = first[1]
-        if first[2] or chosen[2] or report.free_fraction < self.config.search_free_fraction:
+        # (the explanation asks that ``chosen`` did not fail and the walls contradict ``first``)
+        if first[2] or report.free_fraction < c.search_free_fraction:
             return False
-        if not (self._contradicted(report) and self._contradiction_explained(first, chosen)):
+        if not self._contradiction_explained(first, chosen):
             return False
         weak = in_map_frame(report.weakest_direction, float(first[0][2]))
-        c = self.config
         return off_line(chosen[0], first[0], weak, c.length_scale) <= 2.0 * c.resolution
 
     def _choose_sparse(
