@@ -505,7 +505,8 @@ def test_a_look_alike_inside_the_window_is_refused_when_the_true_place_lies_outs
     query = _points(walls, robot)
     predicted = compose(between(around[2], (6.0, 1.0, 0.0)), (0.03, -0.02, 0.01))
     config = LoopClosureConfig()
-    narrow = verify(submap, query, predicted, (0.3, 0.1), config, seen)
+    unchallenged = dataclasses.replace(config, challenge_trusted=False)
+    narrow = verify(submap, query, predicted, (0.3, 0.1), unchallenged, seen)
     assert narrow.accepted  # the gap: the look-alike, 1.2 m from the truth, passes
     assert math.hypot(*between(between(around[2], robot), narrow.pose)[:2]) > 1.0
     wide = verify(submap, query, predicted, (0.3, 0.1), config, seen, rival_window=(1.5, 0.5))
@@ -527,6 +528,46 @@ def test_a_unique_place_still_closes_with_rivals_sought_over_the_whole_search_wi
     assert verdict.accepted, verdict.reason
     err = between(truth, verdict.pose)
     assert math.hypot(err[0], err[1]) < 0.03 and abs(err[2]) < math.radians(0.5)
+
+
+def _corridor_with_niches(
+    south: list[tuple[float, float, float]], north: list[tuple[float, float, float]]
+) -> list[tuple[float, float, float, float]]:
+    """A 2 m corridor, 20 m long, with niches (x from, x to, depth) in its south and north
+    walls."""
+    walls = []
+    for y, niches, side in ((0.0, south, -1.0), (2.0, north, 1.0)):
+        x = 0.0
+        for x0, x1, depth in sorted(niches):
+            back = y + side * depth
+            walls += [(x, y, x0, y), (x0, y, x0, back), (x0, back, x1, back), (x1, back, x1, y)]
+            x = x1
+        walls.append((x, y, 20.0, y))
+    return walls
+
+
+def test_a_trusted_check_is_challenged_beyond_its_drift_bound():
+    # The odometry slid 1.4 m along a corridor unflagged and vouches for 0.36 m: within that
+    # window the prediction refined fits well enough (the niches 1.4 m off miss). Challenged
+    # outside the window, the true place fits clearly better, and the check is refused. Where
+    # the window holds the place, the challenge finds nothing better and the check closes.
+    walls = _corridor_with_niches([(4.0, 5.0, 1.0), (12.0, 13.2, 2.0)], [(9.5, 10.5, 1.5)])
+    around = [(8.0 + 0.5 * k, 1.0, 0.0) for k in range(-2, 3)]
+    submap, seen = _submap(walls, 2, around)
+    robot = (8.6, 1.2, 0.02)
+    truth = between(around[2], robot)
+    query = _points(walls, robot)
+    config = LoopClosureConfig()
+    slid = compose(truth, (-1.4, 0.05, 0.01))
+    unchallenged = dataclasses.replace(config, challenge_trusted=False)
+    gap = verify(submap, query, slid, (0.36, 0.115), unchallenged, seen)
+    assert gap.accepted and not gap.needs_partner  # the gap: a closure 1.4 m off
+    assert math.hypot(*between(truth, gap.pose)[:2]) > 1.0
+    far = verify(submap, query, slid, (0.36, 0.115), config, seen)
+    assert not far.accepted and far.reason == "beyond drift"
+    near = verify(submap, query, compose(truth, (0.2, 0.05, 0.01)), (0.36, 0.115), config, seen)
+    assert near.accepted, near.reason
+    assert math.hypot(*between(truth, near.pose)[:2]) < 0.03
 
 
 def test_score_plateau_is_wide_along_a_corridor_and_narrow_across_it():

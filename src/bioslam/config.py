@@ -186,6 +186,17 @@ class LoopClosureConfig:
             odometry made to jump 3 m had two closures confirm the jump, 3 m off. With the
             search window at 3 m, as by default, the distance adds nothing to it and only
             the angle widens the challenge (90° against the search's 45°).
+        challenge_trusted: a check the odometry vouches for (no break or doubted step
+            since the place) is challenged too, by poses outside its window up to
+            ``outside_rival_distance`` within its own angle, and refused ('beyond drift')
+            when one fits clearly better, on every point and where the submap looked
+            (:func:`bioslam.closure.outside_rival` with ``better``): where the scan barely
+            pins the motion the odometry can slide past its drift bound unflagged, and the
+            window then holds a pose that fits well enough but not the place (simulated
+            serpentine corridor, UTM-30LX, a reversal taken as going on: one closure
+            1.40 m off). Only checks that score ``min_score`` are challenged: below it a
+            look-alike often fits better than the true place, and the check waits for a
+            partner anyway.
         break_distance, break_angle, break_acceleration, break_angular_acceleration: an
             odometry step is a break when it departs from the last step's velocity by more
             than this (m, rad) plus half this acceleration (m/s², rad/s²) times the time
@@ -338,6 +349,7 @@ class LoopClosureConfig:
     refuse_broken_odometry: bool = True
     outside_rival_distance: float = 3.0
     outside_rival_angle: float = math.radians(90.0)
+    challenge_trusted: bool = True
     break_distance: float = 0.1
     break_angle: float = math.radians(10.0)
     break_acceleration: float = 2.0
