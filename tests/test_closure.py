@@ -41,12 +41,26 @@ HALL = [
 def _corridor_with_doors(spacing: float, count: int) -> list[tuple[float, float, float, float]]:
     """A 2 m corridor whose north wall has identical 0.6 m doors every ``spacing`` metres, each
     opening on an identical 1 m deep niche: every door looks like its neighbours."""
-    walls = [(0.0, 0.0, spacing * count, 0.0)]
-    for k in range(count):
-        x = k * spacing
-        door = x + spacing - 0.6
-        walls += [(x, 2.0, door, 2.0), (door, 2.0, door, 3.0),
-                  (door, 3.0, x + spacing, 3.0), (x + spacing, 3.0, x + spacing, 2.0)]
+    doors = [(k * spacing + spacing - 0.6, k * spacing + spacing, 1.0) for k in range(count)]
+    return _corridor_with_niches([], doors, spacing * count)
+
+
+def _corridor_with_niches(
+    south: list[tuple[float, float, float]],
+    north: list[tuple[float, float, float]],
+    length: float = 20.0,
+) -> list[tuple[float, float, float, float]]:
+    """A 2 m corridor ``length`` metres long with niches (x from, x to, depth) in its south
+    and north walls."""
+    walls = []
+    for y, niches, side in ((0.0, south, -1.0), (2.0, north, 1.0)):
+        x = 0.0
+        for x0, x1, depth in sorted(niches):
+            back = y + side * depth
+            walls += [(x, y, x0, y), (x0, y, x0, back), (x0, back, x1, back), (x1, back, x1, y)]
+            x = x1
+        if x < length:
+            walls.append((x, y, length, y))
     return walls
 
 
@@ -528,22 +542,6 @@ def test_a_unique_place_still_closes_with_rivals_sought_over_the_whole_search_wi
     assert verdict.accepted, verdict.reason
     err = between(truth, verdict.pose)
     assert math.hypot(err[0], err[1]) < 0.03 and abs(err[2]) < math.radians(0.5)
-
-
-def _corridor_with_niches(
-    south: list[tuple[float, float, float]], north: list[tuple[float, float, float]]
-) -> list[tuple[float, float, float, float]]:
-    """A 2 m corridor, 20 m long, with niches (x from, x to, depth) in its south and north
-    walls."""
-    walls = []
-    for y, niches, side in ((0.0, south, -1.0), (2.0, north, 1.0)):
-        x = 0.0
-        for x0, x1, depth in sorted(niches):
-            back = y + side * depth
-            walls += [(x, y, x0, y), (x0, y, x0, back), (x0, back, x1, back), (x1, back, x1, y)]
-            x = x1
-        walls.append((x, y, 20.0, y))
-    return walls
 
 
 def test_a_trusted_check_is_challenged_beyond_its_drift_bound():

@@ -917,13 +917,37 @@ def outside_rival(
         pose, _ = refine_where_seen(pyramid, start, query, iterations, seen)
         if within(between(predicted, pose), *window):
             continue  # slid back into the window: the accepted pose's own peak
-        gains = [seen_hit_fraction(judge, pose, query, reg.hit_level) - fit]
-        if looked is not None:
-            there = seen_hit_fraction(judge, pose, query, reg.hit_level, seen, config.min_seen)
-            gains.append(there - looked)
-        if min(gains) > config.prior_tie if better else max(gains) >= -config.prior_tie:
+        if _outfits(judge, pose, query, fit, looked, seen, config, better):
             return True
     return False
+
+
+def _outfits(
+    judge: OccupancyGrid,
+    pose: FloatArray,
+    query: FloatArray,
+    fit: float,
+    looked: float | None,
+    seen: SeenArea | None,
+    config: LoopClosureConfig,
+    better: bool,
+) -> bool:
+    """Whether ``query`` at ``pose`` fits as well as the accepted pose, to within
+    ``prior_tie``, on every point (``fit``) or, given ``looked``, where the submap looked; or,
+    ``better``, clearly better on both (:func:`outside_rival`). Each score is computed only
+    when the ones before have not decided."""
+    reg = config.registration
+
+    def gain(where_looked: bool) -> float:
+        if where_looked:
+            there = seen_hit_fraction(judge, pose, query, reg.hit_level, seen, config.min_seen)
+            return there - looked
+        return seen_hit_fraction(judge, pose, query, reg.hit_level) - fit
+
+    scores = (False, True) if looked is not None else (False,)
+    if better:
+        return all(gain(s) > config.prior_tie for s in scores)
+    return any(gain(s) >= -config.prior_tie for s in scores)
 
 
 def refine_where_seen(
