@@ -60,6 +60,11 @@ class LinkNoise:
     odometry's measured heading variance) and ``closure_heading_var`` (rad², one
     registration's heading variance).
 
+    ``jump_scale``: the share of the variance the odometry's jumps put on the links that
+    carry them (:func:`bioslam.cognitive_map.link_terms`' ``broken``) that the links keep:
+    1 lets a closure bend the odometry at a jump; 0 holds the jump as any other step
+    (:func:`bioslam.cognitive_map.held_jumps_noise`).
+
     ``likely_var_per_m`` and ``likely_heading_scale``: the drift the closures make likeliest,
     where the two above are the largest they do not rule out (:func:`fit_drift`); None where
     the two are the drift the closures show. The run's map keeps the largest, so that its
@@ -72,6 +77,7 @@ class LinkNoise:
     closure_heading_var: float = 2.5e-5
     likely_var_per_m: float | None = None
     likely_heading_scale: float | None = None
+    jump_scale: float = 1.0
 
     def likely(self) -> LinkNoise:
         """The model with the drift the closures make likeliest in place of the largest they
@@ -381,4 +387,7 @@ class LinkNoiseEstimator:
             rows[:, 2], rows[:, 3], (p.heading_scale, p.closure_heading_var),
             self.prior_decades,
         )  # fmt: skip
-        return LinkNoise(rate, floor, scale, heading_floor, likely_rate, likely_scale)
+        return LinkNoise(
+            rate, floor, scale, heading_floor,
+            likely_var_per_m=likely_rate, likely_heading_scale=likely_scale,
+        )  # fmt: skip

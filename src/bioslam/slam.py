@@ -62,6 +62,7 @@ from bioslam.cognitive_map import (
     link_terms,
     modelled_heading_var,
     registration_shape,
+    untaught_noise,
 )
 from bioslam.config import SLAMConfig
 from bioslam.geometry import Pose2D, between, compose, inverse
@@ -1174,12 +1175,12 @@ class BioSLAM:
         evidence makes likeliest. Where the closures show no drift, the largest they could
         not rule out let their registrations' millimetres bend an odometry better than them
         (the rooms' SICK weaving route: 0.35 cm against the odometry's 0.30; 0.31 so). Taught
-        by fewer than ``noise_min_closures_finished`` closures, the model is the settings'
-        (:meth:`_finished_noise`)."""
+        by fewer than ``noise_min_closures_finished`` closures, the model is the untaught
+        one (:meth:`_finished_noise`)."""
         self._relax_now()
         cmap = self.cognitive_map
         reweighed = False
-        if self.config.cognitive_map.learn_noise and len(self.link_noise):
+        if self.config.cognitive_map.learn_noise and cmap.loop_closures:
             before = cmap.noise
             cmap.set_noise(self._finished_noise())
             reweighed = cmap.noise != before
@@ -1191,11 +1192,13 @@ class BioSLAM:
     def _finished_noise(self) -> LinkNoise:
         """The link noise the finished map is solved with: the drift the closures make
         likeliest, once ``noise_min_closures_finished`` closures have taught the model; the
-        settings' model before (a fit from a few closures, those that happened to cross no
-        break or jump, is no measure of the rest)."""
+        untaught model before (:func:`bioslam.cognitive_map.untaught_noise`: a fit from a few
+        closures, those that happened to cross no break or jump, is no measure of the rest,
+        and the settings, the run's cautious prior, let the closures bend the odometry at
+        its routine jumps)."""
         config = self.config.cognitive_map
         if len(self.link_noise) < config.noise_min_closures_finished:
-            return configured_noise(config)
+            return untaught_noise(config)
         return self.cognitive_map.noise.likely()
 
     # --- read-outs ---------------------------------------------------------------------------
