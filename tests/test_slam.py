@@ -82,6 +82,8 @@ def test_a_link_noise_taught_by_too_few_closures_does_not_weigh_the_finished_map
     few = run(scans, config_from_dict(settings, "test"))
     cmap = few.cognitive_map
     assert cmap.noise == untaught_noise(cmap.config)
+    assert few.summary()["link_noise_jump_scale"] == 0.0
+    assert taught.summary()["link_noise_jump_scale"] == 1.0
     assert few.summary()["loop_closures"] == taught.summary()["loop_closures"]
     odometry = ate(few.odometry_trajectory(), gt)["rmse"]
     bent_few = ate(few.trajectory(), gt)["rmse"] - odometry

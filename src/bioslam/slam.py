@@ -1300,4 +1300,6 @@ class BioSLAM:
             "link_noise_closure_sigma_m": math.sqrt(noise.closure_var),
             "link_noise_heading_scale": noise.heading_scale,
             "link_noise_closure_sigma_rad": math.sqrt(noise.closure_heading_var),
+            # 0 where the finished map held the odometry's jumps (untaught_noise)
+            "link_noise_jump_scale": noise.jump_scale,
         }
