@@ -216,9 +216,10 @@ class CognitiveMapConfig:
     #: The finished map's link noise when fewer than ``noise_min_closures_finished``
     #: closures taught it (:func:`untaught_noise`): an odometry position drift (m² a metre)
     #: and a scale of its matches' heading variance at the loosest the closures taught on
-    #: the runs measured (1e-8 to 2e-6 and 6e-5 to 0.08 over 40 simulated runs, freiburg-079
-    #: and intel), where the settings above, the run's prior, are cautious guesses decades
-    #: looser; the registrations' own uncertainty stays the settings' ...
+    #: the runs measured (drifts of 1e-8 to 2e-6 and scales of 6e-5 to 0.08 on the
+    #: simulated floors; freiburg-079 8.9e-7 and 3.4e-4, intel 3.4e-8 and 2.6e-3), where the
+    #: settings above, the run's prior, are cautious guesses decades looser; the
+    #: registrations' own uncertainty stays the settings' ...
     untaught_odometry_var_per_m: float = 1e-6
     untaught_heading_scale: float = 0.01
     #: ... and the share of the variance the odometry's jumps put on their links that those

@@ -63,7 +63,7 @@ class LinkNoise:
     ``jump_scale``: the share of the variance the odometry's jumps put on the links that
     carry them (:func:`bioslam.cognitive_map.link_terms`' ``broken``) that the links keep:
     1 lets a closure bend the odometry at a jump; 0 holds the jump as any other step
-    (:func:`bioslam.cognitive_map.held_jumps_noise`).
+    (:func:`bioslam.cognitive_map.untaught_noise`).
 
     ``likely_var_per_m`` and ``likely_heading_scale``: the drift the closures make likeliest,
     where the two above are the largest they do not rule out (:func:`fit_drift`); None where
