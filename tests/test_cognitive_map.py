@@ -941,10 +941,10 @@ def test_a_finished_map_the_closures_taught_too_little_holds_the_odometrys_jumps
     """The untaught model (:func:`untaught_noise`) holds a jump's link as any other step:
     a closure taken while the odometry was off for the moment does not swing the map
     round the routine jumps, as it does with the jumps' variance kept."""
-    config = CognitiveMapConfig()
-    held = corridor_with_routine_jumps(untaught_noise(config))
-    swung = corridor_with_routine_jumps(dataclasses.replace(untaught_noise(config), jump_scale=1.0))
-    assert untaught_noise(config).jump_scale == 0.0
+    untaught = untaught_noise(CognitiveMapConfig())
+    held = corridor_with_routine_jumps(untaught)
+    swung = corridor_with_routine_jumps(dataclasses.replace(untaught, jump_scale=1.0))
+    assert untaught.jump_scale == 0.0
     # the jumps' links take the 8 cm: everything after the first jump moves by most of it
     assert swung > 0.03
     # held, the map stays within a few millimetres of the exact odometry

@@ -67,7 +67,7 @@ import heapq
 import math
 from array import array
 from collections.abc import Callable, Iterator, MutableSequence, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -597,10 +597,9 @@ def untaught_noise(config: CognitiveMapConfig) -> LinkNoise:
     """The link noise the finished map is solved with where too few closures taught one
     (``noise_min_closures_finished``): the ``untaught_*`` settings, the registrations'
     uncertainty the settings' (:func:`configured_noise`)."""
-    return LinkNoise(
-        config.untaught_odometry_var_per_m, config.closure_sigma_m**2,
-        config.untaught_heading_scale, config.closure_sigma_rad**2,
-        jump_scale=config.untaught_jump_scale,
+    return replace(
+        configured_noise(config), odometry_var_per_m=config.untaught_odometry_var_per_m,
+        heading_scale=config.untaught_heading_scale, jump_scale=config.untaught_jump_scale,
     )  # fmt: skip
 
 
