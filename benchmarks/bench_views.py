@@ -10,7 +10,9 @@ Printed (all measured in this run):
    at least ``--revisit-gap`` seconds earlier; a "revisit" scan is one for which such an old
    view within 0.5 m / 20 deg exists, and recall is the share of revisit scans matched to one.
    Rows: the defaults with the heading of the project's LiDAR odometry (what the pipeline
-   passes), without a heading (the paper's matching), and with the paper's equal-``h`` rule;
+   passes, with the scan's turned activity), the same with whole-bin turns only (no turned
+   activity), without a heading (the paper's matching), and with the paper's equal-``h``
+   rule;
 2. the bucket split: over the true matches that brute force finds, the share whose stored
    view sits in another ``h`` bucket (lost by the paper's equal-``h`` rule) or more than one
    bucket away (lost even with ``h +- 1``);
@@ -22,7 +24,8 @@ Printed (all measured in this run):
 4. ``BoundaryCells.activity`` on 1081-beam scans: median / p99 ms;
 5. tolerance: the share of places whose own view still matches when the scan is re-taken
    a few centimetres or degrees away (the simulated route drives the same centre-lines on
-   every pass, so section 1's recall is an upper bound for a hand-driven robot).
+   every pass, so section 1's recall is an upper bound for a hand-driven robot), with the
+   turned activity and with whole-bin turns only.
 
 Figures (PNG, ``--out``): the boundary-cell activity of one scan on its rings, and the active
 view id over time for the maze run.
@@ -67,6 +70,7 @@ class Run:
     headings: np.ndarray
     example: LaserScan
     coverage: np.ndarray
+    scans: list[LaserScan]
 
 
 def view_cells(config: ViewCellConfig | None = None) -> ViewCells:
@@ -90,7 +94,7 @@ def simulate(step: int, duration: float, seed: int) -> Run:
     route = make_route(world, duration=duration, seed=seed)
     bc = BoundaryCells()
     odo: LidarOdometry | None = None
-    stamps, poses, B, heads = [], [], [], []
+    stamps, poses, B, heads, scans = [], [], [], [], []
     example = None
     for k, (scan, pose) in enumerate(simulate_scans(world, lidar, route, seed=seed)):
         if k % step:
@@ -101,14 +105,24 @@ def simulate(step: int, duration: float, seed: int) -> Run:
         stamps.append(scan.stamp)
         poses.append(pose)
         B.append(bc.activity(scan))
+        scans.append(scan)
         heads.append(float(odo.pose[2]))
         if example is None and scan.stamp >= 30.0:
             example = scan
     return Run(np.array(stamps), np.array(poses), np.array(B), np.array(heads), example,
-               bc.coverage(example))
+               bc.coverage(example), scans)
 
 
-def replay(run: Run, config: ViewCellConfig, use_heading: bool, gap: float) -> dict:
+def turned_activity(scan: LaserScan, cells: BoundaryCells | None = None):
+    """The scan's activity with its bearings turned, as the pipeline hands the view cells
+    (``ViewCells.observe``'s ``turned``)."""
+    bc = cells or BoundaryCells()
+    return lambda turn: bc.activity(scan, turn)
+
+
+def replay(
+    run: Run, config: ViewCellConfig, use_heading: bool, gap: float, turn: bool = True
+) -> dict:
     vc = view_cells(config)
     learned: list[int] = []
     matches = true = loops = loops_true = revisits = recalled = 0
@@ -119,7 +133,8 @@ def replay(run: Run, config: ViewCellConfig, use_heading: bool, gap: float) -> d
         old = old[run.stamps[old] <= run.stamps[i] - gap]
         revisit = bool(_close(run.poses[i], run.poses[old]).any())
         m = vc.observe(b, payload=i, heading=run.headings[i] if use_heading else None,
-                       coverage=run.coverage)
+                       coverage=run.coverage,
+                       turned=turned_activity(run.scans[i]) if turn else None)
         ids[i], new[i] = m.view_id, m.is_new
         revisits += revisit
         if m.is_new:
@@ -192,16 +207,17 @@ def _scans_at(poses: np.ndarray, seed: int) -> list[LaserScan]:
     return [LaserScan(0.0, r, angles, lidar.range_min, lidar.range_max) for r in measured]
 
 
-def tolerance(run: Run, n: int, seed: int) -> list[tuple[str, float]]:
+def tolerance(run: Run, n: int, seed: int, turn: bool = True) -> list[tuple[str, float]]:
     """Share of places re-recognised (matched to their own view) when the scan is re-taken
-    with a lateral, longitudinal or heading offset: how far a revisit may stray."""
+    with a lateral, longitudinal or heading offset: how far a revisit may stray. ``turn``:
+    the view cells are given the scan's turned activity, as the pipeline gives it."""
     rng = np.random.default_rng(seed)
     base = run.poses[rng.choice(len(run.poses), n, replace=False)]
     bc = BoundaryCells()
     out = []
     offsets = [("lateral", d) for d in (0.02, 0.05, 0.1, 0.2, 0.5)]
     offsets += [("along", d) for d in (0.05, 0.1, 0.2)]
-    offsets += [("heading", math.radians(a)) for a in (1.0, 2.0, 5.0, 10.0, 30.0)]
+    offsets += [("heading", math.radians(a)) for a in (1.0, 2.0, 5.0, 10.0, 15.0, 25.0, 30.0)]
     own = [bc.activity(s) for s in _scans_at(base, seed)]
     cover = bc.coverage(_scans_at(base[:1], seed)[0])
     for kind, amount in offsets:
@@ -219,7 +235,8 @@ def tolerance(run: Run, n: int, seed: int) -> list[tuple[str, float]]:
         for k, scan in enumerate(_scans_at(moved, seed + 1)):
             vc = view_cells()
             vc.learn(own[k], heading=base[k, 2], coverage=cover)
-            m = vc.observe(bc.activity(scan), heading=moved[k, 2], coverage=cover)
+            m = vc.observe(bc.activity(scan), heading=moved[k, 2], coverage=cover,
+                           turned=turned_activity(scan, bc) if turn else None)
             hits += not m.is_new
             offset_hits += not m.is_new and abs(m.heading_offset - (moved[k, 2] - base[k, 2])) \
                 <= math.radians(2.0)
@@ -296,17 +313,18 @@ def main() -> None:
 
     cfg = ViewCellConfig()
     rows = [
-        ("defaults, odometry heading", cfg, True),
-        ("defaults, no heading", cfg, False),
-        ("paper equal-h, odometry heading", replace(cfg, neighbour_buckets=0), True),
+        ("defaults, odometry heading", cfg, True, True),
+        ("whole-bin turns only", cfg, True, False),
+        ("defaults, no heading", cfg, False, True),
+        ("paper equal-h, odometry heading", replace(cfg, neighbour_buckets=0), True, True),
     ]
     print(f"\n1. place recognition (s_t={cfg.s_t}, ds={cfg.ds}, true = within 0.5 m and 20 deg; "
           f"loop = view >= {args.revisit_gap:.0f} s old)")
     print(f"{'case':34s} {'views':>6s} {'matches':>8s} {'precision':>9s} {'loops':>6s} "
           f"{'loop prec':>9s} {'revisits':>8s} {'recall':>7s}")
     main_run = None
-    for name, c, use_heading in rows:
-        r = replay(run, c, use_heading, args.revisit_gap)
+    for name, c, use_heading, turn in rows:
+        r = replay(run, c, use_heading, args.revisit_gap, turn)
         main_run = main_run or r
         print(f"{name:34s} {r['views']:6d} {r['matches']:8d} {r['precision']:9.4f} "
               f"{r['loops']:6d} {r['loop_precision']:9.4f} {r['revisits']:8d} {r['recall']:7.3f}")
@@ -332,8 +350,9 @@ def main() -> None:
 
     print("\n5. re-recognition of a place by its view with the scan re-taken off-pose (share of "
           "200 places; in brackets: also with the heading offset within 2 deg)")
-    print("   " + ", ".join(f"{label}: {share:.2f} ({good:.2f})"
-                            for label, share, good in tolerance(run, 200, 5)))
+    for name, turn in (("turned activity", True), ("whole-bin turns only", False)):
+        print(f"   {name}: " + ", ".join(f"{label}: {share:.2f} ({good:.2f})"
+                                         for label, share, good in tolerance(run, 200, 5, turn)))
 
     args.out.mkdir(parents=True, exist_ok=True)
     bc = BoundaryCells()

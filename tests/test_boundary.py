@@ -109,6 +109,22 @@ def test_rotation_by_one_cell_shifts_every_ring_by_one_cell():
     assert np.allclose(np.roll(rings0, -1, axis=1), rings1, atol=0.02 * b0.max())
 
 
+@pytest.mark.parametrize("fraction", [0.25, 0.5, 1.0])
+def test_a_turned_activity_is_the_activity_of_the_robot_turned_the_other_way(fraction):
+    # ``turn`` adds to every bearing: the scene as a robot turned right by that much sees it,
+    # a fraction of a bin included (what the view cells compare a view learned at another
+    # heading with).
+    cfg = BoundaryCellConfig()
+    turn = fraction * 2.0 * math.pi / cfg.cells_per_ring
+    bc = BoundaryCells(cfg)
+    turned = bc.activity(cast(ROOM, (1.5, 2.0, 0.3), fov_deg=360.0, beams=1440), turn)
+    right = bc.activity(cast(ROOM, (1.5, 2.0, 0.3 - turn), fov_deg=360.0, beams=1440))
+    unturned = bc.activity(cast(ROOM, (1.5, 2.0, 0.3), fov_deg=360.0, beams=1440))
+    gap = np.abs(turned - right).max()
+    assert gap < 0.02 * right.max()
+    assert gap < 0.2 * np.abs(unturned - right).max()
+
+
 def test_cells_outside_the_field_of_view_stay_silent():
     cfg = BoundaryCellConfig()
     b = BoundaryCells(cfg).activity(cast(ROOM, (1.5, 2.0, 0.0), fov_deg=180.0, beams=181))

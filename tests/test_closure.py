@@ -102,6 +102,29 @@ def test_view_is_recognised_turned_by_30_degrees_with_its_heading_offset(fov):
     assert m.heading_offset == pytest.approx(math.radians(30.0), abs=math.radians(2.0))
 
 
+@pytest.mark.parametrize("fov", [360.0, 270.0])
+@pytest.mark.parametrize("turn_deg", [5.0, 15.0, 25.0])
+def test_a_view_turned_between_its_bins_is_recognised_from_the_turned_activity(fov, turn_deg):
+    # Bins are 10 deg apart: turned by half a bin, the scan's activity matches no whole
+    # shift of its view. Compared against the scan turned by the left-over fraction it does,
+    # with a heading estimate 2 deg off as well.
+    bc = BoundaryCells()
+    learned = cast(HALL, (6.0, 1.5, 0.2), fov_deg=fov)
+    turn = math.radians(turn_deg)
+    seen = cast(HALL, (6.0, 1.5, 0.2 + turn), fov_deg=fov)
+    heading = 0.2 + turn + math.radians(2.0)
+    matches = []
+    for turned in (lambda angle: bc.activity(seen, angle), None):
+        vc = ViewCells(cells_per_ring=bc.config.cells_per_ring)
+        vc.observe(bc.activity(learned), heading=0.2, coverage=bc.coverage(learned))
+        matches.append(vc.observe(bc.activity(seen), heading=heading,
+                                  coverage=bc.coverage(seen), turned=turned))
+    with_turn, whole_bins = matches
+    assert not with_turn.is_new and with_turn.view_id == 0
+    assert with_turn.heading_offset == pytest.approx(turn, abs=math.radians(1.5))
+    assert whole_bins.is_new
+
+
 def test_corridor_driven_the_other_way_is_recognised_by_a_360_scanner():
     bc = BoundaryCells()
     vc = ViewCells(cells_per_ring=bc.config.cells_per_ring)

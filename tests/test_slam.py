@@ -568,6 +568,8 @@ def test_a_deferred_relaxation_waits_for_the_next_look(ring_drive):
     relaxed_at = np.flatnonzero(rows[:, 0])
     latest = 1 + config.relax_wait + config.view_wait
     for k in closed_at:
+        if k + latest >= len(scans):
+            continue  # the run ends first: ``finish`` relaxes it (the last assertion)
         assert relaxed_at[relaxed_at > k][0] <= k + latest
     for r in relaxed_at:
         closure = max(k for k in closed_at if k < r)

@@ -148,6 +148,10 @@ def test_activity_vector_and_payloads():
         vc.observe(np.zeros(5))
     with pytest.raises(ValueError, match="s_t"):
         ViewCellConfig(s_t=0.0)
+    for bad in ({"turn_steps": 0}, {"turn_reach": -1}, {"turn_candidates": 0},
+                {"turn_screen": 0.0}):
+        with pytest.raises(ValueError, match="turn_"):
+            ViewCellConfig(**bad)
 
 
 def test_heading_gate_rejects_a_view_learned_facing_another_way():

@@ -256,10 +256,15 @@ class BoundaryCells:
     def num_cells(self) -> int:
         return self.config.num_cells
 
-    def activity(self, scan: LaserScan) -> FloatArray:
-        """Activity ``B`` (shape ``(M,)``) of one scan: Eq. 5 summed over its endpoints."""
+    def activity(self, scan: LaserScan, turn: float = 0.0) -> FloatArray:
+        """Activity ``B`` (shape ``(M,)``) of one scan: Eq. 5 summed over its endpoints.
+
+        ``turn`` (radians) is added to every endpoint's bearing: the activity the scan would
+        give with the rings turned by ``-turn``, a fraction of a bin that lines its cells up
+        with those of a view learned at another heading
+        (:meth:`bioslam.views.ViewCells.observe`'s ``turned``)."""
         r, a = scan.valid_polar()
-        return self.activity_polar(r, a, _beam_spacing(scan.angles))
+        return self.activity_polar(r, a + turn if turn else a, _beam_spacing(scan.angles))
 
     def coverage(self, scan: LaserScan) -> NDArray[np.bool_]:
         """Which angular bins of a ring the scan's field of view covers (a bin whose centre

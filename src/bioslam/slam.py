@@ -624,6 +624,7 @@ class BioSLAM:
             self.boundary_cells.activity(scan),
             heading=heading,
             coverage=self.boundary_cells.coverage(scan),
+            turned=lambda turn: self.boundary_cells.activity(scan, turn),
         )
         self.pose_cells.path_integrate(dp)
         self.pose_cells.inject_view(match.view_id, match.activity, match.is_new)
