@@ -18,9 +18,11 @@ Printed (all measured in this run):
    bucket away (lost even with ``h +- 1``);
 3. query cost with 10,000 stored views (maze views from random poses): median / p99 wall ms
    and median CPU ms per
-   ``observe`` with the pre-match; brute force over the same views (``prematch=False``: the
-   same bounded second stage on every view), and a naive NumPy Eq. 8 against every view; and
-   the median number of candidates compared;
+   ``observe`` with the pre-match and the turned activity (none of the stored views is the
+   query's place, so every query is turned for the views nearest it), the same with whole-bin
+   turns only; brute force over the same views (``prematch=False``: the same bounded second
+   stage on every view), and a naive NumPy Eq. 8 against every view; and the median number
+   of candidates compared;
 4. ``BoundaryCells.activity`` on 1081-beam scans: median / p99 ms;
 5. tolerance: the share of places whose own view still matches when the scan is re-taken
    a few centimetres or degrees away (the simulated route drives the same centre-lines on
@@ -263,25 +265,34 @@ def _stats(ms: tuple[np.ndarray, np.ndarray]) -> tuple[float, float, float]:
     return float(np.median(ms[0])), float(np.percentile(ms[0], 99)), float(np.median(ms[1]))
 
 
-def query_cost(stored: np.ndarray, queries: np.ndarray, coverage: np.ndarray) -> dict:
+def query_cost(
+    stored: np.ndarray, queries: np.ndarray, coverage: np.ndarray, scans: list[LaserScan]
+) -> dict:
     """``observe`` against ``stored`` views: the 360 deg case (every bin covered: the hash
     pre-match and the ring-sum bound apply), brute force, and the 270 deg scanner's own
-    coverage (no hash: every view within the heading window is compared)."""
+    coverage (no hash: every view within the heading window is compared), each with the
+    queries' turned activity (``scans``, as the pipeline gives it: the stored views are
+    other places, so every query is turned for the nearest views) except brute force."""
     out = {}
     full = np.ones_like(coverage)
-    for name, prematch, cover in (("pre-match", True, full), ("brute force", False, full),
-                                  ("270 deg", True, coverage)):
+    for name, prematch, cover, turn in (
+        ("pre-match", True, full, True), ("whole bins", True, full, False),
+        ("brute force", False, full, False), ("270 deg", True, coverage, True),
+    ):
         vc = view_cells(ViewCellConfig(prematch=prematch))
         for b in stored:
             vc.learn(b, heading=0.0, coverage=cover)
-        vc.observe(queries[0], heading=0.0, coverage=cover)  # compile
+        vc.observe(queries[0], heading=0.0, coverage=cover,
+                   turned=turned_activity(scans[0]) if turn else None)  # compile
         cands = []
 
-        def one(b: np.ndarray, vc: ViewCells = vc, cands: list = cands, cover=cover) -> None:
-            vc.observe(b, heading=0.0, coverage=cover)
+        def one(k: int, vc: ViewCells = vc, cands: list = cands, cover=cover,
+                turn: bool = turn) -> None:
+            vc.observe(queries[k], heading=0.0, coverage=cover,
+                       turned=turned_activity(scans[k]) if turn else None)
             cands.append(vc._last_ids.size)
 
-        out[name] = (*_stats(_timed(one, queries[1:])), float(np.median(cands)))
+        out[name] = (*_stats(_timed(one, range(1, len(queries)))), float(np.median(cands)))
     # The textbook baseline: Eq. 8 against every view in one vectorised pass, no bound.
     ms = _timed(lambda b: np.argmin(np.mean((stored - b) ** 2, axis=1)), queries[1:])
     out["naive numpy"] = (*_stats(ms), float(len(stored)))
@@ -335,12 +346,12 @@ def main() -> None:
 
     stored = random_views(args.views, args.seed + 1)
     picks = np.random.default_rng(args.seed).choice(len(run.B), args.queries + 1, replace=False)
-    cost = query_cost(stored, run.B[picks], run.coverage)
+    cost = query_cost(stored, run.B[picks], run.coverage, [run.scans[k] for k in picks])
     print(f"\n3. observe() with {args.views} stored views: median wall ms / p99 wall ms / "
           "median CPU ms / median candidates")
     for name, (med, p99, cpu, nc) in cost.items():
         print(f"{name:12s} {med:8.3f} {p99:8.3f} {cpu:8.3f} {nc:8.0f}")
-    for name in ("brute force", "270 deg", "naive numpy"):
+    for name in ("whole bins", "brute force", "270 deg", "naive numpy"):
         print(f"ratio {name} / pre-match (median): {cost[name][0] / cost['pre-match'][0]:.1f}x")
 
     med, p99, cpu = activity_cost(run.example, 1000)

@@ -233,6 +233,37 @@ def _shift_similarities(
 
 
 @njit(cache=True)
+def _ring_sum_bounds(
+    chunks: Any, idx: IntArray, b_cover: NDArray[np.bool_], b_ring_sums: FloatArray, cols: int
+) -> FloatArray:
+    # A lower bound on each stored view's S at any shift or turn where both cover the whole
+    # ring (Cauchy-Schwarz over the ring sums, which neither changes, as in
+    # _shift_similarities); 0 where either covers part of it.
+    rings = b_ring_sums.size
+    out = np.zeros(idx.size)
+    b_full = True
+    for c in range(cols):
+        b_full = b_full and b_cover[c]
+    if not b_full:
+        return out
+    for n in range(idx.size):
+        v = idx[n]
+        _, _, ring_sums, cover, _, _ = chunks[v >> CHUNK_SHIFT]
+        at = v & CHUNK_MASK
+        full = True
+        for c in range(cols):
+            full = full and cover[at, c]
+        if not full:
+            continue
+        bound = 0.0
+        for r in range(rings):
+            diff = ring_sums[at, r] - b_ring_sums[r]
+            bound += diff * diff
+        out[n] = bound / (rings * cols * cols)
+    return out
+
+
+@njit(cache=True)
 def _fractional_shift(
     row: FloatArray,
     cover: NDArray[np.bool_],
@@ -390,10 +421,11 @@ class ViewCellConfig:
             side, for a heading estimate up to 3.75° off.
         turn_screen, turn_candidates: only when no view matched at a whole shift, the scan
             is turned for the ``turn_candidates`` views that came nearest at a whole shift,
-            below ``turn_screen`` times ``s_t``. Defaults 40 and 8: on the maze a place seen
-            turned by half a bin differed from its view by 5-22 ``s_t`` at a whole shift (10th
-            to 99th percentile; 6-35 at 15°), other places a metre or more away by 24 at the
-            1st percentile and 122 at the median (``benchmarks/bench_views.py``).
+            below ``turn_screen`` times ``s_t`` (:meth:`ViewCells._nearest_at_whole_shifts`).
+            Defaults 40 and 8: on the maze a place seen turned by half a bin differed from its
+            view by 5-22 ``s_t`` at a whole shift (10th to 99th percentile; 6-35 at 15°),
+            other places a metre or more away by 24 at the 1st percentile and 122 at the
+            median (``benchmarks/bench_views.py``).
         partial_candidates: with the rotation search, a scan that covers part of each ring is
             compared with this many views, those nearest in mean activity per ring (Eq. 6's
             sum changes as such a scanner turns; module docstring). Default 64.
@@ -602,18 +634,38 @@ class ViewCells:
         mid = np.round(np.where(known, centre, 0.0)).astype(np.int64)
         lo = np.where(known, mid - reach, lo)
         hi = np.where(known, np.minimum(mid + reach, mid - reach + cols - 1), hi)
-        screen = None if turned is None else self.config.turn_screen
-        found, shifts, coarse = self._whole_then_fraction(
-            ids, lo, hi, b[None, :], _first(ids), cover, screen
-        )
+        found, shifts, _ = self._whole_then_fraction(ids, lo, hi, b[None, :], _first(ids), cover)
         if turned is None or np.any(found < self.config.s_t):
             # a view matched at a whole shift is the match without turning (and cheaper)
             return found, shifts
-        near = np.flatnonzero(coarse < np.inf)
-        near = near[np.argsort(coarse[near], kind="stable")[: self.config.turn_candidates]]
+        near = self._nearest_at_whole_shifts(ids, lo, hi, b, cover)
         return self._turned_similarities(
             ids, near, lo, hi, np.where(known, centre - mid, 0.0), b, cover, turned
         )
+
+    def _nearest_at_whole_shifts(
+        self, ids: IntArray, lo: IntArray, hi: IntArray, b: FloatArray, cover: NDArray[np.bool_]
+    ) -> IntArray:
+        """Indices into ``ids`` of the ``turn_candidates`` views nearest the scan at a whole
+        shift, below ``turn_screen`` times ``s_t``: those worth turning the scan for. Of a
+        scan that covers the whole ring only the ``4 * turn_candidates`` with the lowest
+        ring-sum bound are compared that far (a partial scanner's candidates are
+        ``partial_candidates`` at most): with 10,000 views stored, 760 candidates a look,
+        comparing every one up to the screen cost 1.5 ms a look, a third of that so
+        (``benchmarks/bench_views.py`` section 3)."""
+        assert self._store is not None
+        cols = int(self.cells_per_ring or 1)
+        keep = 4 * self.config.turn_candidates
+        chosen = np.arange(ids.size)
+        if ids.size > keep and cover.all():
+            bound = _ring_sum_bounds(self._store.chunks, ids, cover, block_sums(b, cols), cols)
+            chosen = np.argsort(bound, kind="stable")[:keep]
+        _, _, coarse = self._whole_then_fraction(
+            ids[chosen], lo[chosen], hi[chosen], b[None, :], _first(chosen), cover,
+            self.config.turn_screen,
+        )  # fmt: skip
+        order = np.argsort(coarse, kind="stable")[: self.config.turn_candidates]
+        return chosen[order[np.isfinite(coarse[order])]]
 
     def _turned_similarities(
         self, ids: IntArray, near: IntArray, lo: IntArray, hi: IntArray, left_over: FloatArray,
