@@ -115,17 +115,17 @@ def simulate(step: int, duration: float, seed: int) -> Run:
                bc.coverage(example), scans)
 
 
-def turned_activity(scan: LaserScan, cells: BoundaryCells | None = None):
+def turned_activity(scan: LaserScan, cells: BoundaryCells):
     """The scan's activity with its bearings turned, as the pipeline hands the view cells
     (``ViewCells.observe``'s ``turned``)."""
-    bc = cells or BoundaryCells()
-    return lambda turn: bc.activity(scan, turn)
+    return lambda turn: cells.activity(scan, turn)
 
 
 def replay(
     run: Run, config: ViewCellConfig, use_heading: bool, gap: float, turn: bool = True
 ) -> dict:
     vc = view_cells(config)
+    bc = BoundaryCells()
     learned: list[int] = []
     matches = true = loops = loops_true = revisits = recalled = 0
     ids = np.empty(len(run.B), dtype=np.int64)
@@ -136,7 +136,7 @@ def replay(
         revisit = bool(_close(run.poses[i], run.poses[old]).any())
         m = vc.observe(b, payload=i, heading=run.headings[i] if use_heading else None,
                        coverage=run.coverage,
-                       turned=turned_activity(run.scans[i]) if turn else None)
+                       turned=turned_activity(run.scans[i], bc) if turn else None)
         ids[i], new[i] = m.view_id, m.is_new
         revisits += revisit
         if m.is_new:
@@ -274,6 +274,7 @@ def query_cost(
     queries' turned activity (``scans``, as the pipeline gives it: the stored views are
     other places, so every query is turned for the nearest views) except brute force."""
     out = {}
+    bc = BoundaryCells()
     full = np.ones_like(coverage)
     for name, prematch, cover, turn in (
         ("pre-match", True, full, True), ("whole bins", True, full, False),
@@ -283,13 +284,13 @@ def query_cost(
         for b in stored:
             vc.learn(b, heading=0.0, coverage=cover)
         vc.observe(queries[0], heading=0.0, coverage=cover,
-                   turned=turned_activity(scans[0]) if turn else None)  # compile
+                   turned=turned_activity(scans[0], bc) if turn else None)  # compile
         cands = []
 
         def one(k: int, vc: ViewCells = vc, cands: list = cands, cover=cover,
                 turn: bool = turn) -> None:
             vc.observe(queries[k], heading=0.0, coverage=cover,
-                       turned=turned_activity(scans[k]) if turn else None)
+                       turned=turned_activity(scans[k], bc) if turn else None)
             cands.append(vc._last_ids.size)
 
         out[name] = (*_stats(_timed(one, range(1, len(queries)))), float(np.median(cands)))

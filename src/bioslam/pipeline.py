@@ -49,6 +49,7 @@ from bioslam.slam import (
     thin_points,
 )
 from bioslam.trajectory import Trajectory
+from bioslam.views import ViewCells
 
 if TYPE_CHECKING:
     from bioslam.plots.worker import FigureWorker, Job
@@ -363,6 +364,7 @@ def warm_up(config: SLAMConfig, odometry_only: bool = False) -> float:
             _verify_a_revisit(config, [scan.endpoints() for scan in scans])
             _close_a_square(config)
             _learn_partial_views(config, system, scans[-1])
+            _turn_for_views(config, system, scans[-1])
         _learn_steps_and_scroll(config, system)
     except Exception:
         pass  # a configuration the maze does not suit: the run then compiles as it goes
@@ -426,6 +428,20 @@ def _learn_partial_views(config: SLAMConfig, system: BioSLAM, scan: LaserScan) -
     rng = np.random.default_rng(0)
     for _ in range(config.views.partial_candidates + 2):
         cells.observe(activity * rng.uniform(0.0, 2.0, activity.shape), coverage=cover)
+
+
+def _turn_for_views(config: SLAMConfig, system: BioSLAM, scan: LaserScan) -> None:
+    """A 360° scanner's look that matches none of more views than it turns for: they are
+    chosen by their ring sums (compiled), the scan turned for them."""
+    boundary = system.boundary_cells
+    cells = ViewCells(config.views, cells_per_ring=boundary.config.cells_per_ring)
+    activity = boundary.activity(scan)
+    rng = np.random.default_rng(0)
+    for _ in range(4 * config.views.turn_candidates + 2):  # in one bucket of Eq. 6's hash
+        cells.learn(activity * rng.uniform(0.95, 1.05, activity.shape), heading=0.0)
+    # the rings mirrored: the same sum, a view matched at no shift
+    mirrored = activity.reshape(-1, boundary.config.cells_per_ring)[:, ::-1].ravel()
+    cells.observe(mirrored, heading=0.05, turned=lambda turn: boundary.activity(scan, turn))
 
 
 def _close_a_square(config: SLAMConfig) -> None:

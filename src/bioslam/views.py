@@ -181,24 +181,15 @@ def _shift_similarities(
     out = np.full(idx.size, np.inf)
     shift = np.zeros(idx.size, dtype=np.int64)
     row = np.empty(stack.shape[1])
-    b_full = True
-    for c in range(cols):
-        b_full = b_full and b_cover[c]
+    b_full = np.all(b_cover)
     for n in range(idx.size):
         v = idx[n]
         B = stack[which[n]]
-        b_ring_sums = stack_ring_sums[which[n]]
         bits, starts, ring_sums, cover, _, values = chunks[v >> CHUNK_SHIFT]
         at = v & CHUNK_MASK
-        full = b_full
-        for c in range(cols):
-            full = full and cover[at, c]
-        if full:
-            bound = 0.0
-            for r in range(rings):
-                diff = ring_sums[at, r] - b_ring_sums[r]
-                bound += diff * diff / cols
-            if bound >= limit * rings * cols:
+        if b_full and np.all(cover[at]):
+            gap = _ring_sum_gap(ring_sums[at], stack_ring_sums[which[n]], cols)
+            if gap >= limit * rings * cols:
                 continue
         decoded = 0
         pos = starts[at]
@@ -233,33 +224,32 @@ def _shift_similarities(
 
 
 @njit(cache=True)
+def _ring_sum_gap(ring_sums: Any, b_ring_sums: FloatArray, cols: int) -> float:
+    # sum over the rings of (view's ring sum - scan's)^2 / cols: where both cover the whole
+    # ring, a lower bound on rings * cols * S at any shift or turn, which change neither sum
+    # (Cauchy-Schwarz, as in _similarities)
+    gap = 0.0
+    for r in range(b_ring_sums.size):
+        diff = ring_sums[r] - b_ring_sums[r]
+        gap += diff * diff / cols
+    return gap
+
+
+@njit(cache=True)
 def _ring_sum_bounds(
     chunks: Any, idx: IntArray, b_cover: NDArray[np.bool_], b_ring_sums: FloatArray, cols: int
 ) -> FloatArray:
-    # A lower bound on each stored view's S at any shift or turn where both cover the whole
-    # ring (Cauchy-Schwarz over the ring sums, which neither changes, as in
-    # _shift_similarities); 0 where either covers part of it.
-    rings = b_ring_sums.size
+    # _ring_sum_gap as a lower bound on each stored view's S; 0 where either covers part of
+    # the ring.
     out = np.zeros(idx.size)
-    b_full = True
-    for c in range(cols):
-        b_full = b_full and b_cover[c]
-    if not b_full:
+    if not np.all(b_cover):
         return out
     for n in range(idx.size):
         v = idx[n]
         _, _, ring_sums, cover, _, _ = chunks[v >> CHUNK_SHIFT]
         at = v & CHUNK_MASK
-        full = True
-        for c in range(cols):
-            full = full and cover[at, c]
-        if not full:
-            continue
-        bound = 0.0
-        for r in range(rings):
-            diff = ring_sums[at, r] - b_ring_sums[r]
-            bound += diff * diff
-        out[n] = bound / (rings * cols * cols)
+        if np.all(cover[at]):
+            out[n] = _ring_sum_gap(ring_sums[at], b_ring_sums, cols) / (b_ring_sums.size * cols)
     return out
 
 
@@ -626,7 +616,7 @@ class ViewCells:
         lo = np.full(ids.size, 0, dtype=np.int64)
         hi = np.full(ids.size, cols - 1, dtype=np.int64)
         if heading is None:
-            return self._whole_then_fraction(ids, lo, hi, b[None, :], _first(ids), cover)[:2]
+            return self._whole_then_fraction(ids, lo, hi, b[None, :], _first(ids), cover)
         step = self._bin_angle()
         centre = wrap_angle(float(heading) - self._headings.view()[ids]) / step
         reach = math.floor(self.config.heading_gate / step + 1e-9)
@@ -634,7 +624,7 @@ class ViewCells:
         mid = np.round(np.where(known, centre, 0.0)).astype(np.int64)
         lo = np.where(known, mid - reach, lo)
         hi = np.where(known, np.minimum(mid + reach, mid - reach + cols - 1), hi)
-        found, shifts, _ = self._whole_then_fraction(ids, lo, hi, b[None, :], _first(ids), cover)
+        found, shifts = self._whole_then_fraction(ids, lo, hi, b[None, :], _first(ids), cover)
         if turned is None or np.any(found < self.config.s_t):
             # a view matched at a whole shift is the match without turning (and cheaper)
             return found, shifts
@@ -660,9 +650,9 @@ class ViewCells:
         if ids.size > keep and cover.all():
             bound = _ring_sum_bounds(self._store.chunks, ids, cover, block_sums(b, cols), cols)
             chosen = np.argsort(bound, kind="stable")[:keep]
-        _, _, coarse = self._whole_then_fraction(
+        coarse, _ = self._whole_shifts(
             ids[chosen], lo[chosen], hi[chosen], b[None, :], _first(chosen), cover,
-            self.config.turn_screen,
+            self.config.turn_screen * self.config.s_t,
         )  # fmt: skip
         order = np.argsort(coarse, kind="stable")[: self.config.turn_candidates]
         return chosen[order[np.isfinite(coarse[order])]]
@@ -693,7 +683,7 @@ class ViewCells:
             b if t == 0 else self._checked(turned(t / steps * self._bin_angle())) for t in turns
         ])  # fmt: skip
         each = np.repeat(near, tried.shape[1])
-        found, offset, _ = self._whole_then_fraction(
+        found, offset = self._whole_then_fraction(
             ids[each], lo[each] + whole.ravel(), hi[each] + whole.ravel(), stack,
             which.ravel().astype(np.int64), cover,
         )  # fmt: skip
@@ -707,26 +697,32 @@ class ViewCells:
 
     def _whole_then_fraction(
         self, ids: IntArray, lo: IntArray, hi: IntArray, stack: FloatArray, which: IntArray,
-        cover: NDArray[np.bool_], screen: float | None = None,
-    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        cover: NDArray[np.bool_],
+    ) -> tuple[FloatArray, FloatArray]:
         """Best ``S`` and shift per candidate over the whole-bin shifts ``lo`` to ``hi`` of the
         activity ``stack[which]`` (the scan's, or turned), with a loose limit that prunes most
-        views early, the few left refined to the best fractional shift; and the whole-bin
-        ``S`` itself, computed up to ``screen`` times ``s_t`` (``inf`` beyond)."""
+        views early, the few left refined to the best fractional shift."""
+        coarse, shift = self._whole_shifts(
+            ids, lo, hi, stack, which, cover, _COARSE_SLACK * self.config.s_t
+        )
+        assert self._store is not None
+        return _refine_shifts(
+            self._store.chunks, ids, coarse, shift, stack, which, cover,
+            int(self.cells_per_ring or 1), self.config.s_t,
+        )  # fmt: skip
+
+    def _whole_shifts(
+        self, ids: IntArray, lo: IntArray, hi: IntArray, stack: FloatArray, which: IntArray,
+        cover: NDArray[np.bool_], limit: float,
+    ) -> tuple[FloatArray, IntArray]:
+        """Eq. 8 per candidate at its best whole-bin shift from ``lo`` to ``hi`` of the activity
+        ``stack[which]`` and that shift; ``inf`` at or above ``limit``."""
         cols = int(self.cells_per_ring or 1)
-        store = self._store
-        assert store is not None
-        slack = _COARSE_SLACK * self.config.s_t
-        coarse, shift = _shift_similarities(
-            store.chunks, ids, lo, hi, stack, which, cover,
-            block_sums(stack, cols), cols, max(slack, (screen or 0.0) * self.config.s_t),
-            max(1, math.ceil(self.config.min_shared * cols - 1e-9)),
+        assert self._store is not None
+        return _shift_similarities(
+            self._store.chunks, ids, lo, hi, stack, which, cover, block_sums(stack, cols),
+            cols, limit, max(1, math.ceil(self.config.min_shared * cols - 1e-9)),
         )  # fmt: skip
-        S, shifts = _refine_shifts(
-            store.chunks, ids, np.where(coarse < slack, coarse, np.inf), shift, stack, which,
-            cover, cols, self.config.s_t,
-        )  # fmt: skip
-        return S, shifts, coarse
 
     def _similarities(self, ids: IntArray, b: FloatArray) -> FloatArray:
         if ids.size == 0:
