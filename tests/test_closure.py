@@ -102,7 +102,7 @@ def test_view_is_recognised_turned_by_30_degrees_with_its_heading_offset(fov):
     assert m.heading_offset == pytest.approx(math.radians(30.0), abs=math.radians(2.0))
 
 
-@pytest.mark.parametrize("fov", [360.0, 270.0])
+@pytest.mark.parametrize("fov", [360.0, 270.0, 180.0])
 @pytest.mark.parametrize("turn_deg", [5.0, 15.0, 25.0])
 def test_a_view_turned_between_its_bins_is_recognised_from_the_turned_activity(fov, turn_deg):
     # Bins are 10 deg apart: turned by half a bin, the scan's activity matches no whole

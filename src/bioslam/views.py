@@ -331,6 +331,23 @@ def _refine_shifts(
     return S, offsets
 
 
+def _one_bin_difference(b: FloatArray, cover: NDArray[np.bool_], cols: int) -> float:
+    """Eq. 8 between the scan's activity ``b`` and itself shifted by one bin, over the bins
+    both cover: the scale of the screen for the views worth turning the scan for
+    (``ViewCellConfig.turn_screen``). A view learned at this place and turned between bins
+    differs from the scan at a whole shift by about the scan's difference from itself turned
+    by half a bin, which depends on the scene (walls near or far, bare or cluttered), not on
+    ``s_t``, and is a steady share of the one-bin difference (0.25-0.31, 1st to 99th
+    percentile, on four floors and scanners); the one-bin difference needs no activity
+    recomputed."""
+    rings = b.reshape(-1, cols)
+    both = cover & np.roll(cover, -1)
+    if not both.any():
+        return math.inf
+    diff = rings[:, both] - np.roll(rings, -1, axis=1)[:, both]
+    return float(np.mean(diff * diff))
+
+
 @njit(cache=True)
 def _key_distances(chunks: Any, n: int, key: FloatArray) -> FloatArray:
     # Squared distances of the first ``n`` views' ring keys to ``key``, without the
@@ -411,11 +428,18 @@ class ViewCellConfig:
             side, for a heading estimate up to 3.75° off.
         turn_screen, turn_candidates: only when no view matched at a whole shift, the scan
             is turned for the ``turn_candidates`` views that came nearest at a whole shift,
-            below ``turn_screen`` times ``s_t`` (:meth:`ViewCells._nearest_at_whole_shifts`).
-            Defaults 40 and 8: on the maze a place seen turned by half a bin differed from its
-            view by 5-22 ``s_t`` at a whole shift (10th to 99th percentile; 6-35 at 15°),
-            other places a metre or more away by 24 at the 1st percentile and 122 at the
-            median (``benchmarks/bench_views.py``).
+            below ``turn_screen`` times the scan's difference from itself shifted by one bin
+            (:meth:`ViewCells._nearest_at_whole_shifts`, :func:`_one_bin_difference`).
+            Defaults 0.4 and 8. How far a place turned between bins is from its view at a
+            whole shift depends on the scene: turned by 5° or 15°, 7-32 ``s_t`` on the maze
+            (UTM-30LX, 200 places of a weaving route, 10th percentile to largest), 15-49 on
+            a drawn office seen by a 180° SICK, where a fixed 40 ``s_t`` lost 14-22 % of the
+            places. Against the scan's own one-bin difference it is steady: turned by 5°,
+            15° or 25°, 0.27-0.28 of it at the median and 0.29-0.35 at the 99th percentile on
+            six floors and scanners (``benchmarks/README.md``, "Turned views on a 180°
+            scanner"). A looser screen turns the scan for more look-alikes: at 0.5, half
+            of a thinned SICK 361 run's looks turned, and its ratio of medians to the
+            odometry rose by 0.1.
         partial_candidates: with the rotation search, a scan that covers part of each ring is
             compared with this many views, those nearest in mean activity per ring (Eq. 6's
             sum changes as such a scanner turns; module docstring). Default 64.
@@ -435,7 +459,7 @@ class ViewCellConfig:
     partial_candidates: int = 64
     turn_steps: int = 4
     turn_reach: int = 1
-    turn_screen: float = 40.0
+    turn_screen: float = 0.4
     turn_candidates: int = 8
     bound_block: int = 36
     prematch: bool = True
@@ -628,16 +652,18 @@ class ViewCells:
         if turned is None or np.any(found < self.config.s_t):
             # a view matched at a whole shift is the match without turning (and cheaper)
             return found, shifts
-        near = self._nearest_at_whole_shifts(ids, lo, hi, b, cover)
+        screen = self.config.turn_screen * _one_bin_difference(b, cover, cols)
+        near = self._nearest_at_whole_shifts(ids, lo, hi, b, cover, screen)
         return self._turned_similarities(
             ids, near, lo, hi, np.where(known, centre - mid, 0.0), b, cover, turned
         )
 
     def _nearest_at_whole_shifts(
-        self, ids: IntArray, lo: IntArray, hi: IntArray, b: FloatArray, cover: NDArray[np.bool_]
+        self, ids: IntArray, lo: IntArray, hi: IntArray, b: FloatArray,
+        cover: NDArray[np.bool_], screen: float,
     ) -> IntArray:
         """Indices into ``ids`` of the ``turn_candidates`` views nearest the scan at a whole
-        shift, below ``turn_screen`` times ``s_t``: those worth turning the scan for. Of a
+        shift, below ``screen``: those worth turning the scan for. Of a
         scan that covers the whole ring only the ``4 * turn_candidates`` with the lowest
         ring-sum bound are compared that far (a partial scanner's candidates are
         ``partial_candidates`` at most): with 10,000 views stored, 760 candidates a look,
@@ -651,8 +677,7 @@ class ViewCells:
             bound = _ring_sum_bounds(self._store.chunks, ids, cover, block_sums(b, cols), cols)
             chosen = np.argsort(bound, kind="stable")[:keep]
         coarse, _ = self._whole_shifts(
-            ids[chosen], lo[chosen], hi[chosen], b[None, :], _first(chosen), cover,
-            self.config.turn_screen * self.config.s_t,
+            ids[chosen], lo[chosen], hi[chosen], b[None, :], _first(chosen), cover, screen,
         )  # fmt: skip
         order = np.argsort(coarse, kind="stable")[: self.config.turn_candidates]
         return chosen[order[np.isfinite(coarse[order])]]
