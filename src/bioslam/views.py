@@ -331,6 +331,7 @@ def _refine_shifts(
     return S, offsets
 
 
+@njit(cache=True)
 def _one_bin_difference(b: FloatArray, cover: NDArray[np.bool_], cols: int) -> float:
     """Eq. 8 between the scan's activity ``b`` and itself shifted by one bin, over the bins
     both cover: the scale of the screen for the views worth turning the scan for
@@ -340,12 +341,18 @@ def _one_bin_difference(b: FloatArray, cover: NDArray[np.bool_], cols: int) -> f
     ``s_t``, and is a steady share of the one-bin difference (0.25-0.31, 1st to 99th
     percentile, on four floors and scanners); the one-bin difference needs no activity
     recomputed."""
-    rings = b.reshape(-1, cols)
-    both = cover & np.roll(cover, -1)
-    if not both.any():
-        return math.inf
-    diff = rings[:, both] - np.roll(rings, -1, axis=1)[:, both]
-    return float(np.mean(diff * diff))
+    # one pass, no temporaries: this runs at most looks of a partial scanner
+    acc = 0.0
+    count = 0
+    for c in range(cols):
+        k = (c + 1) % cols
+        if not (cover[c] and cover[k]):
+            continue
+        count += 1
+        for base in range(0, b.size, cols):
+            diff = b[base + c] - b[base + k]
+            acc += diff * diff
+    return acc / (count * (b.size // cols)) if count else math.inf
 
 
 @njit(cache=True)
@@ -599,7 +606,9 @@ class ViewCells:
         cols = self.cells_per_ring or 1
         if coverage is None:
             return np.ones(cols, dtype=bool)
-        cover = np.asarray(coverage, dtype=bool).reshape(-1)
+        # a copy: a caller's read-only array is another type to the compiled kernels, which
+        # a first run would then compile again mid-run, after the warm-up
+        cover = np.array(coverage, dtype=bool).reshape(-1)
         if cover.size != cols:
             raise ValueError(f"coverage has {cover.size} bins, a ring has {cols}")
         return cover
