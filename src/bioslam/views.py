@@ -236,14 +236,10 @@ def _ring_sum_gap(ring_sums: Any, b_ring_sums: FloatArray, cols: int) -> float:
 
 
 @njit(cache=True)
-def _ring_sum_bounds(
-    chunks: Any, idx: IntArray, b_cover: NDArray[np.bool_], b_ring_sums: FloatArray, cols: int
-) -> FloatArray:
-    # _ring_sum_gap as a lower bound on each stored view's S; 0 where either covers part of
-    # the ring.
+def _ring_sum_bounds(chunks: Any, idx: IntArray, b_ring_sums: FloatArray, cols: int) -> FloatArray:
+    # _ring_sum_gap as a lower bound on each stored view's S, for a scan that covers the
+    # whole ring; 0 for a view that covers part of it.
     out = np.zeros(idx.size)
-    if not np.all(b_cover):
-        return out
     for n in range(idx.size):
         v = idx[n]
         _, _, ring_sums, cover, _, _ = chunks[v >> CHUNK_SHIFT]
@@ -683,7 +679,7 @@ class ViewCells:
         keep = 4 * self.config.turn_candidates
         chosen = np.arange(ids.size)
         if ids.size > keep and cover.all():
-            bound = _ring_sum_bounds(self._store.chunks, ids, cover, block_sums(b, cols), cols)
+            bound = _ring_sum_bounds(self._store.chunks, ids, block_sums(b, cols), cols)
             chosen = np.argsort(bound, kind="stable")[:keep]
         coarse, _ = self._whole_shifts(
             ids[chosen], lo[chosen], hi[chosen], b[None, :], _first(chosen), cover, screen,
