@@ -233,11 +233,16 @@ def noise_line(slam: BioSLAM) -> str:
     have (:meth:`bioslam.slam.BioSLAM._finished_noise`)."""
     noise = slam.cognitive_map.noise
     accepted = sum(check.verdict.accepted for check in slam.checks)
+    test = slam.jump_test
+    jumps = "held" if noise.jump_scale == 0.0 else "free"
+    if test is not None:
+        jumps += (f" (the scans' revisits, {test.judged}: free {1e3 * test.median_first:.2f} mm,"
+                  f" held {1e3 * test.median_second:.2f}, p {test.p_second_sharper:.2g})")
     return (
         f"  link noise from {len(slam.link_noise)} of {accepted} closures: odometry "
         f"{noise.odometry_var_per_m:.1e} m²/m, heading scale {noise.heading_scale:.1e}; "
         f"closure {100 * math.sqrt(noise.closure_var):.2f} cm / "
-        f"{math.degrees(math.sqrt(noise.closure_heading_var)):.3f} deg"
+        f"{math.degrees(math.sqrt(noise.closure_heading_var)):.3f} deg; jumps {jumps}"
     )
 
 

@@ -951,6 +951,92 @@ def test_a_finished_map_the_closures_taught_too_little_holds_the_odometrys_jumps
     assert held < 0.005 and held < 0.1 * swung
 
 
+def _hall_points(step: float = 0.05) -> np.ndarray:
+    """Points on the walls of a 10 m x 4 m hall with two half-width cross walls and a
+    pillar: it pins a scan along its length as well as across it."""
+    segments = [
+        ((-2.0, -2.0), (8.0, -2.0)), ((8.0, -2.0), (8.0, 2.0)), ((8.0, 2.0), (-2.0, 2.0)),
+        ((-2.0, 2.0), (-2.0, -2.0)), ((1.5, -2.0), (1.5, -0.8)), ((4.0, 2.0), (4.0, 0.9)),
+        ((2.8, -0.2), (3.2, -0.2)), ((3.2, -0.2), (3.2, 0.2)),
+    ]  # fmt: skip
+    points = []
+    for (x0, y0), (x1, y1) in segments:
+        n = max(int(math.hypot(x1 - x0, y1 - y0) / step), 1)
+        u = np.linspace(0.0, 1.0, n + 1)[:, None]
+        points.append((1.0 - u) * np.array([x0, y0]) + u * np.array([x1, y1]))
+    return np.vstack(points)
+
+
+def hall_and_back(
+    jumps: tuple[int, ...], odometry_error: tuple[int, float], closure_offset: float,
+    noise: LinkNoise,
+) -> tuple[CognitiveMap, np.ndarray]:
+    """Down the hall's centre line and back (30 steps of 0.2 m each way, 5 s a step), each
+    experience keeping the hall's points in its frame at its true pose (1 cm of range
+    noise) as its payload. At the steps ``jumps`` the odometry's links carry a jump's
+    variance; ``odometry_error`` (step, metres) puts that much error along the hall into
+    one step's odometry. Back at the start a closure onto the first experience measures
+    the truth, the robot's pose ``closure_offset`` m off it along the hall for the moment.
+    Returns the map, finished with ``noise``, and the true poses of its experiences."""
+    rng = np.random.default_rng(4)
+    world = _hall_points()
+    steps = np.array([(0.2, 0.0, 0.0)] * 30 + [(0.0, 0.0, math.pi)] + [(0.2, 0.0, 0.0)] * 30)
+    truth = integrate(steps)
+    cm = CognitiveMap(CognitiveMapConfig())
+    for k, d in enumerate(steps[:-1]):
+        broken = (0.3, math.radians(21.0)) if k in jumps else (0.0, 0.0)
+        odometry = d + np.array([odometry_error[1] if k == odometry_error[0] else 0.0, 0.0, 0.0])
+        cm.integrate_odometry(odometry, stamp=5.0 * k, broken=broken)
+        seen = compose(inverse(truth[k]), np.column_stack([world, np.zeros(len(world))]))[:, :2]
+        seen += rng.normal(0.0, 0.01, seen.shape)
+        cm.update(k, True, PC, stamp=5.0 * k, payload=seen[np.hypot(*seen.T) < 8.0])
+    cm.integrate_odometry(steps[-1] + np.array([closure_offset, 0.0, 0.0]))
+    measured = Measurement(between(truth[0], truth[-1]))
+    assert cm.update(0, False, PC, stamp=400.0, refine=lambda e: measured).kind == "loop"
+    cm.set_noise(noise)
+    cm.solve(window=None)
+    return cm, truth[:-1]
+
+
+def _rms(cm: CognitiveMap, truth: np.ndarray) -> float:
+    made = cm.experience_poses[: len(truth)]
+    return float(np.sqrt(np.mean(np.sum((made[:, :2] - truth[:, :2]) ** 2, axis=1))))
+
+
+def test_the_finished_map_holds_routine_jumps_its_scans_agree_with():
+    """A closure taken 8 cm off for the moment bends the map at the odometry's routine jumps
+    when their links are free; the experiences' scans agree better with the jumps held, so
+    the finished map holds them."""
+    free = dataclasses.replace(untaught_noise(CognitiveMapConfig()), jump_scale=1.0)
+    cm, truth = hall_and_back((4, 18, 44), (0, 0.0), 0.08, free)
+    assert cm.jump_links().sum() == 3
+    swung = _rms(cm, truth)
+    assert swung > 0.03
+    test = cm.hold_jumps_if_sharper(0.05)
+    assert test is not None and test.p_second_sharper < 0.05
+    assert test.median_second < test.median_first
+    assert cm.noise.jump_scale == 0.0 and _rms(cm, truth) < 0.1 * swung
+
+
+def test_the_finished_map_keeps_free_a_jump_the_odometry_made_in_error():
+    """The odometry's step 18 jumped 0.4 m along the hall (to a look-alike); the closure
+    back at the start measures the truth. Free, the jump's link takes the error back; the
+    scans agree better so and the finished map keeps it free. With no significance asked,
+    nothing is compared."""
+    free = dataclasses.replace(untaught_noise(CognitiveMapConfig()), jump_scale=1.0)
+    cm, truth = hall_and_back((18,), (18, 0.4), 0.0, free)
+    corrected = _rms(cm, truth)
+    assert corrected < 0.02
+    test = cm.hold_jumps_if_sharper(0.05)
+    assert test is not None and test.p_second_sharper > 0.05
+    assert cm.noise.jump_scale == 1.0 and _rms(cm, truth) == pytest.approx(corrected)
+    assert cm.hold_jumps_if_sharper(0.0) is None
+    # held, the 0.4 m is spread over the hall: that map is the one the scans refused
+    held = cm.solved(noise=dataclasses.replace(free, jump_scale=0.0))
+    made = held[: len(truth)]
+    assert np.sqrt(np.mean(np.sum((made[:, :2] - truth[:, :2]) ** 2, axis=1))) > 0.05
+
+
 def test_has_link_knows_each_added_direction_and_no_other():
     """The map asks whether a link from one place to another exists (a loop link is made
     only where none is) of its adjacency arrays, not of a set of every pair."""

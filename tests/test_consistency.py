@@ -7,7 +7,13 @@ import numpy as np
 import pytest
 from loop_world import ring_route, ring_world
 
-from bioslam.consistency import RevisitConfig, find_revisits, revisit_residuals
+from bioslam.consistency import (
+    RevisitConfig,
+    compare_sharpness,
+    find_revisits,
+    merge_revisits,
+    revisit_residuals,
+)
 from bioslam.geometry import compose
 from bioslam.sim import LIDAR_PRESETS, simulate_scans
 
@@ -64,6 +70,34 @@ def test_the_true_poses_make_a_sharper_map_than_a_trajectory_bent_between_the_la
     assert np.nanmedian(bent_residual) > 2.0 * np.nanmedian(true_residual)
     judged = ~np.isnan(true_residual)
     assert np.mean(true_residual[judged] < bent_residual[judged]) > 0.9
+
+
+def test_the_test_finds_the_placement_the_scans_agree_with_and_nothing_between_equals(two_laps):
+    """:func:`compare_sharpness` on the revisits either placement finds: the truth against the
+    second lap turned by half a degree (0-8 cm along the ring) is significant one way only;
+    a placement against itself differs nowhere (p 1)."""
+    endpoints, truth, stamps = two_laps
+    bent = _bent(truth, stamps, degrees=0.5)
+    config = RevisitConfig(min_gap_s=10.0)
+    better = compare_sharpness(endpoints, stamps, bent, truth, config, max_judged=60)
+    assert 40 <= better.judged <= 60  # every n-th scan judged, as max_judged asks
+    assert better.p_second_sharper < 1e-3 and better.median_second < better.median_first
+    worse = compare_sharpness(endpoints, stamps, truth, bent, config, max_judged=60)
+    assert worse.p_second_sharper > 0.5
+    same = compare_sharpness(endpoints, stamps, truth, truth.copy(), config, max_judged=60)
+    assert same.p_second_sharper == 1.0 and same.median_first == same.median_second
+
+
+def test_merged_revisits_judge_each_scan_once_against_the_partners_of_both():
+    from bioslam.consistency import Revisit
+
+    first = [Revisit(0, np.array([5, 6])), Revisit(3, np.array([9]))]
+    second = [Revisit(0, np.array([6, 7])), Revisit(4, np.array([8]))]
+    merged = merge_revisits(first, second, max_partners=10)
+    assert [r.scan for r in merged] == [0, 3, 4]
+    assert merged[0].partners.tolist() == [5, 6, 7]
+    # at most max_partners, evenly chosen
+    assert merge_revisits(first, second, max_partners=2)[0].partners.tolist() == [5, 7]
 
 
 def test_a_scan_with_too_few_endpoints_in_range_is_not_judged(two_laps):

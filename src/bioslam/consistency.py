@@ -17,8 +17,9 @@ trajectory is judged on the same scans.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -113,3 +114,66 @@ def revisit_residuals(
         distances, _ = cKDTree(np.vstack(others)).query(transform_points(placed[revisit.scan], own))
         out[k] = float(np.median(distances))
     return out
+
+
+def merge_revisits(*found: Sequence[Revisit], max_partners: int) -> list[Revisit]:
+    """The revisits of several :func:`find_revisits` calls (e.g. on two trajectories of the
+    same scans) as one list, each judged scan once with the partners any of them gave it (at
+    most ``max_partners``, evenly chosen): two trajectories compared on the revisits one of
+    them alone finds are judged where that one brought the passes together."""
+    partners: dict[int, set[int]] = {}
+    for revisits in found:
+        for revisit in revisits:
+            partners.setdefault(revisit.scan, set()).update(int(j) for j in revisit.partners)
+    merged = []
+    for scan in sorted(partners):
+        other = np.array(sorted(partners[scan]), dtype=np.intp)
+        step = -(-other.size // max_partners)
+        merged.append(Revisit(scan, other[::step]))
+    return merged
+
+
+@dataclass(frozen=True)
+class SharpnessComparison:
+    """Two placements of the same scans judged at their revisits: the median residual (m) of
+    each, the revisits judged, and the one-sided p-value of the Wilcoxon signed-rank test
+    that the second places them sharper (1 where the two never differ)."""
+
+    median_first: float
+    median_second: float
+    judged: int
+    p_second_sharper: float
+
+
+def compare_sharpness(
+    endpoints: Sequence[ArrayLike] | Mapping[int, ArrayLike],
+    stamps: ArrayLike,
+    first: ArrayLike,
+    second: ArrayLike,
+    config: RevisitConfig | None = None,
+    max_judged: int = 400,
+) -> SharpnessComparison:
+    """Whether the scans (``endpoints``, at ``stamps``) agree better placed by the poses
+    ``second`` than by ``first`` (each (N, 3)), on the revisits either placement finds
+    (:func:`merge_revisits`), at most about ``max_judged`` of them (every n-th scan judged
+    as needed: the test's cost grows with them, its power hardly past a few hundred)."""
+    from scipy.stats import wilcoxon
+
+    cfg = config or RevisitConfig()
+    t = np.asarray(stamps, dtype=np.float64).reshape(-1)
+    cfg = replace(cfg, every=max(cfg.every, -(-t.size // max(max_judged, 1))))
+    revisits = merge_revisits(
+        find_revisits(first, t, cfg), find_revisits(second, t, cfg),
+        max_partners=cfg.max_partners,
+    )  # fmt: skip
+    a = revisit_residuals(endpoints, first, revisits, cfg)
+    b = revisit_residuals(endpoints, second, revisits, cfg)
+    both = ~(np.isnan(a) | np.isnan(b))
+    a, b = a[both], b[both]
+    if not a.size:
+        return SharpnessComparison(math.nan, math.nan, 0, 1.0)
+    differ = a != b
+    p = 1.0
+    if differ.any():
+        p = float(wilcoxon(a[differ] - b[differ], alternative="greater").pvalue)
+    return SharpnessComparison(float(np.median(a)), float(np.median(b)), int(a.size), p)

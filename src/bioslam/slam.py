@@ -65,6 +65,7 @@ from bioslam.cognitive_map import (
     untaught_noise,
 )
 from bioslam.config import SLAMConfig
+from bioslam.consistency import SharpnessComparison
 from bioslam.geometry import Pose2D, between, compose, inverse
 from bioslam.growing import GrowingArray, RowsFactory
 from bioslam.link_noise import LinkNoise, LinkNoiseEstimator
@@ -446,6 +447,10 @@ class BioSLAM:
         self._made_in_slide: set[int] = set()
         #: odometry links that bridge a slide the odometry undid (``bridge_returns``)
         self.bridges = 0
+        #: what the finished map's scans said of holding the odometry's jumps
+        #: (:meth:`bioslam.cognitive_map.CognitiveMap.hold_jumps_if_sharper`); None where
+        #: there was nothing to choose
+        self.jump_test: SharpnessComparison | None = None
 
     # --- the per-scan update ---------------------------------------------------------------
 
@@ -1177,7 +1182,9 @@ class BioSLAM:
         not rule out let their registrations' millimetres bend an odometry better than them
         (the rooms' SICK weaving route: 0.35 cm against the odometry's 0.30; 0.31 so). Taught
         by fewer than ``noise_min_closures_finished`` closures, the model is the untaught
-        one (:meth:`_finished_noise`)."""
+        one (:meth:`_finished_noise`). Where the model lets the odometry's jumps bend, the
+        map holds them instead when its own scans agree better so
+        (:meth:`bioslam.cognitive_map.CognitiveMap.hold_jumps_if_sharper`)."""
         self._relax_now()
         cmap = self.cognitive_map
         reweighed = False
@@ -1188,6 +1195,10 @@ class BioSLAM:
         if reweighed or not cmap.converged:
             # after a re-weighing the whole map: the weights changed everywhere
             cmap.solve(window=None if reweighed else -1)
+            cmap.relax()
+        significance = self.config.cognitive_map.jump_hold_significance
+        self.jump_test = cmap.hold_jumps_if_sharper(significance)
+        if self.jump_test is not None:
             cmap.relax()
 
     def _finished_noise(self) -> LinkNoise:
@@ -1301,6 +1312,8 @@ class BioSLAM:
             "link_noise_closure_sigma_m": math.sqrt(noise.closure_var),
             "link_noise_heading_scale": noise.heading_scale,
             "link_noise_closure_sigma_rad": math.sqrt(noise.closure_heading_var),
-            # 0 where the finished map held the odometry's jumps (untaught_noise)
+            # 0 where the finished map held the odometry's jumps (untaught_noise, or its
+            # scans agreed better so: jumps_held_p below that significance)
             "link_noise_jump_scale": noise.jump_scale,
+            "jumps_held_p": None if self.jump_test is None else self.jump_test.p_second_sharper,
         }
