@@ -50,7 +50,7 @@ import numpy as np
 
 from bioslam.cognitive_map import configured_noise
 from bioslam.config import SLAMConfig, config_from_dict
-from bioslam.consistency import find_revisits, revisit_residuals
+from bioslam.consistency import SharpnessComparison, find_revisits, revisit_residuals
 from bioslam.evaluation import (
     FALSE_CLOSURE_ANGLE_DEG,
     FALSE_CLOSURE_DISTANCE,
@@ -233,17 +233,28 @@ def noise_line(slam: BioSLAM) -> str:
     have (:meth:`bioslam.slam.BioSLAM._finished_noise`)."""
     noise = slam.cognitive_map.noise
     accepted = sum(check.verdict.accepted for check in slam.checks)
-    test = slam.jump_test
+    config = slam.cognitive_map.config
+    taught = len(slam.link_noise) >= config.noise_min_closures_finished
+    settings = "taught" if taught else "untaught"
+    if dataclasses.replace(noise, jump_scale=1.0) == configured_noise(config):
+        settings = "the settings'"
     jumps = "held" if noise.jump_scale == 0.0 else "free"
-    if test is not None:
-        jumps += (f" (the scans' revisits, {test.judged}: free {1e3 * test.median_first:.2f} mm,"
-                  f" held {1e3 * test.median_second:.2f}, p {test.p_second_sharper:.2g})")
     return (
         f"  link noise from {len(slam.link_noise)} of {accepted} closures: odometry "
         f"{noise.odometry_var_per_m:.1e} m²/m, heading scale {noise.heading_scale:.1e}; "
         f"closure {100 * math.sqrt(noise.closure_var):.2f} cm / "
-        f"{math.degrees(math.sqrt(noise.closure_heading_var)):.3f} deg; jumps {jumps}"
+        f"{math.degrees(math.sqrt(noise.closure_heading_var)):.3f} deg; model "
+        f"{settings}{_test_text(slam.settings_test, 'taught', 'settings')}, jumps "
+        f"{jumps}{_test_text(slam.jump_test, 'free', 'held')}"
     )
+
+
+def _test_text(test: SharpnessComparison | None, first: str, second: str) -> str:
+    """A scans' test of the finished map (:meth:`CognitiveMap.adopt_if_sharper`) in words."""
+    if test is None:
+        return ""
+    return (f" (the scans' revisits, {test.judged}: {first} {1e3 * test.median_first:.2f} mm, "
+            f"{second} {1e3 * test.median_second:.2f}, p {test.p_second_sharper:.2g})")
 
 
 #: Heading-offset classes of revisits (degrees from the earlier pass), as reported.

@@ -971,13 +971,15 @@ def hall_and_back(
     jumps: tuple[int, ...], odometry_error: tuple[int, float], closure_offset: float,
     noise: LinkNoise,
 ) -> tuple[CognitiveMap, np.ndarray]:
-    """Down the hall's centre line and back (30 steps of 0.2 m each way, 5 s a step), each
-    experience keeping the hall's points in its frame at its true pose (1 cm of range
-    noise) as its payload. At the steps ``jumps`` the odometry's links carry a jump's
-    variance; ``odometry_error`` (step, metres) puts that much error along the hall into
-    one step's odometry. Back at the start a closure onto the first experience measures
-    the truth, the robot's pose ``closure_offset`` m off it along the hall for the moment.
-    Returns the map, finished with ``noise``, and the true poses of its experiences."""
+    """Down the hall's centre line and back (30 steps of 0.2 m each way, a second a step,
+    a 100 s stop at the far end: every pair of experiences within the revisits' 3 m and 30 s
+    apart is one of each pass), each experience keeping the hall's points in its frame at
+    its true pose (1 cm of range noise) as its payload. At the steps ``jumps`` the
+    odometry's links carry a jump's variance; ``odometry_error`` (step, metres) puts that
+    much error along the hall into one step's odometry. Back at the start a closure onto
+    the first experience measures the truth, the robot's pose ``closure_offset`` m off it
+    along the hall for the moment. Returns the map, finished with ``noise``, and the true
+    poses of its experiences."""
     rng = np.random.default_rng(4)
     world = _hall_points()
     steps = np.array([(0.2, 0.0, 0.0)] * 30 + [(0.0, 0.0, math.pi)] + [(0.2, 0.0, 0.0)] * 30)
@@ -986,10 +988,11 @@ def hall_and_back(
     for k, d in enumerate(steps[:-1]):
         broken = (0.3, math.radians(21.0)) if k in jumps else (0.0, 0.0)
         odometry = d + np.array([odometry_error[1] if k == odometry_error[0] else 0.0, 0.0, 0.0])
-        cm.integrate_odometry(odometry, stamp=5.0 * k, broken=broken)
+        stamp = k + (100.0 if k > 30 else 0.0)
+        cm.integrate_odometry(odometry, stamp=stamp, broken=broken)
         seen = compose(inverse(truth[k]), np.column_stack([world, np.zeros(len(world))]))[:, :2]
         seen += rng.normal(0.0, 0.01, seen.shape)
-        cm.update(k, True, PC, stamp=5.0 * k, payload=seen[np.hypot(*seen.T) < 8.0])
+        cm.update(k, True, PC, stamp=stamp, payload=seen[np.hypot(*seen.T) < 8.0])
     cm.integrate_odometry(steps[-1] + np.array([closure_offset, 0.0, 0.0]))
     measured = Measurement(between(truth[0], truth[-1]))
     assert cm.update(0, False, PC, stamp=400.0, refine=lambda e: measured).kind == "loop"
@@ -1031,10 +1034,30 @@ def test_the_finished_map_keeps_free_a_jump_the_odometry_made_in_error():
     assert test is not None and test.p_second_sharper > 0.05
     assert cm.noise.jump_scale == 1.0 and _rms(cm, truth) == pytest.approx(corrected)
     assert cm.hold_jumps_if_sharper(0.0) is None
+    assert cm.adopt_if_sharper(cm.noise, 0.05) is None  # the same model: nothing to compare
     # held, the 0.4 m is spread over the hall: that map is the one the scans refused
     held = cm.solved(noise=dataclasses.replace(free, jump_scale=0.0))
     made = held[: len(truth)]
     assert np.sqrt(np.mean(np.sum((made[:, :2] - truth[:, :2]) ** 2, axis=1))) > 0.05
+
+
+def test_the_finished_map_takes_a_weighing_its_scans_agree_with_and_keeps_its_own_otherwise():
+    """The odometry's step 18 jumped 0.4 m along the hall; the closure at the start measures
+    the truth. Weighed so that the closure hardly counts (1 m), the map keeps the jump's
+    error; weighed by a model that trusts the closure, the jump's link takes it back, the
+    scans agree better, and that weighing is adopted. From there the first is refused."""
+    trusting = dataclasses.replace(untaught_noise(CognitiveMapConfig()), jump_scale=1.0)
+    doubting = dataclasses.replace(trusting, closure_var=1.0, closure_heading_var=1.0)
+    cm, truth = hall_and_back((18,), (18, 0.4), 0.0, doubting)
+    kept = _rms(cm, truth)
+    assert kept > 0.2
+    test = cm.adopt_if_sharper(trusting, 0.05)
+    assert test is not None and test.p_second_sharper < 0.01 and cm.noise == trusting
+    corrected = _rms(cm, truth)
+    assert corrected < 0.01
+    again = cm.adopt_if_sharper(doubting, 0.05)
+    assert again is not None and again.p_second_sharper > 0.5
+    assert cm.noise == trusting and _rms(cm, truth) == pytest.approx(corrected)
 
 
 def test_has_link_knows_each_added_direction_and_no_other():

@@ -233,10 +233,11 @@ class CognitiveMapConfig:
     #: closures, each within 1-3 cm of the truth, bent the map at them to twice the
     #: odometry's error (``benchmarks/README.md``, "A floor of identical blocks").
     untaught_jump_scale: float = 0.0
-    #: Where the model lets the jumps' links bend, the finished map holds them as any other
-    #: step when its own scans agree better so, at this significance
-    #: (:meth:`CognitiveMap.hold_jumps_if_sharper`); 0: never.
-    jump_hold_significance: float = 0.05
+    #: The finished map is weighed by the settings' model instead of the one the closures
+    #: taught, and then holds the jumps' links as any other step where its model lets them
+    #: bend, each where its own scans agree better so (:meth:`CognitiveMap.adopt_if_sharper`):
+    #: two tests, each at half this significance (family-wise, Bonferroni); 0: neither.
+    scan_test_significance: float = 0.05
 
     def __post_init__(self) -> None:
         if self.match_threshold <= 0.0:
@@ -255,8 +256,8 @@ class CognitiveMapConfig:
             raise ValueError("link uncertainties must be >= 0 and their floors > 0")
         if self.closure_shape_ratio < 1.0:
             raise ValueError(f"closure_shape_ratio must be >= 1, got {self.closure_shape_ratio}")
-        if not 0.0 <= self.jump_hold_significance < 1.0:
-            raise ValueError("jump_hold_significance must be in [0, 1)")
+        if not 0.0 <= self.scan_test_significance < 1.0:
+            raise ValueError("scan_test_significance must be in [0, 1)")
         if self.robust_sigmas < 0.0 or self.robust_iterations < 1:
             raise ValueError("robust_sigmas must be >= 0 and robust_iterations >= 1")
         if self.noise_prior_decades <= 0.0 or self.noise_min_closures < 1:
@@ -1586,45 +1587,51 @@ class CognitiveMap:
         extra = (terms[:, TERM_EXTRA_XY] > 0.0) | (terms[:, TERM_EXTRA_TH] > 0.0)
         return np.isfinite(terms[:, TERM_DISTANCE]) & extra
 
+    def adopt_if_sharper(self, noise: LinkNoise, significance: float) -> SharpnessComparison | None:
+        """Solve the map with its links weighed by ``noise`` instead, and keep that solution
+        where the map's own scans agree better with it: the experiences' payloads, placed by
+        each solution, at the revisits either finds, at ``significance`` (a one-sided
+        Wilcoxon test, :func:`bioslam.consistency.compare_sharpness`). Returns the
+        comparison, or None where there was none to make (no loop closure, or the two
+        solutions within :data:`SAME_MAP_M` of each other everywhere). The links' own
+        residuals cannot judge between two weighings of themselves; where the robot came
+        back, the walls of the two passes fall on one another only where the map is right
+        between them."""
+        if significance <= 0.0 or noise == self.noise or self.loop_closures == 0:
+            return None
+        other = self.solved(noise=noise)
+        poses = self._poses.view()
+        if np.max(np.hypot(*(other[:, :2] - poses[:, :2]).T)) < SAME_MAP_M:
+            return None
+        scanned = [k for k in range(len(self)) if _has_points(self._payloads[k])]
+        comparison = compare_sharpness(
+            _Picked(self._payloads, scanned), self._stamps.view()[scanned], poses[scanned],
+            other[scanned],
+        )  # fmt: skip
+        if comparison.p_second_sharper < significance:
+            self.set_noise(noise)
+            self.solve(window=None)
+        return comparison
+
     def hold_jumps_if_sharper(self, significance: float) -> SharpnessComparison | None:
         """Hold the odometry's jumps as any other step (``jump_scale`` 0) where the map's own
-        scans say so: the experiences' payloads agree better at their revisits placed by
-        the map solved so than by the map as it is, at ``significance`` (a one-sided
-        Wilcoxon test, :func:`bioslam.consistency.compare_sharpness`). Returns the
-        comparison, or None where there was none to make (no jump free to bend, no loop
-        closure, or the two maps within :data:`SAME_MAP_M` of each other everywhere).
+        scans agree better so (:meth:`adopt_if_sharper`); None where no jump is free to
+        bend.
 
         A jump's link is free to bend because a jump may be the odometry's error (a step to
         a look-alike, which the closures across it take back); it may as well be its
         routine (a reversing robot's steps), and then the closures' own centimetres, or a
         slide elsewhere that the odometry did not notice and the closures cannot place
         (every closure that spans it spans the jumps beside it), are put into the jumps
-        instead. The link model cannot tell the two apart (its residuals are the closures'
-        own); the scans can: where the robot came back, the passes' walls fall on one
-        another only where the map is right between them. Measured on the runs where the
-        two differ (``benchmarks/README.md``, "Holding the jumps where the scans say so"):
-        the maze's SICK reversing route with two people 62.44 -> 47.29 cm (p 5e-9), intel
-        8.35 -> 8.24 cm, while a warehouse route whose odometry jumped to a look-alike aisle
-        keeps its jumps free (34.14 cm; held, 135.58; the scans sharper as it is)."""
-        noise = self.noise
-        if significance <= 0.0 or noise.jump_scale == 0.0 or self.loop_closures == 0:
+        instead. The link model cannot tell the two apart; the scans can. Measured on the
+        runs where the two differ (``benchmarks/README.md``, "Holding the jumps where the
+        scans say so"): the maze's SICK reversing route with two people 62.44 -> 47.29 cm
+        (p 5e-9), intel 8.35 -> 8.24 cm, while a warehouse route whose odometry jumped to a
+        look-alike aisle keeps its jumps free (34.14 cm; held, 135.58; the scans sharper as
+        it is)."""
+        if self.noise.jump_scale == 0.0 or not self.jump_links().any():
             return None
-        if not self.jump_links().any():
-            return None
-        held_noise = replace(noise, jump_scale=0.0)
-        held = self.solved(noise=held_noise)
-        poses = self._poses.view()
-        if np.max(np.hypot(*(held[:, :2] - poses[:, :2]).T)) < SAME_MAP_M:
-            return None
-        scanned = [k for k in range(len(self)) if _has_points(self._payloads[k])]
-        comparison = compare_sharpness(
-            _Picked(self._payloads, scanned), self._stamps.view()[scanned], poses[scanned],
-            held[scanned],
-        )  # fmt: skip
-        if comparison.p_second_sharper < significance:
-            self.set_noise(held_noise)
-            self.solve(window=None)
-        return comparison
+        return self.adopt_if_sharper(replace(self.noise, jump_scale=0.0), significance)
 
     # --- output ----------------------------------------------------------------------------
 

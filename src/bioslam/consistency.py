@@ -101,15 +101,22 @@ def revisit_residuals(
     cfg = config or RevisitConfig()
     placed = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
     out = np.full(len(revisits), np.nan)
+    # a scan is the partner of many judged ones: placed once
+    partner_points: dict[int, FloatArray] = {}
+
+    def partner(j: int) -> FloatArray:
+        if j not in partner_points:
+            points = np.asarray(endpoints[j], dtype=np.float64).reshape(-1, 2)
+            partner_points[j] = transform_points(placed[j], points)
+        return partner_points[j]
+
     for k, revisit in enumerate(revisits):
         own = np.asarray(endpoints[revisit.scan], dtype=np.float64).reshape(-1, 2)
         own = own[np.hypot(own[:, 0], own[:, 1]) <= cfg.max_range_m]
-        others = [
-            transform_points(placed[j], np.asarray(endpoints[j], dtype=np.float64).reshape(-1, 2))
-            for j in revisit.partners
-        ]
-        others = [o for o in others if len(o)]
-        if len(own) < cfg.min_points or not others:
+        if len(own) < cfg.min_points:
+            continue
+        others = [o for o in (partner(int(j)) for j in revisit.partners) if len(o)]
+        if not others:
             continue
         distances, _ = cKDTree(np.vstack(others)).query(transform_points(placed[revisit.scan], own))
         out[k] = float(np.median(distances))

@@ -352,6 +352,10 @@ class SelfMotion:
         return min(max(var, 0.0), break_thresholds(dt, self.closure)[0] ** 2)
 
 
+def _p_value(test: SharpnessComparison | None) -> float | None:
+    return None if test is None else test.p_second_sharper
+
+
 class BioSLAM:
     """The LiDAR-based biologically-inspired SLAM system (Sec. III)."""
 
@@ -447,9 +451,11 @@ class BioSLAM:
         self._made_in_slide: set[int] = set()
         #: odometry links that bridge a slide the odometry undid (``bridge_returns``)
         self.bridges = 0
-        #: what the finished map's scans said of holding the odometry's jumps
-        #: (:meth:`bioslam.cognitive_map.CognitiveMap.hold_jumps_if_sharper`); None where
-        #: there was nothing to choose
+        #: what the finished map's scans said of the settings' link noise against the one
+        #: the closures taught, and of holding the odometry's jumps
+        #: (:meth:`bioslam.cognitive_map.CognitiveMap.adopt_if_sharper`); None where there
+        #: was nothing to choose
+        self.settings_test: SharpnessComparison | None = None
         self.jump_test: SharpnessComparison | None = None
 
     # --- the per-scan update ---------------------------------------------------------------
@@ -1182,9 +1188,10 @@ class BioSLAM:
         not rule out let their registrations' millimetres bend an odometry better than them
         (the rooms' SICK weaving route: 0.35 cm against the odometry's 0.30; 0.31 so). Taught
         by fewer than ``noise_min_closures_finished`` closures, the model is the untaught
-        one (:meth:`_finished_noise`). Where the model lets the odometry's jumps bend, the
-        map holds them instead when its own scans agree better so
-        (:meth:`bioslam.cognitive_map.CognitiveMap.hold_jumps_if_sharper`)."""
+        one (:meth:`_finished_noise`). Then the map's own scans judge two alternatives
+        (:meth:`bioslam.cognitive_map.CognitiveMap.adopt_if_sharper`): the odometry's jumps
+        held as any other step where the model lets them bend, and the settings' weighing
+        instead of the taught one."""
         self._relax_now()
         cmap = self.cognitive_map
         reweighed = False
@@ -1196,9 +1203,16 @@ class BioSLAM:
             # after a re-weighing the whole map: the weights changed everywhere
             cmap.solve(window=None if reweighed else -1)
             cmap.relax()
-        significance = self.config.cognitive_map.jump_hold_significance
-        self.jump_test = cmap.hold_jumps_if_sharper(significance)
-        if self.jump_test is not None:
+        # the jumps first, and the settings' weighing then tried with the jumps as decided:
+        # held or not, they change the map's shape where the weighing only spreads a
+        # correction (the other way round, a settings' model 0.01 mm sharper took the maze
+        # SICK reversing s72's jumps out of the test)
+        each = 0.5 * self.config.cognitive_map.scan_test_significance
+        self.jump_test = cmap.hold_jumps_if_sharper(each)
+        jumps = cmap.noise.jump_scale
+        settings = dataclasses.replace(configured_noise(cmap.config), jump_scale=jumps)
+        self.settings_test = cmap.adopt_if_sharper(settings, each)
+        if self.settings_test is not None or self.jump_test is not None:
             cmap.relax()
 
     def _finished_noise(self) -> LinkNoise:
@@ -1315,5 +1329,7 @@ class BioSLAM:
             # 0 where the finished map held the odometry's jumps (untaught_noise, or its
             # scans agreed better so: jumps_held_p below that significance)
             "link_noise_jump_scale": noise.jump_scale,
-            "jumps_held_p": None if self.jump_test is None else self.jump_test.p_second_sharper,
+            # the scans' tests of the finished map (None: nothing to choose)
+            "settings_noise_p": _p_value(self.settings_test),
+            "jumps_held_p": _p_value(self.jump_test),
         }
