@@ -48,7 +48,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np
 
-from bioslam.cognitive_map import configured_noise
+from bioslam.cognitive_map import configured_noise, untaught_noise
 from bioslam.config import SLAMConfig, config_from_dict
 from bioslam.consistency import SharpnessComparison, find_revisits, revisit_residuals
 from bioslam.evaluation import (
@@ -234,10 +234,9 @@ def noise_line(slam: BioSLAM) -> str:
     noise = slam.cognitive_map.noise
     accepted = sum(check.verdict.accepted for check in slam.checks)
     config = slam.cognitive_map.config
-    taught = len(slam.link_noise) >= config.noise_min_closures_finished
-    settings = "taught" if taught else "untaught"
-    if dataclasses.replace(noise, jump_scale=1.0) == configured_noise(config):
-        settings = "the settings'"
+    models = {"the settings'": configured_noise(config), "untaught": untaught_noise(config)}
+    settings = next((name for name, model in models.items()
+                     if dataclasses.replace(model, jump_scale=noise.jump_scale) == noise), "taught")
     jumps = "held" if noise.jump_scale == 0.0 else "free"
     return (
         f"  link noise from {len(slam.link_noise)} of {accepted} closures: odometry "

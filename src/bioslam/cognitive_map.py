@@ -233,9 +233,9 @@ class CognitiveMapConfig:
     #: closures, each within 1-3 cm of the truth, bent the map at them to twice the
     #: odometry's error (``benchmarks/README.md``, "A floor of identical blocks").
     untaught_jump_scale: float = 0.0
-    #: The finished map is weighed by the settings' model instead of the one the closures
-    #: taught, and then holds the jumps' links as any other step where its model lets them
-    #: bend, each where its own scans agree better so (:meth:`CognitiveMap.adopt_if_sharper`):
+    #: The finished map holds the jumps' links as any other step where its model lets them
+    #: bend, and then takes the settings' weighing instead of the one the closures taught,
+    #: each where its own scans agree better so (:meth:`CognitiveMap.adopt_if_sharper`):
     #: two tests, each at half this significance (family-wise, Bonferroni); 0: neither.
     scan_test_significance: float = 0.05
 
@@ -712,8 +712,6 @@ class _Picked(Sequence[Any]):
         return len(self._picked)
 
     def __getitem__(self, index: Any) -> Any:
-        if isinstance(index, slice):
-            return [self._items[k] for k in self._picked[index]]
         return self._items[self._picked[index]]
 
 

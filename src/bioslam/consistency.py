@@ -66,6 +66,15 @@ class Revisit:
     partners: IntArray
 
 
+def _ceil_div(a: int, b: int) -> int:
+    return -(-a // b)
+
+
+def _evenly(items: IntArray, most: int) -> IntArray:
+    """At most ``most`` of ``items``, evenly chosen (every n-th, from the first)."""
+    return items[:: _ceil_div(items.size, most)]
+
+
 def find_revisits(
     poses: ArrayLike, stamps: ArrayLike, config: RevisitConfig | None = None
 ) -> list[Revisit]:
@@ -81,8 +90,7 @@ def find_revisits(
         near = np.hypot(*(xy - xy[i]).T) <= cfg.radius_m
         other = np.flatnonzero(near & (np.abs(t - t[i]) >= cfg.min_gap_s))
         if other.size:
-            step = -(-other.size // cfg.max_partners)  # ceiling: at most max_partners kept
-            found.append(Revisit(i, other[::step]))
+            found.append(Revisit(i, _evenly(other, cfg.max_partners)))
     return found
 
 
@@ -134,9 +142,8 @@ def merge_revisits(*found: Sequence[Revisit], max_partners: int) -> list[Revisit
             partners.setdefault(revisit.scan, set()).update(int(j) for j in revisit.partners)
     merged = []
     for scan in sorted(partners):
-        other = np.array(sorted(partners[scan]), dtype=np.intp)
-        step = -(-other.size // max_partners)
-        merged.append(Revisit(scan, other[::step]))
+        merged.append(Revisit(scan, _evenly(np.array(sorted(partners[scan]), dtype=np.intp),
+                                            max_partners)))
     return merged
 
 
@@ -168,7 +175,7 @@ def compare_sharpness(
 
     cfg = config or RevisitConfig()
     t = np.asarray(stamps, dtype=np.float64).reshape(-1)
-    cfg = replace(cfg, every=max(cfg.every, -(-t.size // max(max_judged, 1))))
+    cfg = replace(cfg, every=max(cfg.every, _ceil_div(t.size, max(max_judged, 1))))
     revisits = merge_revisits(
         find_revisits(first, t, cfg), find_revisits(second, t, cfg),
         max_partners=cfg.max_partners,
