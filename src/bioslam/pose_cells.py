@@ -20,8 +20,10 @@ Design choices where the paper is silent, and the OpenRatSLAM pitfalls avoided:
 * Path integration works for any step size: each active cell's activity is moved by the real
   shift ``k·Δ`` and spread over the 2x2x2 cube by the fractional residue (Eq. 10 in scatter form);
   OpenRatSLAM's quadrant rotation only supports shifts below one cell per update.
-* Updates are sparse: after global inhibition most cells are exactly zero, so every operation
-  iterates over the list of active cells only (Numba), never over the whole network.
+* Updates are sparse: after global inhibition most cells are exactly zero, so path integration
+  and injection iterate over the list of active cells only (Numba), and the attractor step
+  over the box around them that its excitation reaches, never the whole network unless the
+  activity spreads round it.
 * Every constant is a named, documented field of ``PoseCellConfig``.
 * The discrete attractor pins a packet to the lattice: a packet shifted by a small fraction of
   a cell is pulled partly back by the next ``step`` (measured: it covers only 84% of the
@@ -164,132 +166,129 @@ def gaussian_kernel(var: float, radius: int) -> FloatArray:
 
 
 @njit(cache=True)
-def _conv_axis(src, src_idx, n_src, dst, dst_idx, mark, gen, g, r, stride, n, keep_src, min_src):
-    """Scatter ``src`` convolved with the 1-D kernel ``g`` along one wrapped axis into ``dst``.
-
-    Only the ``n_src`` listed source cells are read; the cells written are listed in
-    ``dst_idx`` (returned count). Unless ``keep_src``, the source cells are cleared. Sources
-    at or below ``min_src`` are skipped.
-    """
-    n_dst = 0
-    for t in range(n_src):
-        a = src_idx[t]
-        v = src[a]
-        if not keep_src:
-            src[a] = 0.0
-        if v <= min_src:
-            continue
-        c = (a // stride) % n
-        base = a - c * stride
-        for d in range(-r, r + 1):
-            cc = c + d
-            if cc < 0:
-                cc += n
-            elif cc >= n:
-                cc -= n
-            idx = base + cc * stride
-            if mark[idx] != gen:
-                mark[idx] = gen
-                dst[idx] = 0.0
-                dst_idx[n_dst] = idx
-                n_dst += 1
-            dst[idx] += v * g[d + r]
-    return n_dst
+def _covering_window(occupied, margin):
+    """``(start, length)`` of the shortest circular window of an axis that holds every
+    occupied coordinate, widened by ``margin`` cells each side; ``(0, n)``, the whole axis,
+    once that reaches round. (The window begins after the longest run of empty cells.)"""
+    n = occupied.size
+    longest, end, run = 0, 0, 0
+    for t in range(2 * n):
+        if occupied[t % n]:
+            if run > longest:
+                longest, end = run, t
+            run = 0
+        else:
+            run += 1
+    length = n - min(longest, n) + 2 * margin
+    if length >= n:
+        return 0, n
+    return (end - margin) % n, length
 
 
 @njit(cache=True)
-def _conv3(a, a_idx, n_a, b, b_idx, c, c_idx, mark, gen, g, r, nx, ny, nt, keep_src, min_src):
-    """Separable 3-D Gaussian: a -> b (x), b -> c (y), c -> b (θ); result in b / b_idx.
-    Sources of ``a`` at or below ``min_src`` are left out."""
-    # Constants as typed values (np.bool_, np.int64), not literals: Numba compiles a kernel
-    # again for every literal argument, which a first run (empty cache) pays for.
-    clear = np.bool_(False)
-    n_b = _conv_axis(a, a_idx, n_a, b, b_idx, mark, gen, g, r, ny * nt, nx, keep_src, min_src)
-    n_c = _conv_axis(b, b_idx, n_b, c, c_idx, mark, gen + 1, g, r, nt, ny, clear, 0.0)
-    return _conv_axis(c, c_idx, n_c, b, b_idx, mark, gen + 2, g, r, np.int64(1), nt, clear, 0.0)
+def _convolve_axis(src, dst, g, axis, wrap):
+    """``dst = src`` convolved with the 1-D kernel ``g`` along ``axis`` of a box: zero
+    beyond the box's ends, or ``wrap`` round them (a box that spans the whole axis). Each
+    kernel tap is a shifted multiply-add over the box, a loop the compiler vectorises."""
+    lx, ly, lt = src.shape
+    n = src.shape[axis]
+    r = (g.size - 1) // 2
+    dst[:, :, :] = 0.0
+    for d in range(-r, r + 1):
+        w = g[d + r]
+        # dst[c] += w * src[c - d] where c - d lies in the box; wrapped, the rest round it
+        for part in range(2 if wrap else 1):
+            if part == 0:
+                lo, hi, off = max(0, d), min(n, n + d), -d
+            elif d > 0:
+                lo, hi, off = 0, d, n - d
+            elif d < 0:
+                lo, hi, off = n + d, n, -d - n
+            else:
+                continue
+            if axis == 0:
+                for i in range(lo, hi):
+                    for j in range(ly):
+                        for k in range(lt):
+                            dst[i, j, k] += w * src[i + off, j, k]
+            elif axis == 1:
+                for i in range(lx):
+                    for j in range(lo, hi):
+                        for k in range(lt):
+                            dst[i, j, k] += w * src[i, j + off, k]
+            else:
+                for i in range(lx):
+                    for j in range(ly):
+                        for k in range(lo, hi):
+                            dst[i, j, k] += w * src[i, j, k + off]
 
 
 @njit(cache=True)
-def _attractor_step(
-    pc,
-    active,
-    n_active,
-    exc,
-    exc_idx,
-    inh,
-    inh_idx,
-    tmp_idx,
-    mark,
-    gen,
-    g_e,
-    r_e,
-    g_i,
-    r_i,
-    g_inhib,
-    nx,
-    ny,
-    nt,
-):
+def _convolve3(src, dst, spare, g, full_x, full_y, full_t):
+    """The separable 3-D Gaussian of ``g``: src -> dst along x, -> spare along y, -> dst
+    along θ. ``src`` is left as it was only if it is not ``spare``."""
+    _convolve_axis(src, dst, g, 0, full_x)
+    _convolve_axis(dst, spare, g, 1, full_y)
+    _convolve_axis(spare, dst, g, 2, full_t)
+
+
+@njit(cache=True)
+def _attractor_step(pc, active, n_active, g_e, g_i, g_inhib, nx, ny, nt):
     """Excite, inhibit locally, inhibit globally, normalise; returns the new active count.
 
-    The 3-D Gaussians are separable, so each is applied as three 1-D passes over the active
-    cells (~3·(2r+1) operations per cell instead of (2r+1)³).
+    The step works on the box of the network that the excitation can reach: the active cells'
+    shortest window on each wrapped axis, widened by the excitation kernel's radius. A cell
+    outside it is excited by nothing and cannot fire, and the inhibition a cell inside
+    receives comes from excited cells, all inside. The 3-D Gaussians are separable: three
+    1-D passes over the box each (measured against the active-cell scatter this replaced:
+    0.14 against 0.21 ms a step at the median, the same activity to 1e-16).
     """
-    # Local excitation: exc = W_E * PC (PC is cleared on the way).
-    n_exc = _conv3(
-        pc,
-        active,
-        n_active,
-        exc,
-        exc_idx,
-        inh,
-        tmp_idx,
-        mark,
-        gen,
-        g_e,
-        r_e,
-        nx,
-        ny,
-        nt,
-        np.bool_(False),  # typed, not literal: one compilation of _conv3 (see there)
-        0.0,
-    )
+    r = (g_e.size - 1) // 2
+    occupied_x = np.zeros(nx, dtype=np.bool_)
+    occupied_y = np.zeros(ny, dtype=np.bool_)
+    occupied_t = np.zeros(nt, dtype=np.bool_)
+    for t in range(n_active):
+        a = active[t]
+        occupied_x[a // (nt * ny)] = True
+        occupied_y[(a // nt) % ny] = True
+        occupied_t[a % nt] = True
+    sx, lx = _covering_window(occupied_x, r)
+    sy, ly = _covering_window(occupied_y, r)
+    st, lt = _covering_window(occupied_t, r)
+    box = np.zeros((lx, ly, lt))
+    for t in range(n_active):
+        a = active[t]
+        i, j, k = a // (nt * ny), (a // nt) % ny, a % nt
+        box[(i - sx) % nx, (j - sy) % ny, (k - st) % nt] = pc[a]
+        pc[a] = 0.0
+    spare = np.empty((lx, ly, lt))
+    # Local excitation: exc = W_E * PC
+    exc = np.empty((lx, ly, lt))
+    _convolve3(box, exc, spare, g_e, lx == nx, ly == ny, lt == nt)
     # Local inhibition from the excited state, as OpenRatSLAM: PC = exc - W_I * exc. A cell
     # excited no more than the global inhibition is silenced whatever its neighbours do, so it
     # is left out as a source: its inhibition is below that level (2e-5 of the total).
-    n_inh = _conv3(
-        exc,
-        exc_idx,
-        n_exc,
-        inh,
-        inh_idx,
-        pc,
-        tmp_idx,
-        mark,
-        gen + 3,
-        g_i,
-        r_i,
-        nx,
-        ny,
-        nt,
-        np.bool_(True),
-        g_inhib,
-    )
-    # Every excited cell above the global inhibition is in the inhibited support (the kernel
-    # centre is non-zero); the others cannot fire and are only cleared.
+    for i in range(lx):
+        for j in range(ly):
+            for k in range(lt):
+                v = exc[i, j, k]
+                box[i, j, k] = v if v > g_inhib else 0.0
+    inh = np.empty((lx, ly, lt))
+    _convolve3(box, inh, spare, g_i, lx == nx, ly == ny, lt == nt)
     total = 0.0
     n_new = 0
-    for t in range(n_inh):
-        idx = inh_idx[t]
-        v = exc[idx] - inh[idx] - g_inhib
-        inh[idx] = 0.0
-        if v > 0.0:
-            pc[idx] = v
-            total += v
-            active[n_new] = idx
-            n_new += 1
-    for t in range(n_exc):
-        exc[exc_idx[t]] = 0.0
+    for i in range(lx):
+        row = ((i + sx) % nx) * ny
+        for j in range(ly):
+            base = (row + (j + sy) % ny) * nt
+            for k in range(lt):
+                v = exc[i, j, k] - inh[i, j, k] - g_inhib
+                if v > 0.0:
+                    idx = base + (k + st) % nt
+                    pc[idx] = v
+                    total += v
+                    active[n_new] = idx
+                    n_new += 1
     if total > 0.0:
         for t in range(n_new):
             pc[active[t]] /= total
@@ -444,7 +443,8 @@ class PoseCellNetwork:
     """The 3-D continuous attractor network of Sec. III-C.
 
     ``activity`` is the (n_x, n_y, n_θ) array; layer ``k`` of the θ' axis represents the heading
-    ``k · cell_size_theta``. All updates touch only the active (non-zero) cells.
+    ``k · cell_size_theta``. Path integration and injection touch only the active (non-zero)
+    cells, the attractor step the box around them that its excitation reaches.
     """
 
     def __init__(self, config: PoseCellConfig | None = None) -> None:
@@ -453,14 +453,11 @@ class PoseCellNetwork:
         self.dims: tuple[int, int, int] = cfg.dims
         size = int(np.prod(self.dims))
         self._pc = np.zeros(size)
-        self._exc = np.zeros(size)
-        self._inh = np.zeros(size)
+        self._shifted = np.zeros(size)
         self._mark = np.zeros(size, dtype=np.int64)
         self._gen = 0
         self._active = np.zeros(size, dtype=np.int64)
-        self._exc_idx = np.zeros(size, dtype=np.int64)
-        self._inh_idx = np.zeros(size, dtype=np.int64)
-        self._tmp_idx = np.zeros(size, dtype=np.int64)
+        self._touched = np.zeros(size, dtype=np.int64)
         self._n_active = 0
         self._g_e = gaussian_kernel_1d(cfg.excite_var, cfg.excite_radius)
         self._g_i = gaussian_kernel_1d(cfg.inhibit_var, cfg.inhibit_radius)
@@ -505,7 +502,8 @@ class PoseCellNetwork:
         return int(self._n_active)
 
     def _next_gen(self) -> int:
-        # Each Numba pass marks the cells it writes with its own generation; a step uses six.
+        # Each scattering kernel (path integration, injection) marks the cells it writes with
+        # a generation of its own.
         self._gen += 8
         return self._gen
 
@@ -561,10 +559,10 @@ class PoseCellNetwork:
                 self._pc,
                 self._active,
                 self._n_active,
-                self._exc,
+                self._shifted,
                 self._mark,
                 self._next_gen(),
-                self._exc_idx,
+                self._touched,
                 float(dp[0]),
                 float(dp[1]),
                 float(dp[2]),
@@ -617,26 +615,10 @@ class PoseCellNetwork:
         nx, ny, nt = self.dims
         self._n_active = int(
             _attractor_step(
-                self._pc,
-                self._active,
-                self._n_active,
-                self._exc,
-                self._exc_idx,
-                self._inh,
-                self._inh_idx,
-                self._tmp_idx,
-                self._mark,
-                self._next_gen(),
-                self._g_e,
-                cfg.excite_radius,
-                self._g_i,
-                cfg.inhibit_radius,
-                cfg.global_inhibition,
-                nx,
-                ny,
-                nt,
+                self._pc, self._active, self._n_active, self._g_e, self._g_i,
+                cfg.global_inhibition, nx, ny, nt,
             )
-        )
+        )  # fmt: skip
         if self._n_active == 0:
             # Activity spread thin (e.g. many path integrations without a step) falls below
             # the global inhibition everywhere; re-seed rather than stop the run.
