@@ -223,3 +223,49 @@ def test_view_links_and_fatigue_cost_few_bytes_a_view_and_keep_their_values():
     assert net.view_links[n + 10].tobytes() == centre.tobytes() and n + 9 not in net.view_links
     with pytest.raises(KeyError):
         net.view_links[n + 9]
+
+
+def _with_activity(activity: np.ndarray) -> PoseCellNetwork:
+    net = PoseCellNetwork(PoseCellConfig(dims=DIMS))
+    flat = activity.reshape(-1)
+    (cells,) = np.nonzero(flat)
+    net._pc[:] = flat
+    net._active[: cells.size] = cells
+    net._n_active = cells.size
+    return net
+
+
+def _dense_step(activity: np.ndarray, cfg: PoseCellConfig) -> np.ndarray:
+    """Sec. III-C's step over the whole wrapped network, as OpenRatSLAM computes it."""
+    from scipy.ndimage import convolve
+
+    excite = gaussian_kernel(cfg.excite_var, cfg.excite_radius)
+    inhibit = gaussian_kernel(cfg.inhibit_var, cfg.inhibit_radius)
+    exc = convolve(activity, excite, mode="wrap")
+    sources = np.where(exc > cfg.global_inhibition, exc, 0.0)
+    new = np.maximum(exc - convolve(sources, inhibit, mode="wrap") - cfg.global_inhibition, 0.0)
+    return new / new.sum()
+
+
+@pytest.mark.parametrize(
+    "cells",
+    [
+        [(20, 0, 35), (0, 20, 0), (19, 1, 34)],  # one packet across all three seams
+        [(3, 4, 5), (14, 15, 23)],  # two packets far apart on every axis
+        [(10, 10, k) for k in range(0, 36, 3)],  # activity round the whole heading axis
+        [(i, (7 * i) % 21, (5 * i) % 36) for i in range(21)],  # spread over the network
+    ],
+)
+def test_the_step_on_the_box_equals_the_step_over_the_whole_wrapped_network(cells):
+    rng = np.random.default_rng(len(cells))
+    activity = np.zeros(DIMS)
+    for cell in cells:
+        activity[cell] = rng.uniform(0.2, 1.0)
+    activity /= activity.sum()
+    net = _with_activity(activity)
+    for _ in range(3):
+        expected = _dense_step(activity, net.config)
+        net.step()
+        np.testing.assert_allclose(net.activity, expected, rtol=0, atol=1e-15)
+        assert net.active_count == np.count_nonzero(expected)
+        activity = expected
