@@ -13,7 +13,11 @@ For each case (world, scanner, route):
   within 0.5 m of where it was at least ``--gap`` metres of travel earlier, and is *recognised*
   when a true closure was accepted in it; also split by the heading offset from the earlier
   pass (median over the bin): up to 30 deg, 30-90 deg, and beyond 90 deg (the other way: a
-  180 or 270 deg scanner then shares little or nothing of its field of view with it);
+  180 or 270 deg scanner then shares little or nothing of its field of view with it); and,
+  with the revisits taken out to 1 m beside the earlier pass, by how far beside it the robot
+  ran (median over the bin): under 0.25 m, 0.25-0.5, 0.5-0.75, 0.75-1 m (both cues and the
+  verification together: the views alone recognise a place within about 5 cm sideways,
+  ``bench_views.py``);
 * ATE RMSE of the full system and of its own odometry;
 * revisit sharpness (:mod:`bioslam.consistency`): at the scans where the robot came back
   within 3 m of a pass 30 s or more earlier (chosen on the truth, a log's reference, or the
@@ -258,15 +262,29 @@ def _test_text(test: SharpnessComparison | None, first: str, second: str) -> str
 
 #: Heading-offset classes of revisits (degrees from the earlier pass), as reported.
 OFFSET_CLASSES = ((0.0, 30.0, "<=30deg"), (30.0, 90.0, "30-90deg"), (90.0, 180.1, ">90deg"))
+#: how far beside the earlier pass a revisit ran (the median over its bin), metres
+SIDEWAYS_CLASSES = ((0.0, 0.25, "<0.25m"), (0.25, 0.5, "0.25-0.5m"), (0.5, 0.75, "0.5-0.75m"),
+                    (0.75, 1.0, "0.75-1m"))  # fmt: skip
+SIDEWAYS_REACH = SIDEWAYS_CLASSES[-1][1]
 
 
-def revisit_bins(gt: Trajectory, gap: float) -> tuple[np.ndarray, dict[int, float]]:
-    """The travel bin of every pose and, per revisit bin, the median heading offset (deg)
-    from the earlier pass where the robot came within ``TRUE_DISTANCE`` of it."""
+@dataclass(frozen=True)
+class Revisit:
+    """A revisit bin's median heading offset (deg) and distance (m) from the earlier pass."""
+
+    heading: float
+    distance: float
+
+
+def revisit_bins(
+    gt: Trajectory, gap: float, reach: float = TRUE_DISTANCE
+) -> tuple[np.ndarray, dict[int, Revisit]]:
+    """The travel bin of every pose and, per revisit bin (the robot within ``reach`` of
+    where it was ``gap`` metres of travel or more before), its offsets from that pass."""
     xy = gt.poses[:, :2]
     travel = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
     bins = np.floor(travel).astype(np.int64)
-    offsets: dict[int, list[float]] = {}
+    near: dict[int, list[tuple[float, float]]] = {}
     # a sparse sample of the route is enough to find where it was before
     sample = np.arange(0, len(xy), max(1, len(xy) // 4000))
     for i in sample:
@@ -275,10 +293,11 @@ def revisit_bins(gt: Trajectory, gap: float) -> tuple[np.ndarray, dict[int, floa
             continue
         d = np.hypot(*(xy[old] - xy[i]).T)
         j = int(np.argmin(d))
-        if d[j] <= TRUE_DISTANCE:
+        if d[j] <= reach:
             turn = abs(math.degrees(wrap_angle(gt.poses[i, 2] - gt.poses[old[j], 2])))
-            offsets.setdefault(int(bins[i]), []).append(turn)
-    return bins, {b: float(np.median(v)) for b, v in offsets.items()}
+            near.setdefault(int(bins[i]), []).append((turn, float(d[j])))
+    medians = {b: np.median(np.array(v), axis=0) for b, v in near.items()}
+    return bins, {b: Revisit(float(m[0]), float(m[1])) for b, m in medians.items()}
 
 
 def bins_at(gt: Trajectory, bins: np.ndarray, stamps: np.ndarray) -> np.ndarray:
@@ -286,17 +305,34 @@ def bins_at(gt: Trajectory, bins: np.ndarray, stamps: np.ndarray) -> np.ndarray:
     return bins[np.clip(np.searchsorted(gt.stamps, stamps), 0, len(bins) - 1)]
 
 
+def _recall_by(
+    revisits: dict[int, Revisit], hit: set, classes: tuple, of: Callable[[Revisit], float]
+) -> dict[str, tuple[int, int]]:
+    out = {}
+    for lo, hi, name in classes:
+        members = [b for b, revisit in revisits.items() if lo <= of(revisit) < hi]
+        out[name] = (len(members), sum(b in hit for b in members))
+    return out
+
+
 def revisit_recall(
     gt: Trajectory, true_stamps: np.ndarray, gap: float
 ) -> dict[str, tuple[int, int]]:
     """(revisit bins, recognised bins), all and per heading-offset class (module docstring)."""
-    bins, offsets = revisit_bins(gt, gap)
+    bins, revisits = revisit_bins(gt, gap)
     hit = set(bins_at(gt, bins, true_stamps).tolist())
-    out = {"all": (len(offsets), sum(b in hit for b in offsets))}
-    for lo, hi, name in OFFSET_CLASSES:
-        members = [b for b, turn in offsets.items() if lo <= turn < hi]
-        out[name] = (len(members), sum(b in hit for b in members))
-    return out
+    out = {"all": (len(revisits), sum(b in hit for b in revisits))}
+    return out | _recall_by(revisits, hit, OFFSET_CLASSES, lambda r: r.heading)
+
+
+def sideways_recall(
+    gt: Trajectory, true_stamps: np.ndarray, gap: float
+) -> dict[str, tuple[int, int]]:
+    """(revisit bins, recognised bins) per class of distance from the earlier pass, the
+    revisits taken out to ``SIDEWAYS_REACH`` beside it (module docstring)."""
+    bins, revisits = revisit_bins(gt, gap, SIDEWAYS_REACH)
+    hit = set(bins_at(gt, bins, true_stamps).tolist())
+    return _recall_by(revisits, hit, SIDEWAYS_CLASSES, lambda r: r.distance)
 
 
 def revisit_stages(
@@ -306,14 +342,14 @@ def revisit_stages(
     in it); ``refused <reason>`` (checks ran and the verification refused them all, by the
     bin's most frequent reason; ``accepted false`` if only a false one passed); ``no check``
     (no candidate from either cue reached the verification)."""
-    bins, offsets = revisit_bins(gt, gap)
+    bins, revisits = revisit_bins(gt, gap)
     hit = set(bins_at(gt, bins, true_stamps).tolist())
     reasons: dict[int, list[str]] = {}
     stamps = np.array([c.stamp for c in checks])
     for check, b in zip(checks, bins_at(gt, bins, stamps), strict=True):
         reasons.setdefault(int(b), []).append(check.verdict.reason or "accepted false")
     out: dict[str, int] = {}
-    for b in offsets:
+    for b in revisits:
         if b in hit:
             stage = "recognised"
         elif b in reasons:
@@ -323,6 +359,12 @@ def revisit_stages(
             stage = "no check"
         out[stage] = out.get(stage, 0) + 1
     return out
+
+
+def _shares(recall: dict[str, tuple[int, int]]) -> str:
+    return ", ".join(
+        f"{name} {hit}/{n}" + (f" {hit / n:.2f}" if n else "") for name, (n, hit) in recall.items()
+    )
 
 
 def report(
@@ -336,10 +378,8 @@ def report(
     recall = revisit_recall(gt, np.array([e[0] for e in true]), gap)
     revisits, recognised = recall["all"]
     stages = revisit_stages(gt, slam.checks, np.array([e[0] for e in true]), gap)
-    by_offset = ", ".join(
-        f"{name} {hit}/{n}" + (f" {hit / n:.2f}" if n else "")
-        for name, (n, hit) in recall.items() if name != "all"
-    )
+    by_offset = _shares({k: v for k, v in recall.items() if k != "all"})
+    by_distance = _shares(sideways_recall(gt, np.array([e[0] for e in true]), gap))
     by = checks_by_outcome(slam)
     full = evaluate(slam.trajectory(), gt)["ate_rmse_m"]
     odo = evaluate(slam.odometry_trajectory(), gt)["ate_rmse_m"]
@@ -359,6 +399,8 @@ def report(
         f"  revisit bins {revisits}, recognised {recognised}, recall "
         f"{recognised / max(revisits, 1):.3f}; loop links {slam.summary()['loop_closures']}",
         f"  recall by heading offset from the earlier pass: {by_offset}",
+        f"  recall by distance from the earlier pass (revisits within {SIDEWAYS_REACH:g} m):"
+        f" {by_distance}",
         "  revisit bins by stage: "
         + ", ".join(f"{k} {v}" for k, v in sorted(stages.items(), key=lambda kv: -kv[1])),
         f"  ATE RMSE full {100 * full:.2f} cm, odometry {100 * odo:.2f} cm",
