@@ -491,6 +491,12 @@ def run_slam(
     if rows is not None:
         result.scan_seconds = rows(np.float64, 0)
     if options.warm_up:
+        if options.progress:
+            # on a first run the compiling takes up to a minute before the bar shows
+            print(
+                "warming up: the kernels compile on a first run (up to a minute), then load "
+                "from the cache", file=sys.stderr, flush=True,
+            )  # fmt: skip
         try:
             with signals.interruptible():
                 result.startup_s = warm_up(config, options.odometry_only)
