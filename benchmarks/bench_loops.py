@@ -193,7 +193,8 @@ def correction_lines(slam: BioSLAM, truth: Trajectory) -> list[str]:
     loop links left out (the odometry's own, through the map), and with the links weighed
     by the configured link noise instead of the one the closures taught (:func:`noise_line`).
     A full ATE above the true closures' is the registrations' error; true closures no better
-    than none say that the closures have nothing to correct there."""
+    than none say that the closures have nothing to correct there. (Where the finished map
+    dropped its closures, each re-solve weighs them nothing.)"""
     cmap = slam.cognitive_map
     if cmap.num_links == 0:
         return []
@@ -224,7 +225,8 @@ def correction_lines(slam: BioSLAM, truth: Trajectory) -> list[str]:
         f"  ATE re-solved: as run {as_run:.2f} cm, true closures "
         f"{ate_cm(cmap.solved(with_true_loops)):.2f}, all links true "
         f"{ate_cm(cmap.solved(true)):.2f}, no closures {ate_cm(cmap.solved(loops=False)):.2f}"
-        f", the configured link noise {configured:.2f}",
+        f", the configured link noise {configured:.2f}"
+        + (" (the closures dropped: weighing nothing in each)" if cmap.closures_dropped else ""),
         noise_line(slam),
     ]
 
@@ -248,7 +250,9 @@ def noise_line(slam: BioSLAM) -> str:
         f"closure {100 * math.sqrt(noise.closure_var):.2f} cm / "
         f"{math.degrees(math.sqrt(noise.closure_heading_var)):.3f} deg; model "
         f"{settings}{_test_text(slam.settings_test, 'taught', 'settings')}, jumps "
-        f"{jumps}{_test_text(slam.jump_test, 'free', 'held')}"
+        f"{jumps}{_test_text(slam.jump_test, 'free', 'held')}, closures "
+        f"{'dropped' if slam.cognitive_map.closures_dropped else 'kept'}"
+        f"{_test_text(slam.closures_test, 'kept', 'dropped')}"
     )
 
 

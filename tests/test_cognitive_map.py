@@ -1060,6 +1060,32 @@ def test_the_finished_map_takes_a_weighing_its_scans_agree_with_and_keeps_its_ow
     assert cm.noise == trusting and _rms(cm, truth) == pytest.approx(corrected)
 
 
+def test_the_finished_map_drops_closures_its_scans_disagree_with_and_keeps_those_they_agree_with():
+    """The odometry is exact but for the last step, 8 cm off, where the closure back at the
+    start measures the truth: weighed as surer than the odometry over the hall, the closure
+    bends the whole map by most of the 8 cm. The experiences' scans agree better with the
+    odometry's chain, and the finished map lets its loop link weigh nothing. Where the
+    odometry jumped 0.4 m along the hall and the closure takes it back, the scans agree
+    better with the closure, and it is kept."""
+    sure = dataclasses.replace(untaught_noise(CognitiveMapConfig()), closure_var=1e-8)
+    cm, truth = hall_and_back((), (0, 0.0), 0.08, sure)
+    bent = _rms(cm, truth)
+    assert bent > 0.02
+    test = cm.drop_closures_if_sharper(0.05)
+    assert test is not None and test.p_second_sharper < 0.01 and cm.closures_dropped
+    assert _rms(cm, truth) < 0.002 and cm.loop_closures == 1
+    cm.relax()  # what the finish runs after its tests: the loop link still weighs nothing
+    assert _rms(cm, truth) < 0.002
+
+    free = dataclasses.replace(untaught_noise(CognitiveMapConfig()), jump_scale=1.0)
+    cm, truth = hall_and_back((18,), (18, 0.4), 0.0, free)
+    corrected = _rms(cm, truth)
+    test = cm.drop_closures_if_sharper(0.05)
+    assert test is not None and test.p_second_sharper > 0.5 and not cm.closures_dropped
+    assert _rms(cm, truth) == pytest.approx(corrected) and corrected < 0.02
+    assert cm.drop_closures_if_sharper(0.0) is None
+
+
 def test_has_link_knows_each_added_direction_and_no_other():
     """The map asks whether a link from one place to another exists (a loop link is made
     only where none is) of its adjacency arrays, not of a set of every pair."""

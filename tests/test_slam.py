@@ -127,10 +127,11 @@ def test_drift_free_run_stays_accurate(ring_drive):
     odometry = ate(slam.odometry_trajectory(), gt)["rmse"]
 
     def bent(polish: bool, learn_noise: bool = False) -> float:
-        """How much a run's closures bend this drift-free odometry (m of ATE)."""
+        """How much a run's closures bend this drift-free odometry (m of ATE), the finished
+        map's scans left out of it (they would drop closures that bend it)."""
         settings = {
             "loop_closure": {"polish": polish, "max_scan_bend": 1e3},
-            "cognitive_map": {"learn_noise": learn_noise},
+            "cognitive_map": {"learn_noise": learn_noise, "scan_test_significance": 0.0},
         }
         bent_run = run(scans, config_from_dict(settings, "test"))
         return ate(bent_run.trajectory(), gt)["rmse"] - odometry
@@ -948,11 +949,20 @@ def test_closures_slid_along_their_corridor_do_not_pull_the_map(ring_drive, monk
     odometry = ate(slam.odometry_trajectory(), gt)["rmse"]
     assert slam.summary()["loop_closures"] >= 10
     assert full < 1.5 * odometry and full < 0.01
-    # (the link noise model left as configured: learned, it would discount the slides too)
-    unchecked = run(scans, config_from_dict(
-        {"loop_closure": {"weak_margin": 0.0}, "cognitive_map": {"learn_noise": False}}, "test"
+    # (the link noise model left as configured: learned, it would discount the slides too;
+    # and the finished map's scans not asked: they would drop the closures, below)
+    unchecked = {"loop_closure": {"weak_margin": 0.0}, "cognitive_map": {"learn_noise": False}}
+    bent = run(scans, config_from_dict(
+        {**unchecked, "cognitive_map": {"learn_noise": False, "scan_test_significance": 0.0}},
+        "test",
     ))  # fmt: skip
-    assert ate(unchecked.trajectory(), gt)["rmse"] > 3.0 * odometry
+    assert ate(bent.trajectory(), gt)["rmse"] > 3.0 * odometry
+    # Asked, the experiences' scans agree better with the odometry's chain than with the map
+    # the slid closures bent: the finished map lets them weigh nothing.
+    judged = run(scans, config_from_dict(unchecked, "test"))
+    assert judged.summary()["closures_dropped"] and judged.closures_test is not None
+    assert judged.closures_test.p_second_sharper < 0.05 / 3
+    assert ate(judged.trajectory(), gt)["rmse"] < 1.01 * odometry
 
 
 def test_the_first_scan_of_a_sweeping_scanner_is_kept_for_no_closure(ring_drive):

@@ -457,6 +457,8 @@ class BioSLAM:
         #: was nothing to choose
         self.settings_test: SharpnessComparison | None = None
         self.jump_test: SharpnessComparison | None = None
+        #: and of the map with its loop links weighing nothing (the odometry's chain)
+        self.closures_test: SharpnessComparison | None = None
 
     # --- the per-scan update ---------------------------------------------------------------
 
@@ -1188,10 +1190,11 @@ class BioSLAM:
         not rule out let their registrations' millimetres bend an odometry better than them
         (the rooms' SICK weaving route: 0.35 cm against the odometry's 0.30; 0.31 so). Taught
         by fewer than ``noise_min_closures_finished`` closures, the model is the untaught
-        one (:meth:`_finished_noise`). Then the map's own scans judge two alternatives
+        one (:meth:`_finished_noise`). Then the map's own scans judge three alternatives
         (:meth:`bioslam.cognitive_map.CognitiveMap.adopt_if_sharper`): the odometry's jumps
-        held as any other step where the model lets them bend, and the settings' weighing
-        instead of the taught one."""
+        held as any other step where the model lets them bend, the settings' weighing
+        instead of the taught one, and last the map without its closures' weight
+        (:meth:`~bioslam.cognitive_map.CognitiveMap.drop_closures_if_sharper`)."""
         self._relax_now()
         cmap = self.cognitive_map
         reweighed = False
@@ -1207,12 +1210,14 @@ class BioSLAM:
         # held or not, they change the map's shape where the weighing only spreads a
         # correction (the other way round, a settings' model 0.01 mm sharper took the maze
         # SICK reversing s72's jumps out of the test)
-        each = 0.5 * self.config.cognitive_map.scan_test_significance
+        each = self.config.cognitive_map.scan_test_significance / 3.0
         self.jump_test = cmap.hold_jumps_if_sharper(each)
         jumps = cmap.noise.jump_scale
         settings = dataclasses.replace(configured_noise(cmap.config), jump_scale=jumps)
         self.settings_test = cmap.adopt_if_sharper(settings, each)
-        if self.settings_test is not None or self.jump_test is not None:
+        # last, the map as weighed against none of its closures
+        self.closures_test = cmap.drop_closures_if_sharper(each)
+        if any(t is not None for t in (self.jump_test, self.settings_test, self.closures_test)):
             cmap.relax()
 
     def _finished_noise(self) -> LinkNoise:
@@ -1332,4 +1337,8 @@ class BioSLAM:
             # the scans' tests of the finished map (None: nothing to choose)
             "settings_noise_p": _p_value(self.settings_test),
             "jumps_held_p": _p_value(self.jump_test),
+            # the map the odometry's chain, its closures weighing nothing (the test's p below
+            # a third of cognitive_map.scan_test_significance)
+            "closures_dropped": cmap.closures_dropped,
+            "closures_dropped_p": _p_value(self.closures_test),
         }
