@@ -273,7 +273,7 @@ SIDEWAYS_REACH = SIDEWAYS_CLASSES[-1][1]
 
 
 @dataclass(frozen=True)
-class Revisit:
+class RevisitBin:
     """A revisit bin's median heading offset (deg) and distance (m) from the earlier pass."""
 
     heading: float
@@ -282,7 +282,7 @@ class Revisit:
 
 def revisit_bins(
     gt: Trajectory, gap: float, reach: float = TRUE_DISTANCE
-) -> tuple[np.ndarray, dict[int, Revisit]]:
+) -> tuple[np.ndarray, dict[int, RevisitBin]]:
     """The travel bin of every pose and, per revisit bin (the robot within ``reach`` of
     where it was ``gap`` metres of travel or more before), its offsets from that pass."""
     xy = gt.poses[:, :2]
@@ -301,7 +301,7 @@ def revisit_bins(
             turn = abs(math.degrees(wrap_angle(gt.poses[i, 2] - gt.poses[old[j], 2])))
             near.setdefault(int(bins[i]), []).append((turn, float(d[j])))
     medians = {b: np.median(np.array(v), axis=0) for b, v in near.items()}
-    return bins, {b: Revisit(float(m[0]), float(m[1])) for b, m in medians.items()}
+    return bins, {b: RevisitBin(float(m[0]), float(m[1])) for b, m in medians.items()}
 
 
 def bins_at(gt: Trajectory, bins: np.ndarray, stamps: np.ndarray) -> np.ndarray:
@@ -310,7 +310,7 @@ def bins_at(gt: Trajectory, bins: np.ndarray, stamps: np.ndarray) -> np.ndarray:
 
 
 def _recall_by(
-    revisits: dict[int, Revisit], hit: set, classes: tuple, of: Callable[[Revisit], float]
+    revisits: dict[int, RevisitBin], hit: set, classes: tuple, of: Callable[[RevisitBin], float]
 ) -> dict[str, tuple[int, int]]:
     out = {}
     for lo, hi, name in classes:

@@ -701,7 +701,9 @@ WEIGHTLESS = 1e-12
 
 
 def _has_points(payload: Any) -> bool:
-    return payload is not None and len(payload) > 0
+    """Whether a payload is points (n, 2) with some: what a scan test can place (a payload
+    may be anything else a caller keeps with its experiences)."""
+    return payload is not None and np.ndim(payload) == 2 and len(payload) > 0
 
 
 class _Picked(Sequence[Any]):
@@ -917,6 +919,9 @@ class CognitiveMap:
         self._stamps = GrowingArray(np.float64, capacity=64)
         self._view_ids = GrowingArray(np.int64, capacity=64)
         self._payloads: MutableSequence[Any] = payloads if payloads is not None else []
+        # which experiences' payloads hold points (what the finished map's scan tests
+        # judge), known when each is made: a spilled store's scans stay on disk until read
+        self._scanned = GrowingArray(np.bool_, capacity=64)
         # the experiences of each view, oldest first, as linked lists in flat arrays (each
         # view's first and last experience, each experience's next): 16 bytes a view and 8
         # an experience instead of a dict entry and an array each (about 180 bytes a view)
@@ -1239,6 +1244,7 @@ class CognitiveMap:
         self._stamps.append(stamp)
         self._view_ids.append(vid)
         self._payloads.append(payload)
+        self._scanned.append(_has_points(payload))
         self._next_of_view.append(-1)
         if vid in self._view_last:
             self._next_of_view.view()[self._view_last[vid]] = eid
@@ -1279,7 +1285,10 @@ class CognitiveMap:
         measured) and their weights under ``noise``."""
         terms = self._link_terms.view()
         modelled = np.isfinite(terms[:, 0])
-        return modelled, information_of(terms[modelled], noise, self.config.link_var_floor)
+        weights = information_of(terms[modelled], noise, self.config.link_var_floor)
+        if self.closures_dropped:  # under any model (:meth:`drop_closures_if_sharper`)
+            weights[self._link_loop.view()[modelled]] = WEIGHTLESS
+        return modelled, weights
 
     def set_noise(self, noise: LinkNoise) -> None:
         """Weigh every link by the noise model ``noise`` from now on (:mod:`bioslam.link_noise`);
@@ -1640,7 +1649,7 @@ class CognitiveMap:
         poses = self._poses.view()
         if np.max(np.hypot(*(other[:, :2] - poses[:, :2]).T)) < SAME_MAP_M:
             return None
-        scanned = [k for k in range(len(self)) if _has_points(self._payloads[k])]
+        scanned = np.flatnonzero(self._scanned.view())
         return compare_sharpness(
             _Picked(self._payloads, scanned), self._stamps.view()[scanned], poses[scanned],
             other[scanned],

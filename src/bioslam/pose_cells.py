@@ -227,9 +227,11 @@ def _convolve_axis(src, dst, g, axis, wrap):
 def _convolve3(src, dst, spare, g, full_x, full_y, full_t):
     """The separable 3-D Gaussian of ``g``: src -> dst along x, -> spare along y, -> dst
     along θ. ``src`` is left as it was only if it is not ``spare``."""
-    _convolve_axis(src, dst, g, 0, full_x)
-    _convolve_axis(dst, spare, g, 1, full_y)
-    _convolve_axis(spare, dst, g, 2, full_t)
+    # the axes as typed values, not literals: Numba compiles a kernel again for every
+    # literal argument, which a first run (an empty cache) pays for
+    _convolve_axis(src, dst, g, np.int64(0), full_x)
+    _convolve_axis(dst, spare, g, np.int64(1), full_y)
+    _convolve_axis(spare, dst, g, np.int64(2), full_t)
 
 
 @njit(cache=True)
