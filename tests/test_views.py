@@ -193,3 +193,34 @@ def test_a_scanner_whose_angles_count_down_recognises_its_views(bc):
     first = vc.observe(bc.activity(down), coverage=bc.coverage(down))
     again = vc.observe(bc.activity(down), coverage=bc.coverage(down))
     assert first.is_new and not again.is_new and again.view_id == first.view_id
+
+
+@pytest.mark.parametrize("steps, reach", [(4, 1), (4, 0), (3, 2), (8, 1)])
+def test_a_turn_plan_tries_each_views_rounded_fraction_and_its_neighbours_as_few_turns(
+    steps, reach
+):
+    from bioslam.views import _turn_plan
+
+    left_over = np.array([-0.5, -0.3, -0.125, 0.0, 0.2, 0.375, 0.49])
+    whole, step, turns, which = _turn_plan(left_over, steps, reach)
+    tried = np.round(left_over * steps).astype(np.int64)[:, None] + np.arange(-reach, reach + 1)
+    # each try turns by whole bins and a step no bigger than half a bin either way
+    np.testing.assert_array_equal(whole * steps + step, tried)
+    assert np.all((step >= -(steps // 2)) & (step < steps - steps // 2))
+    # each distinct turn once, in order, and every try points at its own
+    np.testing.assert_array_equal(turns, np.unique(step))
+    np.testing.assert_array_equal(turns[which], step)
+
+
+def test_shift_windows_centre_on_each_views_heading_and_span_the_ring_without_one():
+    from bioslam.views import _shift_windows
+
+    cols, reach = 36, 2
+    centre = np.array([0.3, -4.6, 17.5, np.nan, 18.5])
+    lo, hi, left_over = _shift_windows(centre, reach, cols)
+    np.testing.assert_array_equal(lo, [-2, -7, 16, 0, 16])
+    np.testing.assert_array_equal(hi, [2, -3, 20, cols - 1, 20])
+    np.testing.assert_allclose(left_over, [0.3, 0.4, -0.5, 0.0, 0.5])
+    # a reach past half the ring compares each shift once
+    lo, hi, _ = _shift_windows(np.array([3.0]), cols, cols)
+    assert hi[0] - lo[0] == cols - 1

@@ -352,6 +352,64 @@ def _one_bin_difference(b: FloatArray, cover: NDArray[np.bool_], cols: int) -> f
 
 
 @njit(cache=True)
+def _shift_windows(
+    centre: FloatArray, reach: int, cols: int
+) -> tuple[IntArray, IntArray, FloatArray]:
+    """The whole-bin shifts (``lo`` to ``hi``) each view is compared at, from the shift its
+    learned heading gives (``centre``, in bins; NaN for a view learned without one): within
+    ``reach`` bins of it, never more than a whole ring, every shift where it is NaN. And the
+    fraction of a bin (``left_over``) it leaves over the nearest whole shift (0 where NaN).
+    One pass: this runs at every look of the rotation search."""
+    n = centre.size
+    lo = np.zeros(n, dtype=np.int64)
+    hi = np.full(n, cols - 1, dtype=np.int64)
+    left_over = np.zeros(n)
+    for k in range(n):
+        if not math.isfinite(centre[k]):
+            continue
+        mid = np.round(centre[k])
+        lo[k] = np.int64(mid) - reach
+        hi[k] = min(np.int64(mid) + reach, np.int64(mid) - reach + cols - 1)
+        left_over[k] = centre[k] - mid
+    return lo, hi, left_over
+
+
+@njit(cache=True)
+def _turn_plan(
+    left_over: FloatArray, steps: int, reach: int
+) -> tuple[IntArray, IntArray, IntArray, IntArray]:
+    """The turns of the scan each view is compared at (:meth:`ViewCells._turned_similarities`):
+    its ``left_over`` fraction of a bin rounded to ``1 / steps`` of one, and ``reach`` steps
+    either side. A turn of ``t`` steps is one of ``step`` steps (``-steps // 2`` up to
+    ``steps - steps // 2 - 1``) with the shifts ``whole`` bins on. Returns ``whole`` and
+    ``step`` (views x tries), the distinct ``turns`` in ascending order and ``which`` of
+    them each try uses."""
+    n, tries, half = left_over.size, 2 * reach + 1, steps // 2
+    whole = np.empty((n, tries), dtype=np.int64)
+    step = np.empty((n, tries), dtype=np.int64)
+    used = np.zeros(steps, dtype=np.bool_)
+    for k in range(n):
+        first = np.int64(np.round(left_over[k] * steps)) - reach
+        for j in range(tries):
+            shifted = first + j + half
+            whole[k, j] = shifted // steps  # floor division, as np.divmod
+            step[k, j] = shifted - whole[k, j] * steps - half
+            used[step[k, j] + half] = True
+    index = np.full(steps, -1, dtype=np.int64)
+    turns = np.empty(steps, dtype=np.int64)
+    count = 0
+    for t in range(steps):
+        if used[t]:
+            index[t], turns[count] = count, t - half
+            count += 1
+    which = np.empty((n, tries), dtype=np.int64)
+    for k in range(n):
+        for j in range(tries):
+            which[k, j] = index[step[k, j] + half]
+    return whole, step, turns[:count], which
+
+
+@njit(cache=True)
 def _key_distances(chunks: Any, n: int, key: FloatArray) -> FloatArray:
     # Squared distances of the first ``n`` views' ring keys to ``key``, without the
     # (n, rings) temporaries of the NumPy expression: this runs at every look of a partial
@@ -576,7 +634,8 @@ class ViewCells:
         # Eq. 6's sum does not survive a turn of a scanner that sees part of each ring (what
         # leaves the field of view differs): such scans are compared with the views nearest
         # in mean activity per ring instead.
-        ids = self._candidates(h) if cover.all() else self._nearest_keys(b, cover)
+        key = self._ring_key(b, cover)
+        ids = self._candidates(h) if cover.all() else self._nearest_keys(key)
         shifts = np.zeros(ids.size)
         if self.cells_per_ring is None:
             if heading is not None and ids.size:
@@ -590,7 +649,7 @@ class ViewCells:
             self._last_ids, self._last_v = ids, np.asarray(V)
             offset = float(wrap_angle(shifts[chosen] * self._bin_angle()))
             return ViewMatch(int(ids[chosen]), float(V[chosen]), False, float(S[chosen]), offset)
-        new_id = self._learn(h, b, payload, heading, cover)
+        new_id = self._learn(h, b, payload, heading, cover, key)
         self._last_ids = np.append(ids, new_id)
         self._last_v = np.append(V, 1.0)
         return ViewMatch(new_id, 1.0, True, math.inf)
@@ -616,8 +675,9 @@ class ViewCells:
         rings = b.reshape(-1, cols)[:, cover] if cover.size == cols else b.reshape(1, -1)
         return rings.mean(axis=1) if rings.shape[1] else np.zeros(rings.shape[0])
 
-    def _nearest_keys(self, b: FloatArray, cover: NDArray[np.bool_]) -> IntArray:
-        """The ``partial_candidates`` views with the nearest ring keys (a partial scanner)."""
+    def _nearest_keys(self, key: FloatArray) -> IntArray:
+        """The ``partial_candidates`` views with the nearest ring keys (``key``: the scan's,
+        :meth:`_ring_key`; a partial scanner)."""
         n = self.num_views
         if n == 0:
             return np.empty(0, dtype=np.int64)
@@ -625,7 +685,7 @@ class ViewCells:
         if n <= k:
             return np.arange(n, dtype=np.int64)
         assert self._store is not None
-        d = _key_distances(self._store.chunks, n, self._ring_key(b, cover))
+        d = _key_distances(self._store.chunks, n, key)
         return np.sort(np.argpartition(d, k)[:k]).astype(np.int64)
 
     def coarse_feature(self, b: FloatArray, cover: NDArray[np.bool_]) -> int:
@@ -642,26 +702,22 @@ class ViewCells:
         cols = int(self.cells_per_ring or 1)
         if ids.size == 0:
             return np.empty(0), np.empty(0)
-        lo = np.full(ids.size, 0, dtype=np.int64)
-        hi = np.full(ids.size, cols - 1, dtype=np.int64)
         if heading is None:
+            lo = np.zeros(ids.size, dtype=np.int64)
+            hi = np.full(ids.size, cols - 1, dtype=np.int64)
             return self._whole_then_fraction(ids, lo, hi, b[None, :], _first(ids), cover)
         step = self._bin_angle()
-        centre = wrap_angle(float(heading) - self._headings.view()[ids]) / step
         reach = math.floor(self.config.heading_gate / step + 1e-9)
-        known = np.isfinite(centre)
-        mid = np.round(np.where(known, centre, 0.0)).astype(np.int64)
-        lo = np.where(known, mid - reach, lo)
-        hi = np.where(known, np.minimum(mid + reach, mid - reach + cols - 1), hi)
+        # wrapped in NumPy, as every other heading difference is, to the bit
+        centre = wrap_angle(float(heading) - self._headings.view()[ids]) / step
+        lo, hi, left_over = _shift_windows(np.asarray(centre, dtype=np.float64), reach, cols)
         found, shifts = self._whole_then_fraction(ids, lo, hi, b[None, :], _first(ids), cover)
         if turned is None or np.any(found < self.config.s_t):
             # a view matched at a whole shift is the match without turning (and cheaper)
             return found, shifts
         screen = self.config.turn_screen * _one_bin_difference(b, cover, cols)
         near = self._nearest_at_whole_shifts(ids, lo, hi, b, cover, screen)
-        return self._turned_similarities(
-            ids, near, lo, hi, np.where(known, centre - mid, 0.0), b, cover, turned
-        )
+        return self._turned_similarities(ids, near, lo, hi, left_over, b, cover, turned)
 
     def _nearest_at_whole_shifts(
         self, ids: IntArray, lo: IntArray, hi: IntArray, b: FloatArray,
@@ -702,23 +758,17 @@ class ViewCells:
         shifts = np.zeros(ids.size)
         if not near.size:
             return S, shifts
-        tried = np.round(left_over[near] * steps).astype(np.int64)[:, None] + np.arange(
-            -reach, reach + 1
-        )
-        # turned by ``tried`` steps = turned by ``step`` steps, with the shifts ``whole`` bins on
-        whole, step = np.divmod(tried + steps // 2, steps)
-        step -= steps // 2
-        turns, which = np.unique(step, return_inverse=True)
+        whole, step, turns, which = _turn_plan(left_over[near], steps, reach)
         stack = np.stack([
             b if t == 0 else self._checked(turned(t / steps * self._bin_angle())) for t in turns
         ])  # fmt: skip
-        each = np.repeat(near, tried.shape[1])
+        each = np.repeat(near, step.shape[1])
         found, offset = self._whole_then_fraction(
             ids[each], lo[each] + whole.ravel(), hi[each] + whole.ravel(), stack,
-            which.ravel().astype(np.int64), cover,
+            which.ravel(), cover,
         )  # fmt: skip
-        found = found.reshape(tried.shape)
-        offset = offset.reshape(tried.shape) + step / steps
+        found = found.reshape(step.shape)
+        offset = offset.reshape(step.shape) + step / steps
         best = np.argmin(found, axis=1)
         rows = np.arange(near.size)
         S[near] = found[rows, best]
@@ -780,7 +830,9 @@ class ViewCells:
         """Store ``B`` as a new view without matching it (e.g. to seed a map); its id."""
         b = self._checked(B)
         cover = self._coverage(coverage)
-        return self._learn(self.coarse_feature(b, cover), b, payload, heading, cover)
+        return self._learn(
+            self.coarse_feature(b, cover), b, payload, heading, cover, self._ring_key(b, cover)
+        )
 
     def _checked(self, B: ArrayLike) -> FloatArray:
         """``B`` as the views are stored (:data:`VIEW_DTYPE`), in float64 for the sums: a
@@ -821,13 +873,13 @@ class ViewCells:
         return ids[~(diff > self.config.heading_gate)]
 
     def _learn(
-        self, h: int, b: FloatArray, payload: Any, heading: float | None, cover: NDArray[np.bool_]
-    ) -> int:
+        self, h: int, b: FloatArray, payload: Any, heading: float | None,
+        cover: NDArray[np.bool_], key: FloatArray,
+    ) -> int:  # fmt: skip
         # Stored as float32 (``_checked`` rounded ``b`` to it; a cell moves by a relative
         # 6e-8, far below any S that matters), without its zeros (bioslam.view_store). Per
         # ring with the rotation search: ring sums do not change with a shift.
         sums = block_sums(b, self.cells_per_ring or self.config.bound_block)
-        key = self._ring_key(b, cover)
         if self._store is None:
             self._store = ViewStore(b.size, sums.size, cover.size, key.size, self._spill_dir)
         new_id = self._store.append(b.astype(VIEW_DTYPE), sums, cover, key)
