@@ -207,8 +207,11 @@ def correction_lines(slam: BioSLAM, truth: Trajectory) -> list[str]:
     true = between(poses[at[ends[:, 0]]], poses[at[ends[:, 1]]])
     with_true_loops = np.where(loop[:, None], true, measured)
 
+    def figures(nodes: np.ndarray) -> dict:
+        return evaluate(slam.trajectory(nodes), truth)
+
     def ate_cm(nodes: np.ndarray) -> float:
-        return 100 * evaluate(slam.trajectory(nodes), truth)["ate_rmse_m"]
+        return 100 * figures(nodes)["ate_rmse_m"]
 
     err = between(true[loop], measured[loop])
     metres, degrees = np.hypot(err[:, 0], err[:, 1]), np.degrees(np.abs(wrap_angle(err[:, 2])))
@@ -217,31 +220,28 @@ def correction_lines(slam: BioSLAM, truth: Trajectory) -> list[str]:
         f"percentile {100 * np.percentile(metres, 90):.2f} cm / {np.percentile(degrees, 90):.2f}"
         f" deg" if loop.any() else "-"
     )
-    as_run = ate_cm(cmap.solved())
+    as_run, without = figures(cmap.solved()), figures(cmap.solved(loops=False))
+    as_run_cm = 100 * as_run["ate_rmse_m"]
     settings = configured_noise(cmap.config)
-    configured = as_run if cmap.noise == settings else ate_cm(cmap.solved(noise=settings))
+    configured = as_run_cm if cmap.noise == settings else ate_cm(cmap.solved(noise=settings))
     return [
         f"  loop links against the truth: {spread}",
-        f"  ATE re-solved: as run {as_run:.2f} cm, true closures "
+        f"  ATE re-solved: as run {as_run_cm:.2f} cm, true closures "
         f"{ate_cm(cmap.solved(with_true_loops)):.2f}, all links true "
-        f"{ate_cm(cmap.solved(true)):.2f}, no closures {ate_cm(cmap.solved(loops=False)):.2f}"
+        f"{ate_cm(cmap.solved(true)):.2f}, no closures {100 * without['ate_rmse_m']:.2f}"
         f", the configured link noise {configured:.2f}"
         + (" (the closures dropped: weighing nothing in each)" if cmap.closures_dropped else ""),
-        spread_line(slam, truth),
+        spread_line(as_run, without),
         noise_line(slam),
     ]
 
 
-def spread_line(slam: BioSLAM, truth: Trajectory) -> str:
-    """The largest error and the 1 m RPE of the map as run and without its closures: where
-    the closures bring earlier passes onto one another but an uncorrected stretch stays off,
-    the whole-run ATE can rise while both of these fall."""
-    cmap = slam.cognitive_map
-    figures = [
-        evaluate(slam.trajectory(nodes), truth)
-        for nodes in (cmap.solved(), cmap.solved(loops=False))
-    ]
-    largest, rpe = (" / ".join(f"{100 * f[key]:.2f}" for f in figures)
+def spread_line(as_run: dict, without: dict) -> str:
+    """The largest error and the 1 m RPE of the map as run and without its closures
+    (:func:`bioslam.evaluation.evaluate`'s figures of each): where the closures bring
+    earlier passes onto one another but an uncorrected stretch stays off, the whole-run ATE
+    can rise while both of these fall."""
+    largest, rpe = (f"{100 * as_run[key]:.2f} / {100 * without[key]:.2f}"
                     for key in ("ate_max_m", "rpe_1m_trans_m"))  # fmt: skip
     return f"  as run / no closures: largest error {largest} cm, RPE over 1 m {rpe} cm"
 
@@ -334,12 +334,13 @@ def _recall_by(
     return out
 
 
-def revisit_recall(
-    gt: Trajectory, true_stamps: np.ndarray, gap: float
-) -> dict[str, tuple[int, int]]:
+def recognised_bins(gt: Trajectory, bins: np.ndarray, true_stamps: np.ndarray) -> set[int]:
+    """The travel bins in which a true closure was accepted (at ``true_stamps``)."""
+    return set(bins_at(gt, bins, true_stamps).tolist())
+
+
+def revisit_recall(revisits: dict[int, RevisitBin], hit: set[int]) -> dict[str, tuple[int, int]]:
     """(revisit bins, recognised bins), all and per heading-offset class (module docstring)."""
-    bins, revisits = revisit_bins(gt, gap)
-    hit = set(bins_at(gt, bins, true_stamps).tolist())
     out = {"all": (len(revisits), sum(b in hit for b in revisits))}
     return out | _recall_by(revisits, hit, OFFSET_CLASSES, lambda r: r.heading)
 
@@ -350,19 +351,18 @@ def sideways_recall(
     """(revisit bins, recognised bins) per class of distance from the earlier pass, the
     revisits taken out to ``SIDEWAYS_REACH`` beside it (module docstring)."""
     bins, revisits = revisit_bins(gt, gap, SIDEWAYS_REACH)
-    hit = set(bins_at(gt, bins, true_stamps).tolist())
+    hit = recognised_bins(gt, bins, true_stamps)
     return _recall_by(revisits, hit, SIDEWAYS_CLASSES, lambda r: r.distance)
 
 
 def revisit_stages(
-    gt: Trajectory, checks: list, true_stamps: np.ndarray, gap: float
-) -> dict[str, int]:
+    gt: Trajectory, bins: np.ndarray, revisits: dict[int, RevisitBin], hit: set[int],
+    checks: list,
+) -> dict[str, int]:  # fmt: skip
     """Where each revisit bin's recognition stopped: ``recognised`` (a true closure accepted
     in it); ``refused <reason>`` (checks ran and the verification refused them all, by the
     bin's most frequent reason; ``accepted false`` if only a false one passed); ``no check``
     (no candidate from either cue reached the verification)."""
-    bins, revisits = revisit_bins(gt, gap)
-    hit = set(bins_at(gt, bins, true_stamps).tolist())
     reasons: dict[int, list[str]] = {}
     stamps = np.array([c.stamp for c in checks])
     for check, b in zip(checks, bins_at(gt, bins, stamps), strict=True):
@@ -394,11 +394,14 @@ def report(
     slam, full_ms, odo_ms = timed_run(scans, config)
     errors = closure_errors(slam, gt)
     true = [e for e in errors if e[2] <= TRUE_DISTANCE and e[3] <= math.degrees(TRUE_ANGLE)]
-    recall = revisit_recall(gt, np.array([e[0] for e in true]), gap)
+    true_stamps = np.array([e[0] for e in true])
+    bins, revisit_of = revisit_bins(gt, gap)
+    hit = recognised_bins(gt, bins, true_stamps)
+    recall = revisit_recall(revisit_of, hit)
     revisits, recognised = recall["all"]
-    stages = revisit_stages(gt, slam.checks, np.array([e[0] for e in true]), gap)
+    stages = revisit_stages(gt, bins, revisit_of, hit, slam.checks)
     by_offset = _shares({k: v for k, v in recall.items() if k != "all"})
-    by_distance = _shares(sideways_recall(gt, np.array([e[0] for e in true]), gap))
+    by_distance = _shares(sideways_recall(gt, true_stamps, gap))
     by = checks_by_outcome(slam)
     full = evaluate(slam.trajectory(), gt)["ate_rmse_m"]
     odo = evaluate(slam.odometry_trajectory(), gt)["ate_rmse_m"]

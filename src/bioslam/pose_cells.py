@@ -506,7 +506,7 @@ class PoseCellNetwork:
     def _next_gen(self) -> int:
         # Each scattering kernel (path integration, injection) marks the cells it writes with
         # a generation of its own.
-        self._gen += 8
+        self._gen += 1
         return self._gen
 
     def _inject_at(self, centre: FloatArray, energy: float) -> int:

@@ -634,8 +634,10 @@ class ViewCells:
         # Eq. 6's sum does not survive a turn of a scanner that sees part of each ring (what
         # leaves the field of view differs): such scans are compared with the views nearest
         # in mean activity per ring instead.
-        key = self._ring_key(b, cover)
-        ids = self._candidates(h) if cover.all() else self._nearest_keys(key)
+        # a partial scanner's ring key finds its candidates; a whole ring's is needed only
+        # when the scan is learned
+        key = None if cover.all() else self._ring_key(b, cover)
+        ids = self._candidates(h) if key is None else self._nearest_keys(key)
         shifts = np.zeros(ids.size)
         if self.cells_per_ring is None:
             if heading is not None and ids.size:
@@ -830,9 +832,7 @@ class ViewCells:
         """Store ``B`` as a new view without matching it (e.g. to seed a map); its id."""
         b = self._checked(B)
         cover = self._coverage(coverage)
-        return self._learn(
-            self.coarse_feature(b, cover), b, payload, heading, cover, self._ring_key(b, cover)
-        )
+        return self._learn(self.coarse_feature(b, cover), b, payload, heading, cover)
 
     def _checked(self, B: ArrayLike) -> FloatArray:
         """``B`` as the views are stored (:data:`VIEW_DTYPE`), in float64 for the sums: a
@@ -874,12 +874,13 @@ class ViewCells:
 
     def _learn(
         self, h: int, b: FloatArray, payload: Any, heading: float | None,
-        cover: NDArray[np.bool_], key: FloatArray,
+        cover: NDArray[np.bool_], key: FloatArray | None = None,
     ) -> int:  # fmt: skip
         # Stored as float32 (``_checked`` rounded ``b`` to it; a cell moves by a relative
         # 6e-8, far below any S that matters), without its zeros (bioslam.view_store). Per
         # ring with the rotation search: ring sums do not change with a shift.
         sums = block_sums(b, self.cells_per_ring or self.config.bound_block)
+        key = self._ring_key(b, cover) if key is None else key
         if self._store is None:
             self._store = ViewStore(b.size, sums.size, cover.size, key.size, self._spill_dir)
         new_id = self._store.append(b.astype(VIEW_DTYPE), sums, cover, key)
