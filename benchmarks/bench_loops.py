@@ -416,7 +416,8 @@ def report(
         + (f", {people} people" if people else "")
         + (f", every {thin}th scan)" if thin > 1 else ")"),
         f"  checks: {', '.join(f'{k} {v}' for k, v in sorted(by.items()))}",
-        f"  accepted {len(errors)}, false {len(errors) - len(true)}, precision "
+        f"  accepted {len(errors)} ({slam.summary()['closures_partial']} partial), false "
+        f"{len(errors) - len(true)}, precision "
         f"{len(true) / max(len(errors), 1):.3f}; median error of true ones {med_err}",
         f"  revisit bins {revisits}, recognised {recognised}, recall "
         f"{recognised / max(revisits, 1):.3f}; loop links {slam.summary()['loop_closures']}",

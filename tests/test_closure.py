@@ -19,6 +19,7 @@ from bioslam.closure import (
     nearest_experience,
     pass_neighbours,
     seen_hit_fraction,
+    sliding,
     submap_anchor,
     submap_span,
     verify,
@@ -223,6 +224,17 @@ def test_half_a_metre_sideways_what_the_old_pass_never_saw_is_not_held_against_i
     assert math.hypot(err[0], err[1]) < 0.03 and abs(err[2]) < math.radians(0.5)
 
 
+def _corridor_revisit_facing_back() -> tuple[np.ndarray, SeenArea, np.ndarray, np.ndarray]:
+    """The old pass down the corridor's centre-line facing east with a 180 deg scanner (its
+    submap, where it looked), the robot back 0.3 m to the north facing west: the true pose
+    in the submap's frame and the scan."""
+    around = [(5.0 + 0.5 * k, 1.0, 0.0) for k in range(5)]
+    submap, seen = _submap(CORRIDOR_ROOM, 2, around, fov=180.0)
+    robot = _offset(around[2], 0.3, math.pi)
+    truth = np.array(between(around[2], robot))
+    return submap, seen, truth, _points(CORRIDOR_ROOM, robot, fov=180.0)
+
+
 def test_what_the_old_pass_never_saw_does_not_pull_the_registration():
     # The old pass drove the centre-line facing east with a 180 deg scanner; the robot comes
     # back 0.3 m to the north facing west, its scanner seeing the corridor behind where the
@@ -232,11 +244,7 @@ def test_what_the_old_pass_never_saw_does_not_pull_the_registration():
     from bioslam.matching.branch_and_bound import refine
     from bioslam.matching.gauss_newton import levels_up_to
 
-    around = [(5.0 + 0.5 * k, 1.0, 0.0) for k in range(5)]
-    submap, seen = _submap(CORRIDOR_ROOM, 2, around, fov=180.0)
-    robot = _offset(around[2], 0.3, math.pi)
-    truth = np.array(between(around[2], robot))
-    query = _points(CORRIDOR_ROOM, robot, fov=180.0)
+    submap, seen, truth, query = _corridor_revisit_facing_back()
     config = LoopClosureConfig()
     pyramid = _submap_pyramid(submap, config.registration)
     iterations = levels_up_to(config.registration.max_iterations, 0)
@@ -247,7 +255,8 @@ def test_what_the_old_pass_never_saw_does_not_pull_the_registration():
     # what the old pass saw of this place is the corridor's two walls
     assert report.degenerate
     predicted = compose(truth, (0.1, -0.05, math.radians(3.0)))
-    verdict = verify(submap, query, predicted, (0.5, 0.3), config, seen)
+    whole = dataclasses.replace(config, reject_degenerate=True)
+    verdict = verify(submap, query, predicted, (0.5, 0.3), whole, seen)
     assert not verdict.accepted and verdict.reason == "degenerate"
 
 
@@ -838,3 +847,29 @@ def test_a_cluttered_scan_that_fits_less_well_is_accepted_only_to_wait_for_a_par
     if verdict.accepted:
         err = between(truth, verdict.pose)
         assert math.hypot(err[0], err[1]) < 0.03 and abs(err[2]) < math.radians(0.5)
+
+
+def test_a_slide_along_a_corridor_is_accepted_as_a_partial_closure_that_pins_the_rest():
+    # The revisit of the test above, the robot 0.3 m beside the old pass and facing the other
+    # way, the map's prediction 10 cm along, 5 cm across and half a degree off. Accepting what
+    # a corridor seen along its axis pins: the verdict is partial, its pose across the
+    # corridor and its heading the truth's, its pose along the corridor the prediction's.
+    submap, seen, truth, query = _corridor_revisit_facing_back()
+    predicted = compose(truth, (0.1, -0.05, math.radians(0.5)))
+    config = dataclasses.replace(LoopClosureConfig(), reject_degenerate=False)
+    verdict = verify(submap, query, predicted, (0.5, 0.3), config, seen)
+    assert verdict.accepted and verdict.partial
+    error = between(truth, verdict.pose)
+    # the corridor runs along x in the submap's frame: across it is y
+    across = verdict.pose[1] - truth[1]
+    assert abs(across) < 0.01 and abs(math.degrees(error[2])) < 0.5
+    assert abs(verdict.pose[0] - predicted[0]) < 0.02  # what the scan cannot say
+    # refused as a whole closure: the slide is no correction the scan measured
+    whole = verify(
+        submap, query, predicted, (0.5, 0.3), dataclasses.replace(config, reject_degenerate=True),
+        seen,
+    )  # fmt: skip
+    assert not whole.accepted and not whole.partial
+    # a turning degeneracy (a round room) leaves the heading unpinned: no partial closure
+    assert sliding((1.0, 0.0, 0.0)) and sliding((0.6, -0.75, 0.2))
+    assert not sliding((0.0, 0.0, 1.0)) and not sliding((0.5, 0.0, 0.87))

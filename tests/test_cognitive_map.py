@@ -16,6 +16,7 @@ from bioslam.cognitive_map import (
     CognitiveMapConfig,
     Measurement,
     _solve_fixed_point,
+    free_weakest,
     link_terms,
     measured_information,
     registration_shape,
@@ -490,7 +491,7 @@ def test_registration_shape_follows_the_scans_geometry():
 
 def corridor_return(
     measurement_shape: np.ndarray | None, slide: float, config: CognitiveMapConfig | None = None,
-    covariance: np.ndarray | None = None,
+    covariance: np.ndarray | None = None, partial: bool = False,
 ):
     """Down an 8 m corridor and back with a heading-drifting odometry (0.35 m off at the end),
     then a closure onto the first experience measured exactly except ``slide`` metres along
@@ -512,7 +513,10 @@ def corridor_return(
     odometry = cm.experience_poses
     cm.integrate_odometry(steps[-1] + bias)
     measured = compose(between(truth[0], truth[-1]), (slide, 0.0, 0.0))
-    refined = measured if measurement_shape is None else Measurement(measured, measurement_shape)
+    refined = (
+        measured if measurement_shape is None
+        else Measurement(measured, measurement_shape, partial=partial)
+    )  # fmt: skip
     if covariance is not None:
         refined = Measurement(measured, ISOTROPIC, covariance=covariance)
     assert cm.update(0, False, PC, stamp=99.0, refine=lambda e: refined).kind == "loop"
@@ -534,6 +538,31 @@ def test_a_closure_that_slid_along_a_corridor_corrects_only_across_it():
     # an exact registration corrects the map as well whichever way it is weighted
     assert corridor_return(shape, slide=0.0)[1] < 0.1 * odometry
     assert corridor_return(shape, slide=0.0)[1] == pytest.approx(corridor_return(None, 0.0)[1])
+
+
+def test_a_partial_closure_pins_across_the_corridor_and_nothing_along_it():
+    # A registration that slid 2 m along the corridor (its pose there is whatever the
+    # verification put: the map's prediction, or anything) and is exact across it. As a
+    # partial closure it corrects the map across the corridor as well as an exact closure
+    # does, keeps its whole weight under the robust kernel (judged across only), and leaves
+    # the position along the corridor to the odometry.
+    config = CognitiveMapConfig(
+        odometry_var_per_m=0.01, odometry_heading_var_per_m=1e-3, closure_sigma_m=0.01,
+        closure_sigma_rad=1e-3, closure_shape_ratio=100.0, robust_sigmas=6.0,
+    )  # fmt: skip
+    free = free_weakest(registration_shape(*corridor_scan(), 100.0))
+    assert free[0] < 1e-9 and free[2] == pytest.approx(1.0)  # along x nothing, across all
+    odometry, exact, _ = corridor_return(free, slide=0.0, config=config, partial=True)
+    _, partial, scale = corridor_return(free, slide=2.0, config=config, partial=True)
+    assert odometry > 0.3
+    assert partial < 0.1 * odometry and partial == pytest.approx(exact, abs=1e-6)
+    assert scale == 1.0
+    # the same slide as an ordinary closure shaped by the scan: the kernel judges it on every
+    # direction and takes its weight, and what is left of it drags the map along
+    _, whole, whole_scale = corridor_return(
+        registration_shape(*corridor_scan(), 100.0), slide=2.0, config=config
+    )
+    assert whole_scale < 0.1 and whole > 2.0 * partial
 
 
 def test_a_closure_weighted_by_its_registrations_covariance_beats_the_odometry():

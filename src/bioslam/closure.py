@@ -15,7 +15,9 @@ things make that fragile on real robots, and this module is where they are handl
   walls but not its end, several scans a metre apart see the doors that tell it from its
   twin. The registration must fit (score), be constrained in every direction (not
   degenerate), stay within what the odometry can have drifted, and be unambiguous (no
-  distinct rival pose nearly as good, when the matcher reports one).
+  distinct rival pose nearly as good, when the matcher reports one). One that leaves only a
+  slide along a corridor free may stand as a *partial* closure: what it pins, across the
+  corridor and the heading, under the same tests (:func:`sliding`).
 
 No I/O here; :class:`bioslam.slam.BioSLAM` calls these once per look.
 """
@@ -654,7 +656,10 @@ class Verdict:
     frame it was registered in (the submap's, :attr:`MatchReport.covariance`; NaN when the
     match had too few points), from which the loop link's information is made;
     ``needs_partner`` whether an accepted one scored below ``min_score`` (at least
-    ``partner_score``) and so is a closure only once another agrees with it.
+    ``partner_score``) and so is a closure only once another agrees with it; ``partial``
+    whether the registration left the position free along one direction (a corridor seen
+    along its axis, :func:`sliding`): an accepted one pins the rest only
+    (:attr:`bioslam.cognitive_map.Measurement.partial`).
 
     The covariance follows the scan's fit to the submap: along a corridor, where the match
     slides, it is large, across it small (maze, SICK scanner: closures 7-10 cm off along a
@@ -668,6 +673,7 @@ class Verdict:
     prior_score: float = float("nan")
     covariance: FloatArray = field(default_factory=lambda: np.full((3, 3), np.nan))
     needs_partner: bool = False
+    partial: bool = False
 
 
 def verify(
@@ -688,7 +694,9 @@ def verify(
     Gauss-Newton refines the winner on the points that land where the submap looked
     (:func:`refine_where_seen`). Accepted only when the result fits (``min_score`` of the
     points land on the submap; from ``partner_score`` up it is accepted needing a partner,
-    :attr:`Verdict.needs_partner`), is constrained in every direction (not degenerate), and
+    :attr:`Verdict.needs_partner`), is constrained in every direction (not degenerate; with
+    ``reject_degenerate`` off, a slide along a corridor is judged on what it pins instead, a
+    partial closure), and
     no distinct pose in the window fits nearly as well (``rival / best < max_ambiguity``): in a
     corridor or among identical rooms the scan alone cannot say where it is, and a false
     closure bends the whole map. Likewise the map's own prediction, refined where it stands,
@@ -725,6 +733,10 @@ def verify(
     # the prediction must fit clearly better than the prediction itself. The two are
     # compared on every point: judged only where the submap looked, a pose that pushes
     # points out of its sight would gain by it.
+    if report.degenerate and not config.reject_degenerate and sliding(report.degenerate_direction):
+        return _partial_verdict(
+            pose, report, found, pyramid, query, predicted, (distance, angle), config, seen
+        )
     kept, kept_report = refine_where_seen(
         pyramid, predicted, query, levels_up_to(reg.max_iterations, 0), seen
     )
@@ -744,7 +756,7 @@ def verify(
     reason = ""
     if score < min(config.min_score, config.partner_score):
         reason = "score"
-    elif config.reject_degenerate and report.degenerate:
+    elif report.degenerate:  # one that turns (a slide returned above, when accepted)
         reason = "degenerate"
     elif (
         found.ambiguity >= config.max_ambiguity
@@ -795,6 +807,88 @@ def verify(
         not reason, pose, score, found.ambiguity, reason, kept_score, report.covariance.copy(),
         needs_partner=score < config.min_score,
     )  # fmt: skip
+
+
+def _partial_verdict(
+    pose: FloatArray,
+    report: MatchReport,
+    found: _Found,
+    pyramid: MapPyramid,
+    query: FloatArray,
+    predicted: FloatArray,
+    window: tuple[float, float],
+    config: LoopClosureConfig,
+    seen: SeenArea | None,
+) -> Verdict:
+    """The verdict on a registration that slides (a corridor seen along its axis,
+    :func:`sliding`): what it pins, the position across the slide and the heading, taken
+    from the refined ``pose``, and along the slide the map's ``predicted`` one, where the
+    scan fits as well (a partial closure, :attr:`Verdict.partial`). Refused when it fits
+    too little, when the search's rival differs from it in what it pins (another corridor
+    beside, or one turned: a rival along the slide is the same corridor), or when its
+    correction is beyond ``window``. Where the map's prediction is not vouched for, no
+    partial closure (its pose along the slide would be that prediction's)."""
+    reg = config.registration
+    free = np.asarray(report.degenerate_direction, dtype=np.float64)[:2]
+    free = free / max(float(np.hypot(free[0], free[1])), 1e-12)  # in the submap's frame
+    start = pose.copy()
+    start[:2] -= free * float((pose[:2] - predicted[:2]) @ free)
+    # moved along the slide to the prediction, refined again: the slide's direction is
+    # only the weakest one's position part, and that turns a little with the heading
+    finest = levels_up_to(reg.max_iterations, 0)
+    pinned, _ = refine_where_seen(pyramid, start, query, finest, seen)
+    judge = pyramid.grids[reg.score_level]
+    score = seen_hit_fraction(judge, pinned, query, reg.hit_level, seen, config.min_seen)
+    # The map's prediction refined where it stands is a rival in what the slide pins, as
+    # for a whole closure (:func:`verify`): a correction it does not share must fit clearly
+    # better than it, else the scan cannot tell the place from a corridor beside it or a
+    # heading the plateau tilts to (maze, SICK: a slide turned 4.4 deg from a prediction
+    # that was right fitted 0.946 against 0.914). Its pose is no measurement itself: along
+    # a corridor its refinement holds the weak direction, heading and all.
+    kept, _ = refine_where_seen(pyramid, predicted, query, finest, seen)
+    kept_score = seen_hit_fraction(judge, kept, query, reg.hit_level, seen, config.min_seen)
+    tied = within(_across(kept, pinned, free), config.tie_distance, config.partial_tie_angle)
+    reason = ""
+    if score < min(config.min_score, config.partner_score):
+        reason = "score"
+    elif not tied and kept_score >= score - config.prior_margin:
+        reason = "ambiguous"
+    elif (
+        found.ambiguity >= config.max_ambiguity
+        and found.rival_pose is not None
+        and not within(_across(found.rival_pose, found.pose, free), config.tie_distance,
+                       config.tie_angle)
+    ):  # fmt: skip
+        reason = "ambiguous"
+    if not reason and not within(between(predicted, pinned), *window):
+        reason = "beyond drift"
+    return Verdict(
+        not reason, pinned, score, found.ambiguity, reason, kept_score,
+        report.covariance.copy(), needs_partner=score < config.min_score, partial=True,
+    )  # fmt: skip
+
+
+def _across(a: ArrayLike, b: ArrayLike, free: FloatArray) -> FloatArray:
+    """How pose ``a`` differs from pose ``b`` (same frame) in what a slide along the unit
+    ``free`` direction pins: the position across it and the heading."""
+    apart = np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64)
+    apart[:2] -= free * float(apart[:2] @ free)
+    apart[2] = wrap_angle(apart[2])
+    return apart
+
+
+#: A degenerate direction whose position part carries at least this share of its (unit)
+#: length is a slide (along a corridor), which a partial closure can leave free; one that
+#: turns as well (a round room) leaves the heading unpinned, and is refused.
+SLIDING_SHARE = 0.9
+
+
+def sliding(direction: ArrayLike) -> bool:
+    """Whether a registration's degenerate ``direction`` (unit, (x, y, θ · length scale),
+    :attr:`MatchReport.degenerate_direction`) is a slide of the position with the heading
+    pinned (:data:`SLIDING_SHARE`)."""
+    d = np.asarray(direction, dtype=np.float64).reshape(3)
+    return bool(math.hypot(d[0], d[1]) >= SLIDING_SHARE * float(np.linalg.norm(d)) > 0.0)
 
 
 @dataclass(frozen=True)

@@ -311,7 +311,8 @@ class NewLink:
     ``doubted``: its odometry crossed a step the odometry doubted or broke
     (:meth:`CognitiveMap.integrate_odometry`). ``info``: a (position, heading) information
     fixed instead (a registration's own covariance, :func:`measured_information`), which the
-    noise model then leaves as it is."""
+    noise model then leaves as it is. ``partial``: a loop link free along its shape's weakest
+    direction (:attr:`Measurement.partial`)."""
 
     source: int
     target: int
@@ -322,6 +323,7 @@ class NewLink:
     shape: FloatArray
     doubted: bool = False
     info: tuple[float, float] | None = None
+    partial: bool = False
 
 
 @dataclass(frozen=True)
@@ -334,12 +336,15 @@ class Measurement:
     the registration's own 3x3 covariance of the recognised experience's pose in the
     robot's frame (:func:`bioslam.closure.place_covariance`); when given (and finite) the
     loop link's information is its inverse (:func:`measured_information`) instead of
-    ``closure_sigma_m`` shaped by ``shape``."""
+    ``closure_sigma_m`` shaped by ``shape``. ``partial``: the registration left the position
+    free along the weakest direction of ``shape`` (:func:`free_weakest`), which the link
+    then neither pulls along nor is judged along by the robust kernel."""
 
     pose: FloatArray
     shape: FloatArray = field(default_factory=ISOTROPIC.copy)
     doubted: bool = False
     covariance: FloatArray | None = None
+    partial: bool = False
 
 
 @dataclass
@@ -531,11 +536,23 @@ def _map_frame_information(
 
 def _link_chi2(
     poses: FloatArray, src: NDArray[np.int64], dst: NDArray[np.int64], dps: FloatArray,
-    info: FloatArray,
+    info: FloatArray, shapes: FloatArray, partial: NDArray[np.bool_],
 ) -> FloatArray:
-    """Each link's squared residual in units of its own (isotropic) variance (its χ²)."""
+    """Each link's squared residual in units of its own (isotropic) variance (its χ²); a
+    partial link's position residual only along what it pins (its shape, whose free
+    direction weighs nothing)."""
     r = between(compose(poses[src], dps), poses[dst])
-    return (r[:, 0] ** 2 + r[:, 1] ** 2) * info[:, 0] + wrap_angle(r[:, 2]) ** 2 * info[:, 1]
+    position = r[:, 0] ** 2 + r[:, 1] ** 2
+    if partial.any():
+        # the residual is in the target's frame, the shape in the source's: turned by the
+        # link's own heading change
+        s = shapes[partial]
+        turned = r[partial]
+        c, sn = np.cos(dps[partial, 2]), np.sin(dps[partial, 2])
+        x = c * turned[:, 0] - sn * turned[:, 1]
+        y = sn * turned[:, 0] + c * turned[:, 1]
+        position[partial] = s[:, 0] * x * x + 2.0 * s[:, 1] * x * y + s[:, 2] * y * y
+    return position * info[:, 0] + wrap_angle(r[:, 2]) ** 2 * info[:, 1]
 
 
 #: the columns of a link's uncertainty terms (:func:`link_terms`)
@@ -682,6 +699,17 @@ def registration_shape(points: ArrayLike, normals: ArrayLike, max_ratio: float) 
     w = np.maximum(w / max(w[1], 1e-300), 1.0 / max_ratio)
     shape = (v * w) @ v.T
     return np.array([shape[0, 0], shape[0, 1], shape[1, 1]])
+
+
+def free_weakest(shape: ArrayLike) -> FloatArray:
+    """``shape`` (xx, xy, yy; largest eigenvalue 1) with its weakest direction left free
+    (:data:`WEIGHTLESS`): a partial closure's, whose registration could not say where along
+    that direction the robot is (:attr:`Measurement.partial`)."""
+    xx, xy, yy = (float(v) for v in np.asarray(shape, dtype=np.float64).reshape(3))
+    w, v = np.linalg.eigh(np.array([[xx, xy], [xy, yy]]))
+    w = np.array([WEIGHTLESS, max(w[1], WEIGHTLESS)])
+    out = (v * w) @ v.T
+    return np.array([out[0, 0], out[0, 1], out[1, 1]])
 
 
 def rotate_shape(shape: FloatArray, angle: float) -> FloatArray:
@@ -948,6 +976,7 @@ class CognitiveMap:
         # each link's position information shape in its source's frame (ISOTROPIC, or a
         # registration's: registration_shape)
         self._link_shape = GrowingArray(np.float64, 3, capacity=64)
+        self._link_partial = GrowingArray(np.bool_, capacity=64)
         # undirected, with each link's length: for the odometry distance between two places
         self._neighbours = Adjacency()
         # the recognised place (topology) and the experience the robot's pose is composed from
@@ -1319,6 +1348,7 @@ class CognitiveMap:
             self._link_info.append(link.info)
         self._link_scale.append(1.0)
         self._link_shape.append(link.shape)
+        self._link_partial.append(link.partial)
         length = math.hypot(float(link.dp[0]), float(link.dp[1]))
         self._neighbours.add(int(link.source), int(link.target), length, link.doubted)
         self._csr = None
@@ -1415,7 +1445,7 @@ class CognitiveMap:
         doubted = self._doubted or measurement.doubted
         return NewLink(
             self._base, int(target), dp, stamp, stamp - self._entered, terms, shape, doubted,
-            info,
+            info, measurement.partial,
         )  # fmt: skip
 
     def add_odometry_link(
@@ -1552,8 +1582,9 @@ class CognitiveMap:
             # judged against the registration's best-direction accuracy, not its shape: a
             # false closure slides along a corridor, exactly where the shape excuses it
             chi2 = _link_chi2(
-                self._poses.view(), src[keep], dst[keep], self._link_dp.view()[keep], info
-            )
+                self._poses.view(), src[keep], dst[keep], self._link_dp.view()[keep], info,
+                self._link_shape.view()[keep], self._link_partial.view()[keep],
+            )  # fmt: skip
             wanted = robust_scale(chi2[loops], self.config.robust_sigmas)
             changed = np.abs(wanted - scale[keep[loops]]) > 0.05 * np.maximum(wanted, 1e-3)
             scale[keep[loops]] = wanted

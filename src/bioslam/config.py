@@ -60,6 +60,13 @@ class LoopClosureConfig:
             turns it off.
         reject_degenerate: refuse closures whose registration is unconstrained in some
             direction (a featureless corridor), since the along-corridor offset is then a guess.
+            False: a registration that leaves the position free along one direction (a
+            corridor seen along its axis, :func:`bioslam.closure.sliding`) is a partial
+            closure: it measures the position across the corridor and the heading, takes the
+            map's prediction along it, and its loop link weighs nothing there
+            (:attr:`bioslam.cognitive_map.Measurement.partial`). Only where the odometry
+            vouches for the place, at ``min_score``, and never as a partner of another; one
+            that leaves a turn free is refused either way.
         drift_floor, drift_per_metre: a closure may correct the map's estimate of where the
             robot stands relative to the recognised experience by at most
             ``drift_floor + drift_per_metre * d`` metres, ``d`` being the distance travelled
@@ -164,6 +171,11 @@ class LoopClosureConfig:
             one beyond the rival distance must (the ``prior_tie`` alone let a registration
             slide 0.39 m along a corridor with people in it, 0.948 against 0.893: a closure
             0.40 m off on the simulated rooms, SICK, 5 people, seed 171).
+        partial_tie_angle: ``tie_angle`` for a partial closure (``reject_degenerate`` off):
+            a corridor's walls pin the heading to tenths of a degree, so a turn from the
+            prediction refined beyond this must beat it by ``prior_margin`` (simulated maze,
+            SICK: a slide turned 4.4 deg from a prediction that was right fitted 0.946
+            against 0.914).
         refuse_broken_odometry: distrust the odometry across its breaks (a step without a match,
             or a jump no robot can make between two scans: :func:`bioslam.closure.odometry_broke`).
             The map's prediction of where the robot is relative to a place made before a break is
@@ -311,7 +323,7 @@ class LoopClosureConfig:
     refine: bool = True
     min_score: float = 0.9
     partner_score: float = 0.7
-    reject_degenerate: bool = True
+    reject_degenerate: bool = False
     drift_floor: float = 0.3
     drift_per_metre: float = 0.02
     drift_angle_floor: float = 0.1
@@ -345,6 +357,7 @@ class LoopClosureConfig:
     prior_tie: float = 0.02
     tie_distance: float = 0.15
     tie_angle: float = math.radians(5.0)
+    partial_tie_angle: float = math.radians(1.0)
     min_seen: float = 0.6
     refuse_broken_odometry: bool = True
     outside_rival_distance: float = 3.0

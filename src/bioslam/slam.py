@@ -55,10 +55,12 @@ from bioslam.closure import (
     within,
 )
 from bioslam.cognitive_map import (
+    ISOTROPIC,
     CognitiveMap,
     Experience,
     Measurement,
     configured_noise,
+    free_weakest,
     link_terms,
     modelled_heading_var,
     registration_shape,
@@ -827,8 +829,10 @@ class BioSLAM:
                 grids[min(cfg.registration.score_level, len(grids) - 1)], verdict.pose,
                 mapped, pts, modes(), cfg, submap.seen,
             )  # fmt: skip
-            if cfg.refuse_far_settle and not within(
-                between(verdict.pose, settled), cfg.rival_distance, cfg.rival_angle
+            if (
+                cfg.refuse_far_settle
+                and not verdict.partial  # which claims nothing along the free direction
+                and not within(between(verdict.pose, settled), cfg.rival_distance, cfg.rival_angle)
             ):
                 # the map's prediction fits about as well as the registration, farther from it
                 # than a rival may be: the scan cannot say which is the place (a pillar hall
@@ -846,6 +850,10 @@ class BioSLAM:
             # put there (a thinned RPLIDAR lost 8.4 m and 180 degrees: two such closures
             # agreed, each as far off)
             verdict = dataclasses.replace(verdict, accepted=False, reason="score")
+        if verdict.accepted and verdict.partial and not (trusted and not verdict.needs_partner):
+            # a slide's pose along the corridor is the map's prediction: nothing a partner
+            # could check it against, so only a place the odometry vouches for takes one
+            verdict = dataclasses.replace(verdict, accepted=False, reason="degenerate")
         doubted = self._recently_ambiguous(experience.id) if verdict.accepted else None
         if doubted is not None:
             verdict = dataclasses.replace(verdict, accepted=False, reason="ambiguous")
@@ -854,25 +862,32 @@ class BioSLAM:
         self._note_check(experience, verdict, remember=doubted != "beside")
         if not verdict.accepted:
             return None
+        partial = verdict.partial
         if within(between(predicted, verdict.pose), cfg.deadband, cfg.deadband_angle):
             # The map already agrees with the registration to within the registration's own
             # error: keep the map's estimate rather than inject that error into the map.
-            measured = Measurement(np.asarray(predicted, dtype=np.float64), doubted=chained)
+            shape = free_weakest(scan_shape()) if partial else ISOTROPIC.copy()
+            measured = Measurement(
+                np.asarray(predicted, dtype=np.float64), shape, chained, partial=partial
+            )
         else:
             shape = self._pinned_shape(scan_shape(), registered, pts, submap)
             covariance = (
                 place_covariance(verdict.covariance, registered, anchor_in_experience)
-                if self.config.cognitive_map.registration_covariance
-                else None  # (only that weighting reads it)
+                if self.config.cognitive_map.registration_covariance and not partial
+                else None  # (only that weighting reads it; a slide's says nothing)
             )
-            measured = Measurement(verdict.pose, shape, doubted=chained, covariance=covariance)
+            measured = Measurement(
+                verdict.pose, free_weakest(shape) if partial else shape, chained, covariance,
+                partial,
+            )  # fmt: skip
         # a correction only the breaks' widening of the window let in: checks that matched
         # the same old scans share its error, and cannot vouch for one another
         beyond = not within(between(predicted, verdict.pose), *bound)
         read = frozenset((*members, anchor)) if beyond else frozenset()
         if not self._confirmed(experience, measured, alone and not verdict.needs_partner, read):
             return None
-        if self.config.cognitive_map.learn_noise:
+        if self.config.cognitive_map.learn_noise and not measured.partial:
             unsettled_in_place = compose(anchor_in_experience, unsettled)
             self._learn_noise(experience.id, unsettled_in_place, modes()[:2, 2])
         return measured
@@ -934,7 +949,9 @@ class BioSLAM:
         waiting is recorded as refused ('unconfirmed') until then. ``read``: the experiences
         whose scans the registration matched, where their shared errors would tell (empty
         where not)."""
-        if not self.config.loop_closure.consistency:
+        if not self.config.loop_closure.consistency or measured.partial:
+            # (a partial closure's pose along its free direction is the map's own: agreeing
+            # with another there would vouch for nothing)
             return True
         cmap, eid = self.cognitive_map, experience.id
         candidate = Candidate(
@@ -1284,21 +1301,23 @@ class BioSLAM:
         self._uncertainty = MatchUncertainty(capacity, self._rows if capacity > 1 else None)
 
     def _check_counts(self) -> dict[str, int]:
-        """Loop-closure verifications by cue, refusals by reason (``closure.verify``), and
-        the accepted that scored under ``min_score`` and entered with a partner."""
+        """Loop-closure verifications by cue, refusals by reason (``closure.verify``), the
+        accepted that scored under ``min_score`` and entered with a partner, and the
+        accepted that were partial (a slide along a corridor left free)."""
         out = {"closure_checks_view": 0, "closure_checks_proximity": 0}
         for reason in (
             "score", "degenerate", "ambiguous", "slid", "beyond_drift", "odometry_broke",
             "unconfirmed",
         ):
             out[f"closure_refused_{reason}"] = 0
-        out["closures_partnered"] = 0
+        out["closures_partnered"] = out["closures_partial"] = 0
         for check in self.checks:
             out[f"closure_checks_{check.cue}"] += 1
             if check.verdict.reason:
                 out[f"closure_refused_{check.verdict.reason.replace(' ', '_')}"] += 1
             else:
                 out["closures_partnered"] += check.verdict.needs_partner
+                out["closures_partial"] += check.verdict.partial
         return out
 
     def release(self) -> None:
