@@ -259,7 +259,7 @@ def test_to_dict_is_json_ready():
     assert len(data["nodes"]) == len(cm)
     assert set(data["nodes"][0]) >= {"id", "time", "pose", "view_id"}
     assert {lk["kind"] for lk in data["links"]} == {"odometry", "loop"}
-    assert set(data["links"][0]) >= {"from", "to", "dp", "dt", "time", "kind"}
+    assert set(data["links"][0]) >= {"from", "to", "dp", "dt", "time", "kind", "partial"}
     np.testing.assert_allclose(data["nodes"][3]["pose"], cm.experience_poses[3])
 
 

@@ -1735,7 +1735,7 @@ class CognitiveMap:
         ends = self._link_ends.view()
         dps = self._link_dp.view()
         link_dt, link_stamp = self._link_dt.view(), self._link_stamp.view()
-        loops = self._link_loop.view()
+        loops, partial = self._link_loop.view(), self._link_partial.view()
         for k in range(self.num_links):
             yield {
                 "from": int(ends[k, 0]),
@@ -1744,4 +1744,5 @@ class CognitiveMap:
                 "dt": float(link_dt[k]),
                 "time": float(link_stamp[k]),
                 "kind": _kind(bool(loops[k])),
+                "partial": bool(partial[k]),
             }
