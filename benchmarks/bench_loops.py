@@ -52,6 +52,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np
 
+from bioslam.closure import slides
 from bioslam.cognitive_map import configured_noise, untaught_noise
 from bioslam.config import SLAMConfig, config_from_dict
 from bioslam.consistency import SharpnessComparison, find_revisits, revisit_residuals
@@ -155,7 +156,7 @@ def closure_errors(slam: BioSLAM, gt: Trajectory) -> list[tuple[float, str, floa
     accepted = [check for check in slam.checks if check.verdict.accepted]
     errors = relative_pose_errors(
         [c.experience_stamp for c in accepted], [c.stamp for c in accepted],
-        [c.verdict.pose for c in accepted], gt, max_dt=math.inf,
+        [c.verdict.pose for c in accepted], gt, max_dt=math.inf, free=slides(accepted),
     )  # fmt: skip
     pairs = zip(accepted, errors, strict=True)
     return [(c.stamp, c.cue, float(m), float(d)) for c, (m, d) in pairs]

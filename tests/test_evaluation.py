@@ -389,3 +389,23 @@ def test_relative_pose_errors_take_the_nearest_reference_stamp():
     far = relative_pose_errors([1.06], [9.0], [exact], ref, max_dt=0.02)
     np.testing.assert_allclose(near[0], [0.0, 0.0], atol=1e-9)
     assert np.isnan(far).all()
+
+
+def test_a_partial_closure_is_judged_across_its_slide_only():
+    # The robot turns as it goes (0.1 rad/s), so that the place's frame and the robot's
+    # differ by 0.8 rad between 1 s and 9 s. A partial closure measured 2 m off along its
+    # slide (given in the place's frame, 30 deg from its x axis) and 3 cm across it: 3 cm;
+    # as a whole closure, 2 m.
+    stamps = np.arange(0.0, 10.0, 0.1)
+    ref = Trajectory(stamps, np.column_stack([stamps, np.zeros_like(stamps), 0.1 * stamps]))
+    truth = between(ref.poses[10], ref.poses[90])
+    slide = np.array([np.cos(np.radians(30.0)), np.sin(np.radians(30.0))])
+    across = np.array([-slide[1], slide[0]])
+    measured = truth.copy()
+    measured[:2] += 2.0 * slide + 0.03 * across
+    errors = relative_pose_errors(
+        [1.0, 1.0], [9.0, 9.0], [measured, measured], ref, free=[slide, [np.nan, np.nan]]
+    )
+    np.testing.assert_allclose(errors[0], [0.03, 0.0], atol=1e-9)
+    np.testing.assert_allclose(errors[1, 0], np.hypot(2.0, 0.03), atol=1e-9)
+    assert off_reference(errors).tolist() == [False, True]

@@ -625,6 +625,16 @@ class Check:
     verdict: Verdict
 
 
+def slides(checks: Sequence[Check]) -> FloatArray:
+    """(N, 2) each check's slide in its place's frame (:attr:`Verdict.free`), NaN for a
+    whole one: the ``free`` of :func:`bioslam.evaluation.relative_pose_errors`."""
+    out = np.full((len(checks), 2), np.nan)
+    for k, check in enumerate(checks):
+        if check.verdict.free is not None:
+            out[k] = check.verdict.free
+    return out
+
+
 def place_covariance(
     covariance: ArrayLike, registered: ArrayLike, anchor_in_place: ArrayLike
 ) -> FloatArray:
@@ -659,7 +669,8 @@ class Verdict:
     ``partner_score``) and so is a closure only once another agrees with it; ``partial``
     whether the registration left the position free along one direction (a corridor seen
     along its axis, :func:`sliding`): an accepted one pins the rest only
-    (:attr:`bioslam.cognitive_map.Measurement.partial`).
+    (:attr:`bioslam.cognitive_map.Measurement.partial`), ``free`` its slide's unit direction
+    in ``pose``'s frame of reference (None for a whole one).
 
     The covariance follows the scan's fit to the submap: along a corridor, where the match
     slides, it is large, across it small (maze, SICK scanner: closures 7-10 cm off along a
@@ -674,6 +685,7 @@ class Verdict:
     covariance: FloatArray = field(default_factory=lambda: np.full((3, 3), np.nan))
     needs_partner: bool = False
     partial: bool = False
+    free: FloatArray | None = None
 
 
 def verify(
@@ -865,6 +877,7 @@ def _partial_verdict(
     return Verdict(
         not reason, pinned, score, found.ambiguity, reason, kept_score,
         report.covariance.copy(), needs_partner=score < config.min_score, partial=True,
+        free=free,
     )  # fmt: skip
 
 

@@ -394,12 +394,15 @@ def relative_pose_errors(
     measured: ArrayLike,
     reference: Trajectory,
     max_dt: float = EvalConfig.max_dt,
+    free: ArrayLike | None = None,
 ) -> FloatArray:
     """(N, 2) position (m) and heading (degrees) errors of ``measured`` relative poses (N, 3:
     the pose at each of ``second_stamps`` in the frame of the pose at ``first_stamps``, as a
     loop closure measures the robot in a place's frame) against ``reference``'s relative pose
     between the same stamps, each taken at the reference's nearest stamp; NaN where the
-    reference has no pose within ``max_dt`` seconds of either stamp."""
+    reference has no pose within ``max_dt`` seconds of either stamp. ``free`` ((N, 2), unit,
+    in the first pose's frame; NaN rows for none): a partial closure's slide, along which it
+    measures nothing, so that its position error is the part across it."""
     first = np.asarray(first_stamps, dtype=np.float64).reshape(-1)
     second = np.asarray(second_stamps, dtype=np.float64).reshape(-1)
     poses = np.asarray(measured, dtype=np.float64).reshape(-1, 3)
@@ -411,6 +414,12 @@ def relative_pose_errors(
     ok = (i >= 0) & (j >= 0)
     truth = between(reference.poses[i[ok]], reference.poses[j[ok]])
     err = between(truth, poses[ok]).reshape(-1, 3)
+    if free is not None:
+        # the slide, given in the place's frame, turned into the robot's (the error's)
+        slide = np.nan_to_num(np.asarray(free, dtype=np.float64).reshape(-1, 2)[ok])
+        c, s = np.cos(truth[:, 2]), np.sin(truth[:, 2])
+        turned = np.stack([c * slide[:, 0] + s * slide[:, 1], c * slide[:, 1] - s * slide[:, 0]], 1)
+        err[:, :2] -= turned * np.sum(turned * err[:, :2], axis=1, keepdims=True)
     out[ok, 0] = np.hypot(err[:, 0], err[:, 1])
     out[ok, 1] = np.degrees(np.abs(wrap_angle(err[:, 2])))
     return out

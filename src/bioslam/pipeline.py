@@ -21,6 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
 from bioslam import signals
+from bioslam.closure import slides
 from bioslam.cognitive_map import CognitiveMap, configured_noise
 from bioslam.config import SLAMConfig
 from bioslam.evaluation import evaluate, off_reference, position_errors, relative_pose_errors
@@ -706,7 +707,7 @@ def _closure_errors(
     checks = system.checks
     errors = relative_pose_errors(
         [c.experience_stamp for c in checks], [c.stamp for c in checks],
-        [c.verdict.pose for c in checks], reference,
+        [c.verdict.pose for c in checks], reference, free=slides(checks),
     )  # fmt: skip
     accepted = np.array([c.verdict.accepted for c in checks], dtype=bool)
     judged = accepted & np.isfinite(errors[:, 0])

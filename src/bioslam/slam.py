@@ -68,7 +68,7 @@ from bioslam.cognitive_map import (
 )
 from bioslam.config import SLAMConfig
 from bioslam.consistency import SharpnessComparison
-from bioslam.geometry import Pose2D, between, compose, inverse
+from bioslam.geometry import Pose2D, between, compose, inverse, rotation
 from bioslam.growing import GrowingArray, RowsFactory
 from bioslam.link_noise import LinkNoise, LinkNoiseEstimator
 from bioslam.occupancy_grid import NORMAL_MAX_GAP, NORMAL_RADIUS, scan_normals, subsample_by_spacing
@@ -841,7 +841,10 @@ class BioSLAM:
             else:
                 verdict = dataclasses.replace(verdict, pose=settled)
         registered = verdict.pose  # in the submap anchor's frame
-        verdict = dataclasses.replace(verdict, pose=compose(anchor_in_experience, verdict.pose))
+        verdict = dataclasses.replace(
+            verdict, pose=compose(anchor_in_experience, verdict.pose),
+            free=None if verdict.free is None else rotation(anchor_in_experience[2]) @ verdict.free,
+        )  # fmt: skip
         alone = trusted and cfg.consistency
         if verdict.accepted and verdict.needs_partner and not alone:
             # a registration that fits less well than a place alone must, where the
