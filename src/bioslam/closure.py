@@ -666,11 +666,11 @@ class Verdict:
     frame it was registered in (the submap's, :attr:`MatchReport.covariance`; NaN when the
     match had too few points), from which the loop link's information is made;
     ``needs_partner`` whether an accepted one scored below ``min_score`` (at least
-    ``partner_score``) and so is a closure only once another agrees with it; ``partial``
-    whether the registration left the position free along one direction (a corridor seen
-    along its axis, :func:`sliding`): an accepted one pins the rest only
-    (:attr:`bioslam.cognitive_map.Measurement.partial`), ``free`` its slide's unit direction
-    in ``pose``'s frame of reference (None for a whole one).
+    ``partner_score``) and so is a closure only once another agrees with it; ``free``, where
+    the registration left the position free along one direction (a corridor seen along its
+    axis, :func:`sliding`), that slide's unit direction in ``pose``'s frame of reference: an
+    accepted one (:attr:`partial`) pins the rest only
+    (:attr:`bioslam.cognitive_map.Measurement.partial`).
 
     The covariance follows the scan's fit to the submap: along a corridor, where the match
     slides, it is large, across it small (maze, SICK scanner: closures 7-10 cm off along a
@@ -684,8 +684,12 @@ class Verdict:
     prior_score: float = float("nan")
     covariance: FloatArray = field(default_factory=lambda: np.full((3, 3), np.nan))
     needs_partner: bool = False
-    partial: bool = False
     free: FloatArray | None = None
+
+    @property
+    def partial(self) -> bool:
+        """Whether the registration left a slide free (it has a ``free`` direction)."""
+        return self.free is not None
 
 
 def verify(
@@ -745,13 +749,14 @@ def verify(
     # the prediction must fit clearly better than the prediction itself. The two are
     # compared on every point: judged only where the submap looked, a pose that pushes
     # points out of its sight would gain by it.
-    if report.degenerate and not config.reject_degenerate and sliding(report.degenerate_direction):
-        return _partial_verdict(
-            pose, report, found, pyramid, query, predicted, (distance, angle), config, seen
-        )
     kept, kept_report = refine_where_seen(
         pyramid, predicted, query, levels_up_to(reg.max_iterations, 0), seen
     )
+    if report.degenerate and not config.reject_degenerate and sliding(report.degenerate_direction):
+        return _partial_verdict(
+            pose, report, found, pyramid, query, (predicted, kept), (distance, angle), config,
+            seen,
+        )  # fmt: skip
     fit, kept_fit = (seen_hit_fraction(judge, p, query, reg.hit_level) for p in (pose, kept))
     agree = within(between(kept, pose), config.rival_distance, config.rival_angle)
     if agree and kept_fit >= fit - config.prior_tie:
@@ -827,19 +832,22 @@ def _partial_verdict(
     found: _Found,
     pyramid: MapPyramid,
     query: FloatArray,
-    predicted: FloatArray,
+    prediction: tuple[FloatArray, FloatArray],
     window: tuple[float, float],
     config: LoopClosureConfig,
     seen: SeenArea | None,
 ) -> Verdict:
     """The verdict on a registration that slides (a corridor seen along its axis,
     :func:`sliding`): what it pins, the position across the slide and the heading, taken
-    from the refined ``pose``, and along the slide the map's ``predicted`` one, where the
-    scan fits as well (a partial closure, :attr:`Verdict.partial`). Refused when it fits
-    too little, when the search's rival differs from it in what it pins (another corridor
-    beside, or one turned: a rival along the slide is the same corridor), or when its
-    correction is beyond ``window``. Where the map's prediction is not vouched for, no
-    partial closure (its pose along the slide would be that prediction's)."""
+    from the refined ``pose``, and along the slide the map's prediction's, where the scan
+    fits as well (a partial closure, :attr:`Verdict.partial`). ``prediction``: the map's
+    predicted pose and that pose refined where it stands (as :func:`verify` refines it).
+    Refused when it fits too little, when the search's rival differs from it in what it pins
+    (another corridor beside, or one turned: a rival along the slide is the same corridor),
+    or when its correction is beyond ``window``. (:class:`bioslam.slam.BioSLAM` takes one
+    only where the odometry vouches for the prediction: along the slide it is that
+    prediction.)"""
+    predicted, kept = prediction
     reg = config.registration
     free = np.asarray(report.degenerate_direction, dtype=np.float64)[:2]
     free = free / max(float(np.hypot(free[0], free[1])), 1e-12)  # in the submap's frame
@@ -847,8 +855,9 @@ def _partial_verdict(
     start[:2] -= free * float((pose[:2] - predicted[:2]) @ free)
     # moved along the slide to the prediction, refined again: the slide's direction is
     # only the weakest one's position part, and that turns a little with the heading
-    finest = levels_up_to(reg.max_iterations, 0)
-    pinned, _ = refine_where_seen(pyramid, start, query, finest, seen)
+    pinned, _ = refine_where_seen(
+        pyramid, start, query, levels_up_to(reg.max_iterations, 0), seen
+    )
     judge = pyramid.grids[reg.score_level]
     score = seen_hit_fraction(judge, pinned, query, reg.hit_level, seen, config.min_seen)
     # The map's prediction refined where it stands is a rival in what the slide pins, as
@@ -857,7 +866,6 @@ def _partial_verdict(
     # heading the plateau tilts to (maze, SICK: a slide turned 4.4 deg from a prediction
     # that was right fitted 0.946 against 0.914). Its pose is no measurement itself: along
     # a corridor its refinement holds the weak direction, heading and all.
-    kept, _ = refine_where_seen(pyramid, predicted, query, finest, seen)
     kept_score = seen_hit_fraction(judge, kept, query, reg.hit_level, seen, config.min_seen)
     tied = within(_across(kept, pinned, free), config.tie_distance, config.partial_tie_angle)
     reason = ""
@@ -876,8 +884,7 @@ def _partial_verdict(
         reason = "beyond drift"
     return Verdict(
         not reason, pinned, score, found.ambiguity, reason, kept_score,
-        report.covariance.copy(), needs_partner=score < config.min_score, partial=True,
-        free=free,
+        report.covariance.copy(), needs_partner=score < config.min_score, free=free,
     )  # fmt: skip
 
 

@@ -853,7 +853,7 @@ class BioSLAM:
             # put there (a thinned RPLIDAR lost 8.4 m and 180 degrees: two such closures
             # agreed, each as far off)
             verdict = dataclasses.replace(verdict, accepted=False, reason="score")
-        if verdict.accepted and verdict.partial and not (trusted and not verdict.needs_partner):
+        if verdict.accepted and verdict.partial and (verdict.needs_partner or not trusted):
             # a slide's pose along the corridor is the map's prediction: nothing a partner
             # could check it against, so only a place the odometry vouches for takes one
             verdict = dataclasses.replace(verdict, accepted=False, reason="degenerate")
