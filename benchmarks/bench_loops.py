@@ -188,7 +188,8 @@ def sharpness_line(slam: BioSLAM, scans: list, reference: Trajectory | None, nam
 def correction_lines(slam: BioSLAM, truth: Trajectory) -> list[str]:
     """What the closures do to the map, against ``truth`` (ground truth or a log's corrected
     poses): the loop links' own errors (their measured relative pose against the truth's
-    between the two experiences' stamps), and the ATE of the whole map re-solved with every
+    between the two experiences' stamps; a partial one's position across its slide only), and
+    the ATE of the whole map re-solved with every
     link given the truth's relative pose ("true closures": each loop link's, the odometry's
     kept; "all true": every link's, the floor left by the per-scan odometry), and with the
     loop links left out (the odometry's own, through the map), and with the links weighed
@@ -216,6 +217,10 @@ def correction_lines(slam: BioSLAM, truth: Trajectory) -> list[str]:
 
     err = between(true[loop], measured[loop])
     metres, degrees = np.hypot(err[:, 0], err[:, 1]), np.degrees(np.abs(wrap_angle(err[:, 2])))
+    apart = measured[loop, :2] - true[loop, :2]  # in each link's source frame
+    for k, link in enumerate(link for link in links if link.kind == "loop"):
+        if link.free is not None:  # a partial link: judged across its slide only
+            metres[k] = abs(link.free[0] * apart[k, 1] - link.free[1] * apart[k, 0])
     spread = (
         f"median {100 * np.median(metres):.2f} cm / {np.median(degrees):.2f} deg, 90th "
         f"percentile {100 * np.percentile(metres, 90):.2f} cm / {np.percentile(degrees, 90):.2f}"

@@ -65,10 +65,10 @@ def _corridor_with_niches(
     return walls
 
 
-def _points(walls, pose, fov=270.0, noise=0.01, seed=0) -> np.ndarray:
+def _points(walls, pose, fov=270.0, noise=0.01, seed=0, range_max=30.0) -> np.ndarray:
     """Endpoints with range noise (a scanner's; noise-free walls on cell boundaries would
     meet the map function's documented half-cell pull)."""
-    scan = cast(walls, pose, fov_deg=fov)
+    scan = cast(walls, pose, fov_deg=fov, range_max=range_max)
     ranges = scan.ranges + np.random.default_rng(seed).normal(0.0, noise, scan.ranges.size)
     ok = np.isfinite(ranges)
     return np.column_stack([ranges * np.cos(scan.angles), ranges * np.sin(scan.angles)])[ok]
@@ -873,3 +873,37 @@ def test_a_slide_along_a_corridor_is_accepted_as_a_partial_closure_that_pins_the
     # a turning degeneracy (a round room) leaves the heading unpinned: no partial closure
     assert sliding((1.0, 0.0, 0.0)) and sliding((0.6, -0.75, 0.2))
     assert not sliding((0.0, 0.0, 1.0)) and not sliding((0.5, 0.0, 0.87))
+
+
+# Two corridors 2 m wide side by side behind a 20 cm wall, 30 m long: seen with a 6 m
+# scanner from their middles, each is a slide, and one is the other 2.2 m across.
+TWIN_CORRIDORS = [
+    (0.0, 0.0, 30.0, 0.0), (0.0, 2.0, 30.0, 2.0), (0.0, 2.2, 30.0, 2.2), (0.0, 4.2, 30.0, 4.2),
+]
+
+
+def test_a_partial_closure_the_odometry_does_not_vouch_for_is_refused_beside_a_twin_corridor():
+    # The submap holds both corridors (the old pass went down one and back up the other);
+    # the robot is in the southern one and the map's prediction, 0.3 m off, too. Where the
+    # odometry vouches for the prediction the window's partial closure stands. Where it does
+    # not (a rival window as wide as its breaks allow), the twin corridor outside the window
+    # fits as well: nothing says which corridor the robot is in, and the check is refused.
+    # A pose outside the window only along the slide is the same corridor: no rival.
+    around = [(14.0 + 0.5 * k, 1.0, 0.0) for k in range(5)]
+    around += [(16.0 - 0.5 * k, 3.2, math.pi) for k in range(5)]
+    submap, seen = _submap(TWIN_CORRIDORS, 2, around, fov=360.0)
+    robot = (15.3, 1.3, 0.05)
+    truth = np.array(between(around[2], robot))
+    query = _points(TWIN_CORRIDORS, robot, fov=360.0, range_max=6.0)
+    predicted = compose(truth, (0.25, -0.1, math.radians(1.0)))
+    config = dataclasses.replace(LoopClosureConfig(), reject_degenerate=False)
+    trusted = verify(submap, query, predicted, (0.5, 0.1), config, seen)
+    assert trusted.accepted and trusted.partial, trusted.reason
+    assert abs(trusted.pose[1] - truth[1]) < 0.01  # across: y in the submap's frame
+    doubted = verify(submap, query, predicted, (0.5, 0.1), config, seen, rival_window=(3.0, 0.3))
+    assert not doubted.accepted and doubted.reason == "ambiguous"
+    # only the southern corridor in the submap: outside the window, the slide alone
+    alone, seen_alone = _submap(TWIN_CORRIDORS, 2, around[:5], fov=360.0)
+    lone = verify(alone, query, predicted, (0.5, 0.1), config, seen_alone, rival_window=(3.0, 0.3))
+    assert lone.accepted and lone.partial, lone.reason
+    assert abs(lone.pose[1] - truth[1]) < 0.01

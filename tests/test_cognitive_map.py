@@ -16,7 +16,7 @@ from bioslam.cognitive_map import (
     CognitiveMapConfig,
     Measurement,
     _solve_fixed_point,
-    free_weakest,
+    free_along,
     link_terms,
     measured_information,
     registration_shape,
@@ -550,7 +550,7 @@ def test_a_partial_closure_pins_across_the_corridor_and_nothing_along_it():
         odometry_var_per_m=0.01, odometry_heading_var_per_m=1e-3, closure_sigma_m=0.01,
         closure_sigma_rad=1e-3, closure_shape_ratio=100.0, robust_sigmas=6.0,
     )  # fmt: skip
-    free = free_weakest(registration_shape(*corridor_scan(), 100.0))
+    free = free_along(registration_shape(*corridor_scan(), 100.0), (1.0, 0.0))
     assert free[0] < 1e-9 and free[2] == pytest.approx(1.0)  # along x nothing, across all
     odometry, exact, _ = corridor_return(free, slide=0.0, config=config, partial=True)
     _, partial, scale = corridor_return(free, slide=2.0, config=config, partial=True)
@@ -563,6 +563,77 @@ def test_a_partial_closure_pins_across_the_corridor_and_nothing_along_it():
         registration_shape(*corridor_scan(), 100.0), slide=2.0, config=config
     )
     assert whole_scale < 0.1 and whole > 2.0 * partial
+
+
+def test_a_partial_closure_is_free_along_its_registrations_slide_not_its_scans_weakest():
+    # The scan's points (a door frame, a recess) turn its weakest direction 3 deg off the
+    # corridor's axis, along which the registration slid 2 m. Left free along the
+    # registration's slide, the closure corrects the map as an exact one does; left free along
+    # the scan's weakest direction, 2 m x sin 3 deg = 10 cm of the slide pull across.
+    config = CognitiveMapConfig(
+        odometry_var_per_m=0.01, odometry_heading_var_per_m=1e-3, closure_sigma_m=0.01,
+        closure_sigma_rad=1e-3, closure_shape_ratio=100.0, robust_sigmas=6.0,
+    )  # fmt: skip
+    tilted = registration_shape(*corridor_scan(math.radians(3.0)), 100.0)
+    slide = free_along(tilted, (1.0, 0.0))
+    odometry, exact, _ = corridor_return(slide, slide=0.0, config=config, partial=True)
+    _, along_slide, _ = corridor_return(slide, slide=2.0, config=config, partial=True)
+    weakest = (math.cos(math.radians(3.0)), math.sin(math.radians(3.0)))
+    _, along_weakest, _ = corridor_return(
+        free_along(tilted, weakest), slide=2.0, config=config, partial=True
+    )
+    assert along_slide == pytest.approx(exact, abs=1e-6) and exact < 0.1 * odometry
+    assert along_weakest > exact + 0.02
+    # across the slide the link keeps what the scan pins there
+    assert slide[2] == pytest.approx(tilted[2], rel=1e-9) and abs(slide[1]) < 1e-9
+
+
+def closure_round_a_corner(east: int, partial: bool, along_reach: float | None = None) -> tuple:
+    """East ``east`` steps of 0.5 m, a quarter turn, north 2 m (exact odometry), then a closure
+    onto the first place measured exactly, ``partial`` free along the robot's x (north).
+    Returns the map and the loop link."""
+    steps = [(0.5, 0.0, 0.0)] * east + [(0.0, 0.0, math.pi / 2)] + [(0.5, 0.0, 0.0)] * 4
+    truth = integrate(np.array(steps))
+    cm = CognitiveMap(CognitiveMapConfig())
+    for k, d in enumerate(steps[:-1]):
+        cm.integrate_odometry(np.array(d), stamp=float(k))
+        cm.update(k, True, PC, stamp=float(k))
+    cm.integrate_odometry(np.array(steps[-1]))
+    shape = free_along(ISOTROPIC, (1.0, 0.0)) if partial else ISOTROPIC
+    measured = Measurement(
+        between(truth[0], truth[-1]), shape, partial=partial, along_reach=along_reach
+    )
+    assert cm.update(0, False, PC, stamp=99.0, refine=lambda e: measured).kind == "loop"
+    link = cm.links[-1]
+    assert link.kind == "loop" and link.target == 0
+    return cm, link
+
+
+def test_a_partial_loop_link_says_its_slide_in_its_sources_frame():
+    # The robot faces north at the closure, its registration free along its own x: the
+    # link's slide, turned from its source's frame into the world's, is north; a whole
+    # closure has none.
+    assert closure_round_a_corner(4, partial=False)[1].free is None
+    cm, link = closure_round_a_corner(4, partial=True)
+    heading = cm.experience_poses[link.source][2]
+    world = compose((0.0, 0.0, heading), (*link.free, 0.0))[:2]
+    assert abs(world @ (0.0, 1.0)) == pytest.approx(1.0, abs=1e-9)
+
+
+def test_a_partial_loop_link_the_odometry_did_not_vouch_for_joins_no_chain():
+    # A whole closure, or a partial one the odometry vouched for, joins the two places by
+    # its own length (4 m). A partial one the odometry did not vouch for (its pose along its
+    # slide the map's prediction, which may be metres off) joins them by no chain: the
+    # odometry's way back is the shortest.
+    for partial, reach in ((False, None), (True, None), (True, math.inf)):
+        cm, link = closure_round_a_corner(8, partial, reach)
+        chain = cm.link_distance(link.source, 0, 10.0)
+        if reach is None:
+            assert chain == pytest.approx(math.hypot(*link.dp[:2]))
+        else:
+            # from the place the closure hangs off (the last one made, half a metre behind
+            # the robot): 4 m east + 1.5 m north
+            assert chain == pytest.approx(5.5)
 
 
 def test_a_closure_weighted_by_its_registrations_covariance_beats_the_odometry():

@@ -15,9 +15,10 @@ from bioslam.occupancy_grid import MapPyramid, OccupancyGrid, subsample_by_spaci
 from bioslam.sim.warehouse import aisle_centres, warehouse_world
 
 
-def _brute_force_reference(matcher, points, centre, with_pose=False):
+def _brute_force_reference(matcher, points, centre, with_pose=False, slide=None):
     """The lattice optimum and the best distinct local maximum, from every lattice score
-    (and the optimum's pose: the first maximum in (heading, x, y) order)."""
+    (and the optimum's pose: the first maximum in (heading, x, y) order); with a ``slide``,
+    distinct across it."""
     cfg = matcher.config
     scores, (x, y, th, step, _, _, res) = matcher.brute_force_scores(points, centre, pad=1)
     # a rival must be a local maximum among all 26 neighbours, also those past the window
@@ -31,9 +32,12 @@ def _brute_force_reference(matcher, points, centre, with_pose=False):
     best = np.unravel_index(np.argmax(inner), inner.shape)
     bj, bx, by = best[0] - nt, best[1] - nx, best[2] - nx
     zone_cells = int(cfg.rival_distance / res)
-    zone = (np.abs(j - bj) <= int(cfg.rival_angle / step)) & (
-        (ix - bx) ** 2 + (iy - by) ** 2 <= zone_cells**2
-    )
+    if slide is None:
+        near = (ix - bx) ** 2 + (iy - by) ** 2 <= zone_cells**2
+    else:
+        fx, fy = np.asarray(slide, dtype=np.float64) / math.hypot(*slide)
+        near = np.abs(fx * (iy - by) - fy * (ix - bx)) <= zone_cells
+    zone = (np.abs(j - bj) <= int(cfg.rival_angle / step)) & near
     rivals = local & ~zone & (inner >= cfg.min_rival_ratio * inner.max())
     found = inner.max(), (inner[rivals].max() if rivals.any() else 0.0)
     return (*found, np.array([x + bx * res, y + by * res, th + bj * step])) if with_pose else found
@@ -79,6 +83,12 @@ def test_branch_and_bound_equals_brute_force_on_random_maps_and_windows():
         hinted = matcher.search(points, centre, hint)
         assert hinted.score == found.score and np.array_equal(hinted.pose, found.pose)
         assert hinted.rival_score == found.rival_score
+        # a rival sought across a slide: the winner's zone a strip along it
+        slide = (math.cos(a := rng.uniform(-math.pi, math.pi)), math.sin(a))
+        across = matcher.search(points, centre, slide=slide)
+        best, rival = _brute_force_reference(matcher, points, centre, slide=slide)
+        assert across.score == best and np.array_equal(across.pose, found.pose)
+        assert across.rival_score == rival and (across.rival_pose is None) == (rival == 0.0)
 
 
 def test_a_map_pooled_for_a_wide_window_answers_a_narrower_windows_search_as_its_own():
@@ -255,6 +265,10 @@ def test_a_featureless_corridor_is_ambiguous_along_its_axis():
     # the look-alike is along the axis; across it both sit on the walls
     apart = found.rival_pose - found.pose
     assert abs(apart[0]) > 0.5 and abs(apart[1]) < 0.1 and abs(apart[2]) < 0.03
+    # sought across the axis, the corridor's own plateau is no rival: nothing beside it fits
+    across = matcher.search(points, truth, slide=(1.0, 0.0))
+    assert np.array_equal(across.pose, found.pose)
+    assert across.rival_pose is None or abs(across.rival_pose[1] - found.pose[1]) > 0.5
 
 
 def test_two_identical_rooms_are_told_apart_only_as_ambiguous():

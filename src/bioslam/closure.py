@@ -755,7 +755,7 @@ def verify(
     if report.degenerate and not config.reject_degenerate and sliding(report.degenerate_direction):
         return _partial_verdict(
             pose, report, found, pyramid, query, (predicted, kept), (distance, angle), config,
-            seen,
+            seen, rival_window, searcher,
         )  # fmt: skip
     fit, kept_fit = (seen_hit_fraction(judge, p, query, reg.hit_level) for p in (pose, kept))
     agree = within(between(kept, pose), config.rival_distance, config.rival_angle)
@@ -836,6 +836,8 @@ def _partial_verdict(
     window: tuple[float, float],
     config: LoopClosureConfig,
     seen: SeenArea | None,
+    rival_window: tuple[float, float] | None = None,
+    searcher: WideBasinMatcher | None = None,
 ) -> Verdict:
     """The verdict on a registration that slides (a corridor seen along its axis,
     :func:`sliding`): what it pins, the position across the slide and the heading, taken
@@ -844,9 +846,11 @@ def _partial_verdict(
     predicted pose and that pose refined where it stands (as :func:`verify` refines it).
     Refused when it fits too little, when the search's rival differs from it in what it pins
     (another corridor beside, or one turned: a rival along the slide is the same corridor),
-    or when its correction is beyond ``window``. (:class:`bioslam.slam.BioSLAM` takes one
-    only where the odometry vouches for the prediction: along the slide it is that
-    prediction.)"""
+    or when its correction is beyond ``window``; with a ``rival_window`` (the odometry does not
+    vouch for the prediction, :func:`verify`), also when a pose outside ``window`` there fits
+    as well and differs from the prediction in what the slide pins (a corridor beside, the
+    truth outside a window the map's error left it; one further along the slide is the same
+    corridor, which the verdict claims nothing about, :func:`outside_rival` with ``free``)."""
     predicted, kept = prediction
     reg = config.registration
     free = np.asarray(report.degenerate_direction, dtype=np.float64)[:2]
@@ -882,6 +886,14 @@ def _partial_verdict(
         reason = "ambiguous"
     if not reason and not within(between(predicted, pinned), *window):
         reason = "beyond drift"
+    if not reason and rival_window is not None and outside_rival(
+        pyramid, query, predicted, window, rival_window,
+        seen_hit_fraction(judge, pinned, query, reg.hit_level), config, seen, searcher,
+        looked=score, free=free,
+    ):  # fmt: skip
+        # the map's prediction not vouched for: another corridor beside, outside the window
+        # but within what the odometry's breaks may have moved it, fits as well
+        reason = "ambiguous"
     return Verdict(
         not reason, pinned, score, found.ambiguity, reason, kept_score,
         report.covariance.copy(), needs_partner=score < config.min_score, free=free,
@@ -954,11 +966,13 @@ def _wide_search(
     centre: FloatArray,
     window: tuple[float, float],
     config: LoopClosureConfig,
+    slide: FloatArray | None = None,
 ) -> _Found:
     """Branch and bound over ``window`` (m, rad) around ``centre`` with ``matcher``, pooled
-    for it or a wider window (:func:`_searcher`)."""
+    for it or a wider window (:func:`_searcher`); ``slide``: its rival is sought across it
+    (:meth:`WideBasinMatcher.search`)."""
     matcher.config = _window_config(window, config)
-    found = matcher.search(query, centre)
+    found = matcher.search(query, centre, slide=slide)
     return _Found(found.pose, found.ambiguity, found.rival_pose, matcher.resolution)
 
 
@@ -991,6 +1005,7 @@ def outside_rival(
     searcher: WideBasinMatcher | None = None,
     looked: float | None = None,
     better: bool = False,
+    free: FloatArray | None = None,
 ) -> bool:
     """Whether a pose outside ``window`` (m, rad) around ``predicted`` but within ``rival_window``
     (capped at ``outside_rival_distance`` and ``outside_rival_angle``) fits ``query`` as well as
@@ -1015,21 +1030,29 @@ def outside_rival(
     both on every point and where the submap looked: the challenge of a check the odometry
     vouches for, whose window a look-alike outside must not empty (on every point alone, a
     360° scanner's look-alikes 2-3 m along a library's aisles fitted 0.04-0.06 better than the
-    true place, where the submap looked 0.1 worse)."""
+    true place, where the submap looked 0.1 worse).
+
+    ``free``: a partial closure's slide (unit, the submap's frame): a pose that differs from
+    ``predicted`` beyond ``window`` only along it is the same corridor, no rival; the search's
+    rival is sought across it (a corridor beside), the corridor's own plateau left out."""
     wide = _outside_window(window, rival_window, config)
     if wide is None:
         return False
     reg = config.registration
     searcher = searcher or _searcher(pyramid, query, predicted, wide, config)
-    found = _wide_search(searcher, query, predicted, wide, config)
+    found = _wide_search(searcher, query, predicted, wide, config, free)
     level = min(config.search_level, len(pyramid.grids) - 1)
     iterations = levels_up_to(reg.max_iterations, level)
     judge = pyramid.grids[reg.score_level]
+    inside = (
+        (lambda p: within(between(predicted, p), *window)) if free is None
+        else (lambda p: within(_across(p, predicted, free), *window))
+    )  # fmt: skip
     for start in (found.pose, found.rival_pose):
-        if start is None or within(between(predicted, start), *window):
+        if start is None or inside(start):
             continue
         pose, _ = refine_where_seen(pyramid, start, query, iterations, seen)
-        if within(between(predicted, pose), *window):
+        if inside(pose):
             continue  # slid back into the window: the accepted pose's own peak
         if _outfits(judge, pose, query, fit, looked, seen, config, better):
             return True

@@ -60,7 +60,7 @@ from bioslam.cognitive_map import (
     Experience,
     Measurement,
     configured_noise,
-    free_weakest,
+    free_along,
     link_terms,
     modelled_heading_var,
     registration_shape,
@@ -459,6 +459,8 @@ class BioSLAM:
         #: was nothing to choose
         self.settings_test: SharpnessComparison | None = None
         self.jump_test: SharpnessComparison | None = None
+        #: of the run's own model where too few closures taught it to be taken unasked
+        self.few_taught_test: SharpnessComparison | None = None
         #: and of the map with its loop links weighing nothing (the odometry's chain)
         self.closures_test: SharpnessComparison | None = None
 
@@ -853,9 +855,9 @@ class BioSLAM:
             # put there (a thinned RPLIDAR lost 8.4 m and 180 degrees: two such closures
             # agreed, each as far off)
             verdict = dataclasses.replace(verdict, accepted=False, reason="score")
-        if verdict.accepted and verdict.partial and (verdict.needs_partner or not trusted):
+        if verdict.accepted and verdict.partial and verdict.needs_partner:
             # a slide's pose along the corridor is the map's prediction: nothing a partner
-            # could check it against, so only a place the odometry vouches for takes one
+            # could check it against, so it must fit well enough to close alone
             verdict = dataclasses.replace(verdict, accepted=False, reason="degenerate")
         doubted = self._recently_ambiguous(experience.id) if verdict.accepted else None
         if doubted is not None:
@@ -866,13 +868,18 @@ class BioSLAM:
         if not verdict.accepted:
             return None
         partial = verdict.partial
+        # the slide in the robot's frame, as the shapes are; along it the pose is the map's
+        # prediction, which joins the places by a chain only where the odometry vouched for it
+        free = None if not partial else rotation(-verdict.pose[2]) @ verdict.free
+        along = math.inf if partial and not trusted else None
         if within(between(predicted, verdict.pose), cfg.deadband, cfg.deadband_angle):
             # The map already agrees with the registration to within the registration's own
             # error: keep the map's estimate rather than inject that error into the map.
-            shape = free_weakest(scan_shape()) if partial else ISOTROPIC.copy()
+            shape = free_along(scan_shape(), free) if partial else ISOTROPIC.copy()
             measured = Measurement(
-                np.asarray(predicted, dtype=np.float64), shape, chained, partial=partial
-            )
+                np.asarray(predicted, dtype=np.float64), shape, chained, partial=partial,
+                along_reach=along,
+            )  # fmt: skip
         else:
             shape = self._pinned_shape(scan_shape(), registered, pts, submap)
             covariance = (
@@ -881,8 +888,8 @@ class BioSLAM:
                 else None  # (only that weighting reads it; a slide's says nothing)
             )
             measured = Measurement(
-                verdict.pose, free_weakest(shape) if partial else shape, chained, covariance,
-                partial,
+                verdict.pose, free_along(shape, free) if partial else shape, chained, covariance,
+                partial, along,
             )  # fmt: skip
         # a correction only the breaks' widening of the window let in: checks that matched
         # the same old scans share its error, and cannot vouch for one another
@@ -1210,18 +1217,20 @@ class BioSLAM:
         not rule out let their registrations' millimetres bend an odometry better than them
         (the rooms' SICK weaving route: 0.35 cm against the odometry's 0.30; 0.31 so). Taught
         by fewer than ``noise_min_closures_finished`` closures, the model is the untaught
-        one (:meth:`_finished_noise`). Then the map's own scans judge three alternatives
+        one (:meth:`_finished_noise`). Then the map's own scans judge the alternatives
         (:meth:`bioslam.cognitive_map.CognitiveMap.adopt_if_sharper`): the odometry's jumps
-        held as any other step where the model lets them bend, the settings' weighing
-        instead of the taught one, and last the map without its closures' weight
+        held as any other step where the model lets them bend, the run's own model where
+        the untaught one stood in for it, the settings' weighing instead of the taught one,
+        and last the map without its closures' weight
         (:meth:`~bioslam.cognitive_map.CognitiveMap.drop_closures_if_sharper`)."""
         self._relax_now()
         cmap = self.cognitive_map
-        reweighed = False
+        reweighed = few = False
+        taught = cmap.noise
         if self.config.cognitive_map.learn_noise and cmap.loop_closures:
-            before = cmap.noise
             cmap.set_noise(self._finished_noise())
-            reweighed = cmap.noise != before
+            reweighed = cmap.noise != taught
+            few = len(self.link_noise) < self.config.cognitive_map.noise_min_closures_finished
         if reweighed or not cmap.converged:
             # after a re-weighing the whole map: the weights changed everywhere
             cmap.solve(window=None if reweighed else -1)
@@ -1233,11 +1242,18 @@ class BioSLAM:
         each = self.config.cognitive_map.scan_test_significance / 3.0
         self.jump_test = cmap.hold_jumps_if_sharper(each)
         jumps = cmap.noise.jump_scale
+        if few:
+            # the untaught model stands in for the few closures' fit unless the scans say
+            # otherwise: a drift the run's closures followed (intel with 0.0005 rad/s of
+            # heading drift injected: 9 taught, the run's map 0.25 m off, the untaught 3.64)
+            likeliest = dataclasses.replace(taught.likely(), jump_scale=jumps)
+            self.few_taught_test = cmap.adopt_if_sharper(likeliest, each)
         settings = dataclasses.replace(configured_noise(cmap.config), jump_scale=jumps)
         self.settings_test = cmap.adopt_if_sharper(settings, each)
         # last, the map as weighed against none of its closures
         self.closures_test = cmap.drop_closures_if_sharper(each)
-        if any(t is not None for t in (self.jump_test, self.settings_test, self.closures_test)):
+        tests = (self.jump_test, self.few_taught_test, self.settings_test, self.closures_test)
+        if any(t is not None for t in tests):
             cmap.relax()
 
     def _finished_noise(self) -> LinkNoise:
@@ -1359,6 +1375,8 @@ class BioSLAM:
             # the scans' tests of the finished map (None: nothing to choose)
             "settings_noise_p": _p_value(self.settings_test),
             "jumps_held_p": _p_value(self.jump_test),
+            # the run's own model against the untaught one, where too few closures taught it
+            "few_taught_noise_p": _p_value(self.few_taught_test),
             # the map the odometry's chain, its closures weighing nothing (the test's p below
             # a third of cognitive_map.scan_test_significance)
             "closures_dropped": cmap.closures_dropped,

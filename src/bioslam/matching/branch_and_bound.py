@@ -240,14 +240,23 @@ def _bound(levels, h, cells, ix, iy, rows, cols):
 
 
 @numba.njit(cache=True)
-def _in_zone(j, ix, iy, span, zone):
+def _in_zone(j, ix, iy, span, zone, strip):
     """Whether all translations of the node (j, ix, iy) of ``span`` cells lie in the
-    winner's zone. ``zone``: (winner j, ix, iy, radius in cells, half-width in headings)."""
+    winner's zone. ``zone``: (winner j, ix, iy, radius in cells, half-width in headings).
+    ``strip``: a unit direction (x, y) along which the zone has no end (a strip of the
+    radius either side of the line through the winner), or (0, 0) for a disc."""
     if abs(j - zone[0]) > zone[4]:
         return False
-    dx = max(abs(ix - zone[1]), abs(ix + span - 1 - zone[1]))
-    dy = max(abs(iy - zone[2]), abs(iy + span - 1 - zone[2]))
-    return dx * dx + dy * dy <= zone[3] * zone[3]
+    if strip[0] == 0.0 and strip[1] == 0.0:
+        dx = max(abs(ix - zone[1]), abs(ix + span - 1 - zone[1]))
+        dy = max(abs(iy - zone[2]), abs(iy + span - 1 - zone[2]))
+        return dx * dx + dy * dy <= zone[3] * zone[3]
+    # across the strip, the node's farthest corner (the distance is linear in the corner)
+    across = 0.0
+    for cx in (ix, ix + span - 1):
+        for cy in (iy, iy + span - 1):
+            across = max(across, abs(strip[0] * (cy - zone[2]) - strip[1] * (cx - zone[1])))
+    return across <= zone[3]
 
 
 @numba.njit(cache=True)
@@ -486,7 +495,8 @@ def _search(levels, pts, args, nt, nx, dims, rival):
     and pushed, until a leaf comes out on top: its score is at least every bound left, so
     it is the lattice optimum. The rival search goes on from the same heap (which with the
     winner covers the whole window): nodes wholly inside the winner's zone (``rival[0]``
-    cells, ``rival[1]`` headings) are dropped, and the first leaf on top that is a local
+    cells, ``rival[1]`` headings; a strip along the unit direction ``rival[3:5]`` unless it
+    is (0, 0)) are dropped, and the first leaf on top that is a local
     maximum outside it is the best rival, if it scores more than the floor (``rival[2]``
     of the winner). Of leaves scoring exactly alike, each phase keeps the first in
     (j, ix, iy) order. Only leaves scoring above 0 are sought: where none does, the answer
@@ -527,6 +537,7 @@ def _search(levels, pts, args, nt, nx, dims, rival):
                 )
     nodes = n
     zone = np.zeros(5, dtype=np.int64)
+    strip = np.array([rival[3], rival[4]])
     found = np.full((2, 4), -1.0)  # (score, j, ix, iy) of the winner, then of the rival
     # Nodes bounded at 0 hold no leaf worth finding. Where nothing scores above it, every
     # pose ties at 0 and every node would be expanded to order the ties: a lost robot's
@@ -565,7 +576,7 @@ def _search(levels, pts, args, nt, nx, dims, rival):
         h = pool_k[q, 1]
         ix = pool_k[q, 2]
         iy = pool_k[q, 3]
-        if phase == 1 and _in_zone(j, ix, iy, 1 << h, zone):
+        if phase == 1 and _in_zone(j, ix, iy, 1 << h, zone, strip):
             continue
         if h == 0:
             # a leaf on top scores at least every bound left: the best (or, outside the
@@ -598,7 +609,7 @@ def _search(levels, pts, args, nt, nx, dims, rival):
                 cy = iy + c * half
                 if cx > nx or cy > nx:
                     continue
-                if phase == 1 and _in_zone(j, cx, cy, half, zone):
+                if phase == 1 and _in_zone(j, cx, cy, half, zone, strip):
                     continue
                 xs[m] = cx
                 ys[m] = cy
@@ -823,12 +834,20 @@ class WideBasinMatcher:
         return flat, (*self._shape, buffer.shape[2])
 
     def search(
-        self, points: ArrayLike, centre: ArrayLike, hint: ArrayLike | None = None
+        self,
+        points: ArrayLike,
+        centre: ArrayLike,
+        hint: ArrayLike | None = None,
+        slide: ArrayLike | None = None,
     ) -> WideMatch:
         """The best lattice pose of sensor-frame ``points`` (N, 2) within the window around
         ``centre`` (x, y, theta; map frame), and its best distinct rival. ``hint`` (a pose
         believed good) is accepted for callers that have one; the best-first search needs
-        none (it expands the same nodes whatever it meets first), so it is not used."""
+        none (it expands the same nodes whatever it meets first), so it is not used.
+        ``slide``: a direction (map frame) along which the scan is known not to pin the
+        pose (a corridor's axis): the rival must then lie farther than ``rival_distance``
+        across it, not merely along it (a corridor is one plateau; a rival on it is the
+        winner's own)."""
         pts, centre = self._prepare(points, centre)
         nt, nx, args = self._lattice(pts, centre)
         lattice = (2 * nt + 1, 2 * nx + 1)
@@ -837,7 +856,12 @@ class WideBasinMatcher:
             return WideMatch(centre.copy(), 0.0, None, 0.0, 0, lattice)
         levels, dims = self._flat_levels()
         c = self.config
-        rival = (int(c.rival_distance / args[6]), int(c.rival_angle / args[3]), c.min_rival_ratio)
+        along = np.zeros(2) if slide is None else np.asarray(slide, dtype=np.float64)[:2]
+        along = along / max(float(np.hypot(along[0], along[1])), 1e-300)
+        rival = (
+            int(c.rival_distance / args[6]), int(c.rival_angle / args[3]), c.min_rival_ratio,
+            float(along[0]), float(along[1]),
+        )  # fmt: skip
         best, j, ix, iy, score, rj, rx, ry, nodes = _search(levels, pts, args, nt, nx, dims, rival)
         found = rj <= nt
         return WideMatch(
