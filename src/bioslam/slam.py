@@ -1242,13 +1242,13 @@ class BioSLAM:
         each = self.config.cognitive_map.scan_test_significance / 3.0
         self.jump_test = cmap.hold_jumps_if_sharper(each)
         jumps = cmap.noise.jump_scale
-        if few:
+        settings = dataclasses.replace(configured_noise(cmap.config), jump_scale=jumps)
+        likeliest = dataclasses.replace(taught.likely(), jump_scale=jumps)
+        if few and likeliest != settings:  # (untaught, the run's model is the settings')
             # the untaught model stands in for the few closures' fit unless the scans say
             # otherwise: a drift the run's closures followed (intel with 0.0005 rad/s of
             # heading drift injected: 9 taught, the run's map 0.25 m off, the untaught 3.64)
-            likeliest = dataclasses.replace(taught.likely(), jump_scale=jumps)
             self.few_taught_test = cmap.adopt_if_sharper(likeliest, each)
-        settings = dataclasses.replace(configured_noise(cmap.config), jump_scale=jumps)
         self.settings_test = cmap.adopt_if_sharper(settings, each)
         # last, the map as weighed against none of its closures
         self.closures_test = cmap.drop_closures_if_sharper(each)
