@@ -900,10 +900,17 @@ def test_a_partial_closure_the_odometry_does_not_vouch_for_is_refused_beside_a_t
     trusted = verify(submap, query, predicted, (0.5, 0.1), config, seen)
     assert trusted.accepted and trusted.partial, trusted.reason
     assert abs(trusted.pose[1] - truth[1]) < 0.01  # across: y in the submap's frame
-    doubted = verify(submap, query, predicted, (0.5, 0.1), config, seen, rival_window=(3.0, 0.3))
+    doubted = verify(
+        submap, query, predicted, (0.5, 0.1), config, seen, slide_rival_window=(3.0, 0.3)
+    )
     assert not doubted.accepted and doubted.reason == "ambiguous"
+    # a whole closure's rival window (a step the odometry doubted, no break) leaves it be
+    merely = verify(submap, query, predicted, (0.5, 0.1), config, seen, rival_window=(3.0, 0.3))
+    assert merely.accepted and merely.partial
     # only the southern corridor in the submap: outside the window, the slide alone
     alone, seen_alone = _submap(TWIN_CORRIDORS, 2, around[:5], fov=360.0)
-    lone = verify(alone, query, predicted, (0.5, 0.1), config, seen_alone, rival_window=(3.0, 0.3))
+    lone = verify(
+        alone, query, predicted, (0.5, 0.1), config, seen_alone, slide_rival_window=(3.0, 0.3)
+    )
     assert lone.accepted and lone.partial, lone.reason
     assert abs(lone.pose[1] - truth[1]) < 0.01

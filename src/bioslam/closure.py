@@ -701,6 +701,7 @@ def verify(
     seen: SeenArea | None = None,
     pyramid: MapPyramid | None = None,
     rival_window: tuple[float, float] | None = None,
+    slide_rival_window: tuple[float, float] | None = None,
 ) -> Verdict:
     """Register ``query`` (the current scan, robot frame) against ``reference`` (a submap in
     a candidate experience's frame) within ``window`` (m, rad) of ``predicted``, and judge it.
@@ -728,13 +729,22 @@ def verify(
     by the best poses outside ``window`` within it (:func:`outside_rival`). A window that holds a
     look-alike but not the true place has no rival in it (the maze's SICK route: the map 0.98 m off
     along a corridor, a 0.4 m window, the look-alike at the prediction); the true place outside then
-    fits as well, and the check is refused as ambiguous."""
+    fits as well, and the check is refused as ambiguous.
+    ``slide_rival_window``: the same for a registration that slides (a partial closure,
+    :func:`_partial_verdict`), whose pose along the slide is the prediction's: where the map may
+    be farther off across it than ``window`` (:class:`bioslam.slam.BioSLAM` passes it across
+    the odometry's breaks only: a step the odometry merely doubted slides it along a
+    corridor, which a partial closure claims nothing about)."""
     reg = config.registration
     distance = min(window[0], config.search_distance)
     angle = min(window[1], config.search_angle)
     pyramid = pyramid or _submap_pyramid(reference, reg)
     outside = _outside_window((distance, angle), rival_window, config)
-    searcher = _searcher(pyramid, query, predicted, outside or (distance, angle), config)
+    # pooled and cropped for the widest window any search of this check reaches
+    sliding_outside = _outside_window((distance, angle), slide_rival_window, config)
+    reach = [w for w in ((distance, angle), outside, sliding_outside) if w is not None]
+    widest = (max(w[0] for w in reach), max(w[1] for w in reach))
+    searcher = _searcher(pyramid, query, predicted, widest, config)
     found = _wide_search(searcher, query, predicted, (distance, angle), config)
     judge = pyramid.grids[reg.score_level]
     # Gauss-Newton from the lattice pose on the searched level and finer only: a coarser
@@ -755,7 +765,7 @@ def verify(
     if report.degenerate and not config.reject_degenerate and sliding(report.degenerate_direction):
         return _partial_verdict(
             pose, report, found, pyramid, query, (predicted, kept), (distance, angle), config,
-            seen, rival_window, searcher,
+            seen, slide_rival_window, searcher,
         )  # fmt: skip
     fit, kept_fit = (seen_hit_fraction(judge, p, query, reg.hit_level) for p in (pose, kept))
     agree = within(between(kept, pose), config.rival_distance, config.rival_angle)
