@@ -64,3 +64,10 @@ def test_single_pose_path_matches_vectorised():
     assert np.allclose(single, batched)
     assert np.allclose(np.array([inverse(p) for p in a]), inverse(a))
     assert np.allclose(np.array([between(a[i], b[i]) for i in range(30)]), between(a, b))
+
+
+def test_unit_scales_a_vector_to_length_one_and_leaves_zero_be():
+    from bioslam.geometry import unit
+
+    np.testing.assert_allclose(unit((3.0, -4.0, 7.0)), (0.6, -0.8))
+    np.testing.assert_array_equal(unit((0.0, 0.0)), (0.0, 0.0))

@@ -35,7 +35,15 @@ from numpy.typing import ArrayLike, NDArray
 
 from bioslam.cognitive_map import registration_shape
 from bioslam.config import LoopClosureConfig
-from bioslam.geometry import between, compose, inverse, rotation, transform_points, wrap_angle
+from bioslam.geometry import (
+    between,
+    compose,
+    inverse,
+    rotation,
+    transform_points,
+    unit,
+    wrap_angle,
+)
 from bioslam.matching.branch_and_bound import WideBasinConfig, WideBasinMatcher, refine
 from bioslam.matching.gauss_newton import MatchReport, levels_up_to
 from bioslam.matching.point_to_line import LineMap, refine_point_to_line
@@ -863,8 +871,7 @@ def _partial_verdict(
     corridor, which the verdict claims nothing about, :func:`outside_rival` with ``free``)."""
     predicted, kept = prediction
     reg = config.registration
-    free = np.asarray(report.degenerate_direction, dtype=np.float64)[:2]
-    free = free / max(float(np.hypot(free[0], free[1])), 1e-12)  # in the submap's frame
+    free = unit(report.degenerate_direction)  # in the submap's frame
     start = pose.copy()
     start[:2] -= free * float((pose[:2] - predicted[:2]) @ free)
     # moved along the slide to the prediction, refined again: the slide's direction is
@@ -910,11 +917,13 @@ def _partial_verdict(
     )  # fmt: skip
 
 
-def _across(a: ArrayLike, b: ArrayLike, free: FloatArray) -> FloatArray:
+def _across(a: ArrayLike, b: ArrayLike, free: FloatArray | None) -> FloatArray:
     """How pose ``a`` differs from pose ``b`` (same frame) in what a slide along the unit
-    ``free`` direction pins: the position across it and the heading."""
+    ``free`` direction pins: the position across it and the heading (None: the whole
+    difference, in the frame they are given in)."""
     apart = np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64)
-    apart[:2] -= free * float(apart[:2] @ free)
+    if free is not None:
+        apart[:2] -= free * float(apart[:2] @ free)
     apart[2] = wrap_angle(apart[2])
     return apart
 
@@ -1054,15 +1063,11 @@ def outside_rival(
     level = min(config.search_level, len(pyramid.grids) - 1)
     iterations = levels_up_to(reg.max_iterations, level)
     judge = pyramid.grids[reg.score_level]
-    inside = (
-        (lambda p: within(between(predicted, p), *window)) if free is None
-        else (lambda p: within(_across(p, predicted, free), *window))
-    )  # fmt: skip
     for start in (found.pose, found.rival_pose):
-        if start is None or inside(start):
+        if start is None or within(_across(start, predicted, free), *window):
             continue
         pose, _ = refine_where_seen(pyramid, start, query, iterations, seen)
-        if inside(pose):
+        if within(_across(pose, predicted, free), *window):
             continue  # slid back into the window: the accepted pose's own peak
         if _outfits(judge, pose, query, fit, looked, seen, config, better):
             return True

@@ -76,7 +76,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from bioslam.compiled import wrap_scalar
 from bioslam.consistency import SharpnessComparison, compare_sharpness
-from bioslam.geometry import between, compose, inverse, wrap_angle
+from bioslam.geometry import between, compose, inverse, unit, wrap_angle
 from bioslam.growing import GrowingArray, IdRows
 from bioslam.link_noise import LinkNoise
 from bioslam.link_solve import solve_links
@@ -314,9 +314,9 @@ class NewLink:
     ``doubted``: its odometry crossed a step the odometry doubted or broke
     (:meth:`CognitiveMap.integrate_odometry`). ``info``: a (position, heading) information
     fixed instead (a registration's own covariance, :func:`measured_information`), which the
-    noise model then leaves as it is. ``partial``: a loop link free along its shape's weakest
-    direction (:attr:`Measurement.partial`); ``along_reach``: the length it adds to a chain of
-    links (:attr:`Measurement.along_reach`)."""
+    noise model then leaves as it is. ``partial``: a loop link free along its slide, the
+    weakest direction of its shape (:attr:`Measurement.partial`); ``vouched``: False where it
+    joins no chain of links (:attr:`Measurement.vouched`)."""
 
     source: int
     target: int
@@ -328,7 +328,7 @@ class NewLink:
     doubted: bool = False
     info: tuple[float, float] | None = None
     partial: bool = False
-    along_reach: float | None = None
+    vouched: bool = True
 
 
 @dataclass(frozen=True)
@@ -343,18 +343,18 @@ class Measurement:
     loop link's information is its inverse (:func:`measured_information`) instead of
     ``closure_sigma_m`` shaped by ``shape``. ``partial``: the registration left the position
     free along its slide (:func:`free_along`), which the link
-    then neither pulls along nor is judged along by the robust kernel. ``along_reach``: the
-    length its link adds to a chain of links (:meth:`CognitiveMap.link_distance`, the drift
-    bound between places); None, its own length; infinite for a partial one whose pose
-    along its slide, the map's prediction, the odometry did not vouch for (it may be metres
-    off there, and joins the places by no chain)."""
+    then neither pulls along nor is judged along by the robust kernel. ``vouched``: False for
+    a partial one whose pose along its slide, the map's prediction, the odometry did not
+    vouch for: it may be metres off there, and its link joins the places by no chain of links
+    (:meth:`CognitiveMap.link_distance`, the drift bound between places); any other link
+    joins them by its own length."""
 
     pose: FloatArray
     shape: FloatArray = field(default_factory=ISOTROPIC.copy)
     doubted: bool = False
     covariance: FloatArray | None = None
     partial: bool = False
-    along_reach: float | None = None
+    vouched: bool = True
 
 
 @dataclass
@@ -727,8 +727,7 @@ def free_along(shape: ArrayLike, free: ArrayLike) -> FloatArray:
     prediction may be metres off along it, and every degree between them turns a metre of
     that into 1.7 cm across."""
     xx, xy, yy = (float(v) for v in np.asarray(shape, dtype=np.float64).reshape(3))
-    f = np.asarray(free, dtype=np.float64).reshape(2)
-    f = f / max(float(np.hypot(f[0], f[1])), 1e-12)
+    f = unit(free)
     n = np.array([-f[1], f[0]])
     pinned = max(float(n @ np.array([[xx, xy], [xy, yy]]) @ n), WEIGHTLESS)
     out = pinned * np.outer(n, n) + WEIGHTLESS * np.outer(f, f)
@@ -1377,10 +1376,7 @@ class CognitiveMap:
         # did not vouch for, 1.3-1.6 m off along their corridors, taken as links a few
         # centimetres long; the checks after them trusted a map 1.6 m off, 2.6 m ATE against
         # 0.24 with no chain through them)
-        length = (
-            math.hypot(float(link.dp[0]), float(link.dp[1])) if link.along_reach is None
-            else link.along_reach
-        )  # fmt: skip
+        length = math.hypot(float(link.dp[0]), float(link.dp[1])) if link.vouched else math.inf
         self._neighbours.add(int(link.source), int(link.target), length, link.doubted)
         self._csr = None
 
@@ -1476,7 +1472,7 @@ class CognitiveMap:
         doubted = self._doubted or measurement.doubted
         return NewLink(
             self._base, int(target), dp, stamp, stamp - self._entered, terms, shape, doubted,
-            info, measurement.partial, measurement.along_reach,
+            info, measurement.partial, measurement.vouched,
         )  # fmt: skip
 
     def add_odometry_link(

@@ -64,9 +64,10 @@ class LoopClosureConfig:
             corridor seen along its axis, :func:`bioslam.closure.sliding`) is a partial
             closure: it measures the position across the corridor and the heading, takes the
             map's prediction along it, and its loop link weighs nothing there
-            (:attr:`bioslam.cognitive_map.Measurement.partial`). Only where the odometry
-            vouches for the place, at ``min_score``, and never as a partner of another; one
-            that leaves a turn free is refused either way.
+            (:attr:`bioslam.cognitive_map.Measurement.partial`). Only at ``min_score``, never
+            as a partner of another, and across the odometry's breaks only where no pose
+            outside the window across the slide fits as well; one that leaves a turn free is
+            refused either way.
         drift_floor, drift_per_metre: a closure may correct the map's estimate of where the
             robot stands relative to the recognised experience by at most
             ``drift_floor + drift_per_metre * d`` metres, ``d`` being the distance travelled

@@ -108,6 +108,13 @@ def separation(a: FloatArray, b: FloatArray) -> tuple[float, float]:
     return math.hypot(bx - ax, by - ay), abs(_wrap_scalar(bt - at))
 
 
+def unit(vector: ArrayLike) -> FloatArray:
+    """The 2-vector (the first two values of ``vector``) scaled to length 1; (0, 0) stays."""
+    v = np.asarray(vector, dtype=np.float64).reshape(-1)[:2]
+    length = float(np.hypot(v[0], v[1]))
+    return v / length if length > 0.0 else np.zeros(2)
+
+
 def rotation(theta: float) -> FloatArray:
     """The 2x2 rotation matrix R(theta) of the paper's Eq. 4."""
     c, s = np.cos(theta), np.sin(theta)

@@ -875,14 +875,14 @@ class BioSLAM:
         # the slide in the robot's frame, as the shapes are; along it the pose is the map's
         # prediction, which joins the places by a chain only where the odometry vouched for it
         free = None if not partial else rotation(-verdict.pose[2]) @ verdict.free
-        along = math.inf if partial and not trusted else None
+        vouched = trusted or not partial
         if within(between(predicted, verdict.pose), cfg.deadband, cfg.deadband_angle):
             # The map already agrees with the registration to within the registration's own
             # error: keep the map's estimate rather than inject that error into the map.
             shape = free_along(scan_shape(), free) if partial else ISOTROPIC.copy()
             measured = Measurement(
                 np.asarray(predicted, dtype=np.float64), shape, chained, partial=partial,
-                along_reach=along,
+                vouched=vouched,
             )  # fmt: skip
         else:
             shape = self._pinned_shape(scan_shape(), registered, pts, submap)
@@ -893,7 +893,7 @@ class BioSLAM:
             )
             measured = Measurement(
                 verdict.pose, free_along(shape, free) if partial else shape, chained, covariance,
-                partial, along,
+                partial, vouched,
             )  # fmt: skip
         # a correction only the breaks' widening of the window let in: checks that matched
         # the same old scans share its error, and cannot vouch for one another

@@ -57,6 +57,7 @@ import numba
 import numpy as np
 from numpy.typing import ArrayLike
 
+from bioslam.geometry import unit
 from bioslam.matching.gauss_newton import (
     FloatArray,
     MatchReport,
@@ -856,8 +857,7 @@ class WideBasinMatcher:
             return WideMatch(centre.copy(), 0.0, None, 0.0, 0, lattice)
         levels, dims = self._flat_levels()
         c = self.config
-        along = np.zeros(2) if slide is None else np.asarray(slide, dtype=np.float64)[:2]
-        along = along / max(float(np.hypot(along[0], along[1])), 1e-300)
+        along = np.zeros(2) if slide is None else unit(slide)
         rival = (
             int(c.rival_distance / args[6]), int(c.rival_angle / args[3]), c.min_rival_ratio,
             float(along[0]), float(along[1]),
