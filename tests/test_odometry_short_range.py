@@ -128,6 +128,33 @@ def test_a_look_alike_beyond_reach_never_replaces_a_rejected_prediction_between_
     assert report.ambiguous
 
 
+
+def test_a_look_alike_beyond_reach_hands_a_failed_prediction_over_to_a_clean_match_within_it():
+    """A 180° scanner turning on the spot in a pillar hall, 7.7° a scan from a standstill
+    (simulated SICK every 2nd scan, seed 404): the standstill's match failed (0.035 of its
+    endpoints on the map, 38 % in free space), the search found the turn at 0.66 and a
+    look-alike 1.65 m off at 0.86, beyond what the robot moves in 0.2 s. The look-alike is
+    refused, and the pose goes to the clean match within reach, not back to the failed one
+    (kept, it lost the whole 63° turn). A prediction whose match did not fail is kept as
+    before."""
+    odo = LidarOdometry()
+    previous = np.array([2.27, -10.05, 1.53])
+    motion = (previous.copy(),)  # standing still
+    jump = odo._jump_limits()
+    reach = (jump[0] + 2.0 * 0.2, jump[1] + 3.0 * 0.2)
+    turned = previous + [0.0, 0.03, -0.134]
+    far = previous + [1.6, 0.4, 0.0]
+    look_alike = (far, MatchReport(score=0.86, free_fraction=0.007, num_points=150), False)
+    turn = (turned, MatchReport(score=0.66, free_fraction=0.11, num_points=150), False)
+    failed = (previous.copy(), MatchReport(score=0.035, free_fraction=0.38, num_points=150), True)
+    pose, report = odo._choose([failed, look_alike, turn], motion, previous, reach, jump, True)
+    np.testing.assert_array_equal(pose, turned)
+    assert report.recovered and report.ambiguous
+    held = (previous.copy(), MatchReport(score=0.62, free_fraction=0.05, num_points=150), False)
+    pose, report = odo._choose([held, look_alike, turn], motion, previous, reach, jump, True)
+    np.testing.assert_array_equal(pose, previous)
+    assert not report.recovered and report.ambiguous
+
 def test_a_match_that_takes_back_a_slide_along_the_weak_direction_is_no_jump():
     """A robot turned on the spot into an aisle longer than the range and drove off along it
     (simulated URG-04LX, library, reversing route, seed 131): the pose lagged 0.8 m, and
