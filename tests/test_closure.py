@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 
 import numpy as np
@@ -15,10 +16,13 @@ from bioslam.closure import (
     ClosureConsensus,
     SeenArea,
     SubmapCache,
+    _submap_pyramid,
     fuse_submap,
     nearest_experience,
     pass_neighbours,
+    refine_where_seen,
     seen_hit_fraction,
+    slide_bend,
     sliding,
     submap_anchor,
     submap_span,
@@ -26,6 +30,7 @@ from bioslam.closure import (
 )
 from bioslam.config import LoopClosureConfig
 from bioslam.geometry import between, compose
+from bioslam.matching.gauss_newton import levels_up_to
 from bioslam.views import ViewCellConfig, ViewCells
 
 # A hall with an L-shaped wall, a pillar and a recess: every place in it looks different.
@@ -914,3 +919,60 @@ def test_a_partial_closure_the_odometry_does_not_vouch_for_is_refused_beside_a_t
     )
     assert lone.accepted and lone.partial, lone.reason
     assert abs(lone.pose[1] - truth[1]) < 0.01
+
+
+
+def _arc(radius: float, start: float, stop: float, step: float) -> list[tuple]:
+    """A circular wall about the origin from angle ``start`` to ``stop`` in ``step`` chords."""
+    angles = np.arange(start, stop + 1e-9, step)
+    ends = np.column_stack([radius * np.cos(angles), radius * np.sin(angles)])
+    return [(*a, *b) for a, b in itertools.pairwise(ends)]
+
+
+#: A corridor 2 m wide bent round a 10 m radius (its centre line), a quarter turn and more.
+CURVED_CORRIDOR = _arc(9.0, -0.2, 2.2, math.radians(2.0)) + _arc(11.0, -0.2, 2.2, math.radians(2.0))
+
+
+def _on_centre_line(angle: float, radius: float = 10.0) -> tuple[float, float, float]:
+    return (radius * math.cos(angle), radius * math.sin(angle), angle + math.pi / 2)
+
+
+def test_a_slide_along_a_curved_corridor_is_no_partial_closure():
+    # Along a curved corridor the registration slides too, but turning as it goes: the
+    # heading it reports is the one at the place along the corridor the map predicts, and a
+    # prediction 2 m off along a 10 m radius put it 11° off (0.5 m: 2.8°). A partial
+    # closure claims the heading: where the window lets the prediction be that far off, it
+    # is refused; where the window (0.1 m) holds the heading to within a degree it stands.
+    # Along the straight corridors the partial closures stand (the twin-corridor test).
+    around = [_on_centre_line(1.0 + 0.05 * k) for k in range(-2, 3)]
+    submap, seen = _submap(CURVED_CORRIDOR, 2, around, fov=360.0)
+    robot = _on_centre_line(1.02)
+    truth = np.array(between(around[2], robot))
+    query = _points(CURVED_CORRIDOR, robot, fov=360.0, range_max=6.0)
+    config = dataclasses.replace(LoopClosureConfig(), reject_degenerate=False)
+    near = verify(submap, query, compose(truth, (0.05, 0.0, 0.0)), (0.1, 0.2), config, seen)
+    assert near.accepted and near.partial, near.reason
+    assert abs(math.degrees(near.pose[2] - truth[2])) < 1.0
+    for along in (0.5, 2.0):
+        off = verify(submap, query, compose(truth, (along, 0.0, 0.0)), (1.0, 0.3), config, seen)
+        assert not off.accepted, math.degrees(off.pose[2] - truth[2])
+
+
+@pytest.mark.parametrize("curved", [True, False])
+def test_a_slides_bend_is_its_corridors_curvature(curved):
+    # 1 / R (0.1 rad a metre) along the 10 m radius, none along a straight corridor
+    if curved:
+        walls, around = CURVED_CORRIDOR, [_on_centre_line(1.0 + 0.05 * k) for k in range(-2, 3)]
+        robot, free = _on_centre_line(1.02), np.array([1.0, 0.0])  # along, the anchor's frame
+    else:
+        walls, around = TWIN_CORRIDORS[:2], [(14.0 + 0.5 * k, 1.0, 0.0) for k in range(5)]
+        robot, free = (15.2, 1.1, 0.02), np.array([1.0, 0.0])
+    submap, seen = _submap(walls, 2, around, fov=360.0)
+    config = LoopClosureConfig()
+    pyramid = _submap_pyramid(submap, config.registration)
+    query = _points(walls, robot, fov=360.0, range_max=6.0)
+    pose = np.array(between(around[2], robot))
+    iterations = levels_up_to(config.registration.max_iterations, 0)
+    _, report = refine_where_seen(pyramid, pose, query, iterations, seen)
+    bend = slide_bend(pyramid, pose, query, free, iterations, seen, report.num_points)
+    assert bend == pytest.approx(0.1 if curved else 0.0, abs=0.015)

@@ -142,8 +142,8 @@ def test_a_look_alike_beyond_reach_hands_a_failed_prediction_over_to_a_clean_mat
     motion = (previous.copy(),)  # standing still
     jump = odo._jump_limits()
     reach = (jump[0] + 2.0 * 0.2, jump[1] + 3.0 * 0.2)
-    turned = previous + [0.0, 0.03, -0.134]
-    far = previous + [1.6, 0.4, 0.0]
+    turned = previous + np.array([0.0, 0.03, -0.134])
+    far = previous + np.array([1.6, 0.4, 0.0])
     look_alike = (far, MatchReport(score=0.86, free_fraction=0.007, num_points=150), False)
     turn = (turned, MatchReport(score=0.66, free_fraction=0.11, num_points=150), False)
     failed = (previous.copy(), MatchReport(score=0.035, free_fraction=0.38, num_points=150), True)

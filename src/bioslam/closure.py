@@ -868,7 +868,8 @@ def _partial_verdict(
     vouch for the prediction, :func:`verify`), also when a pose outside ``window`` there fits
     as well and differs from the prediction in what the slide pins (a corridor beside, the
     truth outside a window the map's error left it; one further along the slide is the same
-    corridor, which the verdict claims nothing about, :func:`outside_rival` with ``free``)."""
+    corridor, which the verdict claims nothing about, :func:`outside_rival` with ``free``),
+    or when its slide bends (:func:`slide_bend`)."""
     predicted, kept = prediction
     reg = config.registration
     free = unit(report.degenerate_direction)  # in the submap's frame
@@ -876,9 +877,9 @@ def _partial_verdict(
     start[:2] -= free * float((pose[:2] - predicted[:2]) @ free)
     # moved along the slide to the prediction, refined again: the slide's direction is
     # only the weakest one's position part, and that turns a little with the heading
-    pinned, _ = refine_where_seen(
-        pyramid, start, query, levels_up_to(reg.max_iterations, 0), seen
-    )
+    finest = levels_up_to(reg.max_iterations, 0)
+    pinned, pinned_report = refine_where_seen(pyramid, start, query, finest, seen)
+    matched = pinned_report.num_points
     judge = pyramid.grids[reg.score_level]
     score = seen_hit_fraction(judge, pinned, query, reg.hit_level, seen, config.min_seen)
     # The map's prediction refined where it stands is a rival in what the slide pins, as
@@ -892,6 +893,15 @@ def _partial_verdict(
     reason = ""
     if score < min(config.min_score, config.partner_score):
         reason = "score"
+    elif slide_bend(pyramid, pinned, query, free, finest, seen, matched) * window[0] > (
+        config.partial_tie_angle
+    ):
+        # The plateau bends (a curved corridor, where the heading changes with the place
+        # along it): the slide pins no heading, and the prediction's place, as far off along
+        # it as the window allows, sets one as far off (a curved floor's thinned SICK tour:
+        # closures 1.4 and 3.6 m along their corridor, 6.9 and 16.3° off the truth at 0.95
+        # and 1.0).
+        reason = "degenerate"
     elif not tied and kept_score >= score - config.prior_margin:
         reason = "ambiguous"
     elif (
@@ -915,6 +925,39 @@ def _partial_verdict(
         not reason, pinned, score, found.ambiguity, reason, kept_score,
         report.covariance.copy(), needs_partner=score < config.min_score, free=free,
     )  # fmt: skip
+
+
+#: metres along a slide that :func:`slide_bend` moves a registration either way to see it turn
+SLIDE_PROBE = 1.0
+
+
+def slide_bend(
+    pyramid: MapPyramid,
+    pose: FloatArray,
+    query: FloatArray,
+    free: FloatArray,
+    iterations: tuple[int, ...],
+    seen: SeenArea | None,
+    matched: int,
+) -> float:
+    """How fast (rad per metre) a registration that slides along the unit ``free``
+    direction turns along its slide: refined again (``iterations`` per level) from ``pose``
+    moved :data:`SLIDE_PROBE` either way along it. A bend turns it both ways apart (along a
+    curved corridor of radius R, 1 / R each way), the lesser turn over the distance is the
+    bend; none where both turn alike, or where either matched fewer than half of
+    ``matched`` points (``pose``'s): moved off what the submap saw, its heading says nothing
+    of the corridor (a straight one's probes so turned 1.5-4° one way only)."""
+    turns = []
+    for sign in (1.0, -1.0):
+        start = np.asarray(pose, dtype=np.float64).copy()
+        start[:2] += sign * SLIDE_PROBE * free
+        moved, report = refine_where_seen(pyramid, start, query, iterations, seen)
+        if 2 * report.num_points < matched:
+            return 0.0
+        turns.append(float(wrap_angle(moved[2] - pose[2])))
+    if turns[0] * turns[1] >= 0.0:
+        return 0.0
+    return min(abs(t) for t in turns) / SLIDE_PROBE
 
 
 def _across(a: ArrayLike, b: ArrayLike, free: FloatArray | None) -> FloatArray:
