@@ -922,6 +922,28 @@ def test_a_partial_closure_the_odometry_does_not_vouch_for_is_refused_beside_a_t
 
 
 
+
+def test_a_partial_closure_beyond_the_searchs_reach_only_confirms_the_prediction():
+    # Where the window the odometry's breaks left exceeds what the search covers (3 m, 45°),
+    # the map's prediction may lie farther off than any pose the search weighed: a partial
+    # check there may confirm the prediction refined, not correct it. Within the search's
+    # reach the same correction (0.3 m across the corridor) stands.
+    around = [(14.0 + 0.5 * k, 1.0, 0.0) for k in range(5)]
+    submap, seen = _submap(TWIN_CORRIDORS, 2, around, fov=360.0)
+    robot = (15.3, 1.3, 0.05)
+    truth = np.array(between(around[2], robot))
+    query = _points(TWIN_CORRIDORS, robot, fov=360.0, range_max=6.0)
+    config = dataclasses.replace(LoopClosureConfig(), reject_degenerate=False)
+    beyond = (config.search_distance + 0.5, 0.5)
+    for across, window, accepted in (
+        (-0.05, beyond, True), (-0.3, (2.5, 0.5), True), (-0.3, beyond, False),
+    ):
+        predicted = compose(truth, (0.25, across, math.radians(0.5)))
+        verdict = verify(submap, query, predicted, window, config, seen)
+        assert verdict.partial and verdict.accepted == accepted, verdict.reason
+        assert accepted or verdict.reason == "ambiguous"
+        assert abs(verdict.pose[1] - truth[1]) < 0.01  # across: what the registration pins
+
 def _arc(radius: float, start: float, stop: float, step: float) -> list[tuple]:
     """A circular wall about the origin from angle ``start`` to ``stop`` in ``step`` chords."""
     angles = np.arange(start, stop + 1e-9, step)

@@ -774,6 +774,7 @@ def verify(
         return _partial_verdict(
             pose, report, found, pyramid, query, (predicted, kept), (distance, angle), config,
             seen, slide_rival_window, searcher,
+            unsearched=window[0] > config.search_distance or window[1] > config.search_angle,
         )  # fmt: skip
     fit, kept_fit = (seen_hit_fraction(judge, p, query, reg.hit_level) for p in (pose, kept))
     agree = within(between(kept, pose), config.rival_distance, config.rival_angle)
@@ -856,6 +857,7 @@ def _partial_verdict(
     seen: SeenArea | None,
     rival_window: tuple[float, float] | None = None,
     searcher: WideBasinMatcher | None = None,
+    unsearched: bool = False,
 ) -> Verdict:
     """The verdict on a registration that slides (a corridor seen along its axis,
     :func:`sliding`): what it pins, the position across the slide and the heading, taken
@@ -869,7 +871,9 @@ def _partial_verdict(
     as well and differs from the prediction in what the slide pins (a corridor beside, the
     truth outside a window the map's error left it; one further along the slide is the same
     corridor, which the verdict claims nothing about, :func:`outside_rival` with ``free``),
-    or when its slide bends (:func:`slide_bend`)."""
+    or when its slide bends (:func:`slide_bend`). ``unsearched``: the map's prediction may
+    lie farther off than the search reached (its window cut to ``search_distance`` /
+    ``search_angle``); then it may only confirm the prediction refined, not move the map."""
     predicted, kept = prediction
     reg = config.registration
     free = unit(report.degenerate_direction)  # in the submap's frame
@@ -893,6 +897,14 @@ def _partial_verdict(
     reason = ""
     if score < min(config.min_score, config.partner_score):
         reason = "score"
+    elif unsearched and not tied:
+        # Along the slide the pose is the prediction's, which may lie farther off than the
+        # search looked: a correction across it or a turn then comes from places the search
+        # never weighed against the one that may be the robot's (a ring of corridors, the
+        # odometry lost by 7 m: a window of 6.9 m cut to 3, a closure turning the map by 21°
+        # that left it 3.6 m across its slide and 28° off, at 0.92 against the prediction
+        # refined's 0.32). One that confirms the prediction refined moves nothing.
+        reason = "ambiguous"
     elif slide_bend(pyramid, pinned, query, free, finest, seen, matched) * window[0] > (
         config.partial_tie_angle
     ):
