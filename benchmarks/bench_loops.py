@@ -215,12 +215,13 @@ def correction_lines(slam: BioSLAM, truth: Trajectory) -> list[str]:
     def ate_cm(nodes: np.ndarray) -> float:
         return 100 * figures(nodes)["ate_rmse_m"]
 
-    err = between(true[loop], measured[loop])
-    metres, degrees = np.hypot(err[:, 0], err[:, 1]), np.degrees(np.abs(wrap_angle(err[:, 2])))
-    apart = measured[loop, :2] - true[loop, :2]  # in each link's source frame
-    for k, link in enumerate(link for link in links if link.kind == "loop"):
-        if link.free is not None:  # a partial link: judged across its slide only
-            metres[k] = abs(link.free[0] * apart[k, 1] - link.free[1] * apart[k, 0])
+    # at the truth's own stamps, as ``true``; a partial link judged across its slide only
+    slide = np.array([(np.nan, np.nan) if k.free is None else k.free for k in links])[loop]
+    near = stamps[at]
+    errors = relative_pose_errors(
+        near[ends[loop, 0]], near[ends[loop, 1]], measured[loop], truth, np.inf, slide
+    )
+    metres, degrees = errors[:, 0], errors[:, 1]
     spread = (
         f"median {100 * np.median(metres):.2f} cm / {np.median(degrees):.2f} deg, 90th "
         f"percentile {100 * np.percentile(metres, 90):.2f} cm / {np.percentile(degrees, 90):.2f}"

@@ -774,7 +774,7 @@ def verify(
         return _partial_verdict(
             pose, report, found, pyramid, query, (predicted, kept), (distance, angle), config,
             seen, slide_rival_window, searcher,
-            unsearched=window[0] > config.search_distance or window[1] > config.search_angle,
+            unsearched=(distance, angle) != (window[0], window[1]),  # the window was cut
         )  # fmt: skip
     fit, kept_fit = (seen_hit_fraction(judge, p, query, reg.hit_level) for p in (pose, kept))
     agree = within(between(kept, pose), config.rival_distance, config.rival_angle)
