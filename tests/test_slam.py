@@ -713,11 +713,18 @@ class _ScriptedOdometry:
     def update(self, scan: object) -> np.ndarray:
         return np.array(next(self._steps), dtype=float)
 
+    def at_scanner_rate(self, dt: float) -> bool:
+        return True
 
-def _jumps_counted(steps: list[tuple[float, float, float]], **settings: bool) -> int:
-    """The steps no robot can make that :class:`SelfMotion` counts along ``steps`` at 10 Hz."""
+
+def _jumps_counted(
+    steps: list[tuple[float, float, float]], look_alike: bool = False, **settings: bool
+) -> int:
+    """The steps no robot can make that :class:`SelfMotion` counts along ``steps`` at 10 Hz
+    (``look_alike``: each kept among look-alikes, ``MatchReport.ambiguous``)."""
     motion = SelfMotion(SLAMConfig(loop_closure=LoopClosureConfig(**settings)))
     motion.odometry = _ScriptedOdometry(steps)
+    motion.odometry.last_report.ambiguous = look_alike
     for k in range(len(steps)):
         motion.step(SimpleNamespace(stamp=0.1 * k))
     return motion.jumps
@@ -736,6 +743,20 @@ def test_steps_that_carry_a_jumped_motion_on_are_distrusted_until_it_comes_back(
     # a robot speeding up at 1 m/s² departs from its steady motion by 1 cm a scan: no slide
     speeding = [(0.05 + 0.01 * k, 0.0, 0.0) for k in range(1, 10)]
     assert _jumps_counted(steady + speeding) == 0
+
+
+def test_a_robot_backing_up_along_its_path_makes_no_jumps():
+    # 10 cm a scan ahead at 10 Hz, then the same back, reversed within one scan as the
+    # simulated reversing routes do: each step back mirrors the steady motion, and neither
+    # it nor the turn round is a step no robot can make (held to the motion before, the
+    # ten steps back each departed from it by 20 cm)
+    ahead = [(0.10, 0.0, 0.0)] * 10
+    back = [(-0.10, 0.0, 0.0)] * 10
+    assert _jumps_counted(ahead + back + ahead) == 0
+    # backing up at another speed is no mirror: a slide until the robot drives on again
+    assert _jumps_counted(ahead + [(-0.05, 0.0, 0.0)] * 10 + ahead) >= 10
+    # nor is a step back the odometry kept among look-alikes
+    assert _jumps_counted(ahead + back + ahead, look_alike=True) >= 10
 
 
 def test_checks_across_doubted_odometry_steps_are_challenged_from_outside_their_window(

@@ -80,6 +80,10 @@ from bioslam.views import ViewCells
 
 FloatArray = NDArray[np.float64]
 
+#: How far (as a share of the robot's speed) a step may land from its steady motion driven
+#: back and still count as the robot backing up along its path (:meth:`SelfMotion._reversed`)
+REVERSAL_MISMATCH = 0.25
+
 __all__ = ["BioSLAM", "SelfMotion", "StepRecord", "StepRecords", "thin_points"]
 
 
@@ -268,10 +272,7 @@ class SelfMotion:
                 # distrusted, and so does one that carries such a slide on
                 weighed = self.closure.weigh_jumps or self.closure.distrust_jumps
                 departed = self._track_slide(dp, dt) and self.closure.distrust_slides
-                if broke or (
-                    weighed
-                    and (departed or jumped(dp, self._last_step, expected, dt, self.closure))
-                ):
+                if broke or (weighed and (departed or self._jumped(dp, expected, dt))):
                     self._note_jump(dp, expected, dt, broke)
             self._last_step, self._last_dt = dp.copy(), dt
             if self.heading_bias:
@@ -315,7 +316,7 @@ class SelfMotion:
             self._steady, self._steady_dt = dp.copy(), dt
             return False
         steady = self._steady * min(dt / self._steady_dt, 1e3)
-        if not implausible(dp, steady, dt, self.closure):
+        if not implausible(dp, steady, dt, self.closure) or self._reversed(dp, steady, dt):
             self._steady, self._steady_dt = dp.copy(), dt
             return False
         c, s = math.cos(self.pose[2]), math.sin(self.pose[2])
@@ -323,6 +324,32 @@ class SelfMotion:
         departure = (c * dx - s * dy, s * dx + c * dy, dp[2] - steady[2])
         self.slide = self.slides.jump(departure, self.travelled)
         return implausible(dp, self._steady, dt, self.closure)
+
+    def _jumped(self, dp: FloatArray, expected: FloatArray, dt: float) -> bool:
+        """Whether ``dp`` departs from the last step (:func:`bioslam.closure.jumped`) other
+        than by driving it back (:meth:`_reversed`)."""
+        return jumped(dp, self._last_step, expected, dt, self.closure) and not self._reversed(
+            dp, self._last_step, dt
+        )
+
+    def _reversed(self, dp: FloatArray, steady: FloatArray, dt: float) -> bool:
+        """Whether ``dp`` is the ``steady`` motion driven back (its translation negated to
+        within ``REVERSAL_MISMATCH`` of its speed, its turn within what a robot can change
+        in ``dt``), matched from the motion model's start and not among look-alikes: a
+        robot that backs up along its path. Held to the motion before, every step of the
+        way back departed from it and weakened its link (a thinned SICK backing up through
+        a garage of pillars: 140 of its 157 jumps, every one right to 1 cm; ATE 19.7 cm
+        against its odometry's 3.3). A slide back at another speed is no such mirror
+        (within the break thresholds alone, at 10 Hz any step back of a robot driving 5 cm
+        a scan would pass for one)."""
+        report = self.odometry.last_report
+        if report.predicted_only or report.ambiguous or report.recovered:
+            return False
+        speed = math.hypot(steady[0], steady[1])
+        mismatch = math.hypot(dp[0] + steady[0], dp[1] + steady[1])
+        return mismatch <= REVERSAL_MISMATCH * speed and not implausible(
+            dp, -steady, dt, self.closure
+        )
 
     def _step_heading_var(self, dp: FloatArray) -> float:
         """The heading variance (rad²) of the last step: its match's, or the model's where
