@@ -251,7 +251,9 @@ class LoopClosureConfig:
             (``benchmarks/README.md``, "Slides the odometry did not flag").
         distrust_slides: with ``distrust_jumps``, a step that departs by more than a robot
             can change its motion from the robot's steady motion (the last step that did not
-            depart from the one before it), both as scaled by the stamps and as it was, is
+            depart from the one before it, or that drove it back,
+            :meth:`bioslam.slam.SelfMotion._reversed`), both as scaled by the stamps and as
+            it was, is
             such a step too, though it departs from the step just before by less: the steps
             that carry a slide on until the motion comes back (a floor of curved corridors,
             RPLIDAR tour: the odometry slid 2 m back in 1 s, 0.07-0.3 m a scan, and a

@@ -306,7 +306,8 @@ class SelfMotion:
     def _track_slide(self, dp: FloatArray, dt: float) -> bool:
         """Note whether ``dp`` opens or undoes a slide (:class:`bioslam.closure.SlideReturns`):
         its departure from the robot's steady motion, the last step that departed from the
-        one before by no more than a robot can change its motion. (Against the step just
+        one before by no more than a robot can change its motion, or that drove it back
+        (:meth:`_reversed`: a robot backing up). (Against the step just
         before, the first ordinary step after a slide departs from the slide's own motion
         as much as the slide did, and would pass for its undoing.) Returns whether ``dp``
         departs from the steady motion both as scaled by the stamps and as it was, as
