@@ -92,6 +92,29 @@ def test_partly_constrained_scans_follow_a_change_of_speed_but_not_a_slip():
     assert model.twist[0] == pytest.approx(1.0, abs=0.02)
 
 
+
+def test_a_speed_every_later_scan_contradicts_gives_way_to_theirs():
+    """A look-alike's 0.9 m jump, differenced on a well-conditioned scan, set the carried
+    speed to 3 m/s; the partly constrained scans after it all measured 0.5 m/s and each was
+    rejected against it as a slip, until a degenerate stretch ran on at 3 m/s. A run of
+    rejections longer than one slip can cause, all on one side, now resets the speed; a
+    slip (the test above: seven scans of one) still does not."""
+    model = _model()
+    x = _drive(model, [0.05] * 20, 1.0, ALONG_X)
+    x = _drive(model, [0.9], 0.2, ALONG_X, 0.0, x, 2.0)  # the jump, on a scan that pins x
+    assert model.twist[0] > 2.0
+    weak = 0.07  # gain 0.67: 0.5 m/s is 2.5 m/s off, far beyond the gate
+    x = _drive(model, [0.05] * 7, weak, ALONG_X, 0.0, x, 2.1)
+    assert model.twist[0] > 2.0  # seven in a row: as many as two slips can explain
+    _drive(model, [0.05] * 2, weak, ALONG_X, 0.0, x, 2.8)
+    assert model.twist[0] == pytest.approx(0.5, abs=1e-6)
+    # two slips two scans apart: five windows in a row span one of them, and the speed holds
+    model = _model()
+    x = _drive(model, [0.05] * 20, 1.0, ALONG_X)
+    x = _drive(model, [0.05] * 10, weak, ALONG_X, 0.0, x, 2.0)
+    _drive(model, [-0.25, 0.05, -0.25] + [0.05] * 10, weak, ALONG_X, 0.0, x, 3.0)
+    assert model.twist[0] == pytest.approx(0.5, abs=1e-6)
+
 def test_a_weak_direction_that_is_mostly_a_turn_is_not_carried():
     assert translation_part(np.array([0.3, 0.1, 0.95])) is None
     assert translation_part(None) is None
@@ -101,15 +124,17 @@ def test_a_weak_direction_that_is_mostly_a_turn_is_not_carried():
 
 def test_kalman_along_rejects_an_outlier_and_weighs_a_measurement_by_the_gain():
     carried = np.array([0.5, 0.0, 0.0])
-    twist, var = kalman_along(
+    twist, var, rejected = kalman_along(
         np.array([0.1, 0.0, 0.0]), carried, 0.0025, ALONG_X, 1.0, 0.0025, 3.0, 3.0
     )
     assert twist[0] == 0.5 and var == 0.0025  # 0.4 m/s off, 5.7 sigma: a slip
-    twist, var = kalman_along(
+    assert rejected == pytest.approx(-0.4)
+    twist, var, rejected = kalman_along(
         np.array([0.55, 0.0, 0.0]), carried, 0.0025, ALONG_X, 0.5, 0.0025, 3.0, 3.0
     )
     assert twist[0] == pytest.approx(0.5 + 0.05 / 3.0)  # variance 0.0025 against 0.005
     assert var == pytest.approx(0.0025 * 2.0 / 3.0)
+    assert rejected == 0.0
 
 
 def test_overlapping_windows_are_not_counted_as_independent_measurements():
