@@ -121,7 +121,9 @@ class OdometryConfig:
             on at or below ``degeneracy_ratio``, Kalman-filtered between (its variance grows
             by ``accel_noise`` m/s² per second up to ``velocity_spread`` m/s squared, a
             measurement's is ``velocity_noise`` m/s squared over the scan's gain); a slip of
-            the pose along a corridor then no longer stops the prediction.
+            the pose along a corridor then no longer stops the prediction, and a carried
+            velocity that more scans in a row contradict than slips can explain gives way
+            to theirs (:meth:`~bioslam.motion_model.ConstantVelocityModel.update`).
         sideways_noise: when positive, the motion model also takes it that a wheeled robot
             does not slip sideways (lateral velocity 0, this many m/s standard deviation,
             :func:`bioslam.motion_model.sideways_along`), and the prior along a degenerate
