@@ -159,7 +159,7 @@ class ConstantVelocityModel:
     0.3 m between scans before, 27 after; seeds 10-15 median ATE 14.9 -> 9.5 cm). A
     measurement more than ``gate`` standard deviations from the carried velocity is a
     slip, not a change of speed, and is not used, unless more measurements in a row than
-    one slip can explain are, all on one side: then the carried velocity is what is wrong,
+    two slips can explain are, all on one side: then the carried velocity is what is wrong,
     and the measurement replaces it (:meth:`_persistently_rejected`). The carried
     velocity's standard deviation grows to ``max_spread`` at most: after a long corridor the
     first partly constrained scans (a door jamb coming into range, seen against a map that
@@ -270,9 +270,10 @@ class ConstantVelocityModel:
 
     def _persistently_rejected(self, rejected: float, gain: float, overlap: int) -> bool:
         """Whether the measurements along the weak direction have now been rejected as slips
-        more often in a row, all on one side of the carried velocity, than one slip can
+        more often in a row, all on one side of the carried velocity, than slips can
         explain: a pose that slips is differenced into the ``overlap`` windows that span it,
-        no more. Beyond that the carried velocity is what is wrong (one window spanning a
+        two slips close together into at most twice as many. Beyond that the carried
+        velocity is what is wrong (one window spanning a
         look-alike's 0.9 m jump set it to 2.8 m/s on a well-conditioned scan, and every
         later scan's 0.5 m/s was rejected against it for 7 s, until a corridor's
         degenerate scans ran on at 2.8 m/s: simulated twin floor, URG-04LX mounted
