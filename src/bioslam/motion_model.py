@@ -191,9 +191,8 @@ class ConstantVelocityModel:
         self.variance = velocity_noise**2  # of the velocity along the weakest direction
         self.max_variance = max_spread**2
         self._history: deque[tuple[float, FloatArray]] = deque()
-        # measurements rejected in a row along the weak direction, and on which side
-        self._rejections = 0
-        self._rejected_up = False
+        # measurements rejected in a row along the weak direction, signed by their side
+        self._rejected_run = 0
 
     def predict(self, pose: ArrayLike, dt: float) -> FloatArray:
         """The pose ``dt`` seconds after ``pose`` at the current twist."""
@@ -239,7 +238,7 @@ class ConstantVelocityModel:
         if gain >= 1.0:
             self.twist = measured
             self.variance = self.velocity_noise**2
-            self._rejections = 0
+            self._rejected_run = 0
             self._reset_axis(axis)
             return
         filtered = axis is not None and axis[0] is not None and self._axis_predicted is not None
@@ -273,22 +272,19 @@ class ConstantVelocityModel:
         more often in a row, all on one side of the carried velocity, than slips can
         explain: a pose that slips is differenced into the ``overlap`` windows that span it,
         two slips close together into at most twice as many. Beyond that the carried
-        velocity is what is wrong (one window spanning a
-        look-alike's 0.9 m jump set it to 2.8 m/s on a well-conditioned scan, and every
-        later scan's 0.5 m/s was rejected against it for 7 s, until a corridor's
-        degenerate scans ran on at 2.8 m/s: simulated twin floor, URG-04LX mounted
-        backwards). A measurement without gain neither breaks nor adds to the run."""
+        velocity is what is wrong (one window spanning a look-alike's 0.9 m jump set it to
+        2.8 m/s on a well-conditioned scan, and every later scan's 0.5 m/s was rejected
+        against it for 7 s, until a corridor's degenerate scans ran on at 2.8 m/s:
+        simulated twin floor, URG-04LX mounted backwards). A measurement without gain
+        neither breaks nor adds to the run."""
         if gain <= 0.0:
             return False
-        if rejected == 0.0 or (self._rejections and (rejected > 0.0) != self._rejected_up):
-            self._rejections = 0
-        if rejected == 0.0:
+        side = int(math.copysign(1.0, rejected)) if rejected else 0
+        run = self._rejected_run
+        self._rejected_run = run + side if side and run * side >= 0 else side
+        if abs(self._rejected_run) <= 2 * overlap:
             return False
-        self._rejections += 1
-        self._rejected_up = rejected > 0.0
-        if self._rejections <= 2 * overlap:
-            return False
-        self._rejections = 0
+        self._rejected_run = 0
         return True
 
     def _filter_axis(self, direction: FloatArray, axis: tuple[FloatArray, float]) -> None:
