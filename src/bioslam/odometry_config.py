@@ -381,7 +381,9 @@ class OdometryConfig:
             then held to the millimetre steps of its dense part, and dense scans pay nothing
             for it) and the weight of its cost (``-log``, at most ``-log(step_prior.floor *
             step_prior.cone_floor)``) against a match's quality (mean M* less the negative
-            evidence, :func:`bioslam.odometry.choice.match_quality`).
+            evidence, :func:`bioslam.odometry.choice.match_quality`). The prior never keeps
+            a match the walls contradict over one that explains the contradiction away
+            (:meth:`bioslam.odometry.choice.MatchChoice._unless_explained_away`).
         step_modes: on sparse scans, Gauss-Newton also starts from this many typical recent
             steps (:meth:`bioslam.step_prior.StepPrior.modes`: a metre on, a turn either way
             on the spot, an arc), taken from the previous pose. The motion model's
