@@ -4,7 +4,9 @@ and none of it runs on dense scans."""
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -727,27 +729,6 @@ def test_a_first_step_faster_than_the_robot_drives_is_not_taken():
         np.testing.assert_array_equal(pose, expected[0])
 
 
-def city_blocks(folder):
-    """A map of identical city blocks: 5 x 4 solid blocks of 4 m on a 5.6 m grid, 1.6 m
-    streets between and round them (``benchmarks/blocks_floor_plan.py``'s floor)."""
-    from bioslam.io.mapfile import OccupancyImage, write_map
-
-    res, block, street, outer = 0.05, 4.0, 1.6, 0.3
-    pitch = block + street
-    size = (2 * outer + 5 * block + 6 * street, 2 * outer + 4 * block + 5 * street)
-    xs, ys = np.meshgrid(*((np.arange(round(extent / res)) + 0.5) * res for extent in size))
-
-    def inside(west: float, south: float, east: float, north: float) -> np.ndarray:
-        return (west < xs) & (xs < east) & (south < ys) & (ys < north)
-
-    occ = ~inside(outer, outer, size[0] - outer, size[1] - outer)
-    for i in range(5):
-        for j in range(4):
-            west, south = outer + street + i * pitch, outer + street + j * pitch
-            occ |= inside(west, south, west + block, south + block)
-    return write_map(folder / "blocks", OccupancyImage(occ.astype(float), res))[1]
-
-
 def test_a_clean_fit_is_not_given_up_for_a_step_like_the_recent_ones(tmp_path):
     """The blocks' streets, a 360° SICK at 5 Hz kept at every 4th scan (0.8 s apart) on the
     adversarial route, seed 464 (a held-out run): 208 s at 0.5 m/s, then the robot speeds
@@ -757,9 +738,12 @@ def test_a_clean_fit_is_not_given_up_for_a_step_like_the_recent_ones(tmp_path):
     was matched so, half a step short, until the pose had fallen a block's pitch (5.6 m)
     behind and every corner fitted again. A match the walls contradict gives way to one that
     explains the contradiction away: no step more than 0.3 m off to 240 s (10 before)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from blocks_floor_plan import write_blocks
+
     from bioslam.sim import LIDAR_PRESETS, ROUTES, simulate_scans, world_from_map
 
-    world = world_from_map(city_blocks(tmp_path))
+    world = world_from_map(write_blocks(tmp_path))
     route = ROUTES["adversarial"](world, duration=600.0, seed=464)
     lidar = replace(LIDAR_PRESETS["sick361"], no_return_as_max=True)
     odo, truth, poses = None, [], []

@@ -363,6 +363,8 @@ class MatchChoice:
         per metre (seed 3), 0.38 m off along the hall, was lost so. Of 572 odometry
         benchmark routes two tracked ones were lost and two lost ones found again; eight
         tracked ones came out better, two worse (``benchmarks/README.md``)."""
+        if not self._contradicted(chosen[1]):
+            return chosen  # most scans: nothing to explain
         explained = [
             o for o in pool if o is not chosen and self._contradiction_explained(chosen, o)
         ]
