@@ -31,10 +31,10 @@ def test_a_robot_backing_up_along_a_corridor_its_walls_pin_across_only_is_follow
     robot backs up at 0.5 m/s along the corridor. The walls pin the pose across it alone; the
     prediction 0.2 m on fits them as well as the truth 0.2 m back, and no endpoint lands
     where the map saw through; only the doors and corners fit less with every scan (score
-    0.85 -> 0.77 -> 0.70 -> 0.61). Matched from the prediction alone, six steps went on
-    forward and the pose was 4.9 m off at 120 s; a score that drops below
-    ``search_score_drop`` of the recent median is searched, and the reversal is found two
-    scans on."""
+    0.85 -> 0.77 -> 0.70 -> 0.65 -> 0.61). Matched from the prediction alone, six steps went on
+    forward and the pose was 4.9 m off at 120 s. A score that drops below
+    ``search_score_drop`` of the recent median is matched again from the last step undone,
+    and the reversal is found at the second scan back."""
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
     from twin_floor_plan import write_twin
 
@@ -54,5 +54,5 @@ def test_a_robot_backing_up_along_a_corridor_its_walls_pin_across_only_is_follow
     truth = np.array(truth)
     placed = compose(truth[0], between(poses[0], np.array(poses)))
     error = np.hypot(*(placed[:, :2] - truth[:, :2]).T)
-    # two steps on past the reversal (0.4 m each), none after it
-    assert len(error) > 290 and error.max() < 1.0 and error[-1] < 0.1, (error.max(), error[-1])
+    # one step on past the reversal (0.4 m), none after it
+    assert len(error) > 290 and error.max() < 0.5 and error[-1] < 0.1, (error.max(), error[-1])

@@ -263,16 +263,17 @@ class OdometryConfig:
         search_score_drop: a trusted prediction's match on a scan that constrains every
             direction whose score (mean M*) falls below this fraction of the recent matches'
             median, though no endpoint lands in known free space, is matched again from the
-            last step undone, and that match replaces it where it scores at least as much
-            and beside it the first is not plausible (``LidarOdometry._unless_reversed``; 0:
-            never). Along a corridor whose walls pin the pose across it alone, a robot that
-            backs up is carried on by the prediction: the walls still fit, the doors and
-            corners along it less with every scan (the twin-room floor's corridor, SICK
-            kept at every 4th scan, 2.5 Hz: scores 0.85 -> 0.77 -> 0.70 -> 0.65 -> 0.61,
-            the pose 2.5 m on before the reversal was noticed; now found at 0.70). The
-            search instead (run on such a drop as on a contradiction) found the reversal too
-            but, on the 3.5 m LDS-01, took look-alikes along the aisles where a short scan's
-            score is noisy (benchmarks README, "A drop in the score").
+            last step undone, and that match replaces it where its own score did not drop,
+            it puts no more endpoints in free space and beside it the first is not plausible
+            (``PredictionGuards._unless_reversed``; 0: never). Along a corridor whose walls
+            pin the pose across it alone, a robot that backs up is carried on by the
+            prediction: the walls still fit, the doors and corners along it less with every
+            scan (the twin-room floor's corridor, SICK kept at every 4th scan, 2.5 Hz: scores
+            0.85 -> 0.77 -> 0.70 -> 0.65 -> 0.61, the pose 2.5 m on before the reversal was
+            noticed; now found at 0.70). The search instead (run on such a drop as on a
+            contradiction) found the reversal too but, on the 3.5 m LDS-01, took look-alikes
+            along the aisles where a short scan's score is noisy (benchmarks README, "A drop
+            in the score").
         rival_ratio: the search's rival is matched only if it scores at least this fraction
             of the winner on the search's grid.
         jump_distance, jump_angle, overwhelming_ratio: a match farther than this from the
