@@ -1,6 +1,8 @@
 """The odometry on a simulated route, started where a test says: on the world's frame, off it,
 or at the origin as ``bioslam run`` starts it (where the walls fall in the map's cells)."""
 
+import itertools
+
 import numpy as np
 
 from bioslam.geometry import between, compose
@@ -9,22 +11,26 @@ from bioslam.odometry import LidarOdometry
 
 def odometry_run(
     world_name, route_name, lidar, seed, duration, start=None, offset=(0, 0, 0), config=None,
-    thin=None, every=1,
+    thin=None, every=1, until=None,
 ):
     """(estimate, truth): the odometry's poses, moved onto the true start where it started
     elsewhere, and the true poses. ``start`` "origin" starts the odometry at the origin;
     otherwise at the true first pose plus ``offset`` (x, y, theta). ``thin`` (metres,
     radians or None) keeps a scan per distance or angle along the true path
     (:func:`bioslam.thinning.thin_indices`); ``every`` keeps every n-th scan (a log thinned
-    by count). ``lidar``: a preset's name or a
-    :class:`~bioslam.sim.LidarModel`."""
+    by count); ``until`` (seconds) stops the route's scans there, the route itself planned for
+    ``duration``. ``world_name``: a built-in world or a map YAML's path. ``lidar``: a preset's
+    name or a :class:`~bioslam.sim.LidarModel`."""
     from bioslam.sim import LIDAR_PRESETS, ROUTES, load_world, simulate_scans
     from bioslam.thinning import thin_indices
 
     world = load_world(world_name)
     route = ROUTES[route_name](world, duration=duration, seed=seed)
     model = LIDAR_PRESETS[lidar] if isinstance(lidar, str) else lidar
-    items = list(simulate_scans(world, model, route, seed=seed))[::every]
+    scans = simulate_scans(world, model, route, seed=seed)
+    if until is not None:
+        scans = itertools.takewhile(lambda item: item[0].stamp <= until, scans)
+    items = list(scans)[::every]
     if thin is not None:
         items = [items[k] for k in thin_indices(np.array([t for _, t in items]), *thin)]
     truth = np.array([pose for _, pose in items])

@@ -8,8 +8,7 @@ from pathlib import Path
 import numpy as np
 from _sim_runs import odometry_run
 
-from bioslam.geometry import between, compose
-from bioslam.odometry import LidarOdometry, OdometryConfig
+from bioslam.sim import LIDAR_PRESETS
 
 
 def test_a_robot_backing_up_in_an_open_hall_is_followed_back():
@@ -38,21 +37,10 @@ def test_a_robot_backing_up_along_a_corridor_its_walls_pin_across_only_is_follow
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
     from twin_floor_plan import write_twin
 
-    from bioslam.sim import LIDAR_PRESETS, ROUTES, simulate_scans, world_from_map
-
-    world = world_from_map(write_twin(tmp_path))
-    route = ROUTES["reversing"](world, duration=600.0, seed=472)
-    lidar = replace(LIDAR_PRESETS["sick"], clockwise=True)
-    odo, truth, poses = LidarOdometry(OdometryConfig()), [], []
-    for k, (scan, pose) in enumerate(simulate_scans(world, lidar, route, seed=472)):
-        if scan.stamp > 120.0:
-            break
-        if k % 4 == 0:
-            odo.update(scan)
-            truth.append(pose)
-            poses.append(odo.pose.copy())
-    truth = np.array(truth)
-    placed = compose(truth[0], between(poses[0], np.array(poses)))
-    error = np.hypot(*(placed[:, :2] - truth[:, :2]).T)
+    estimate, truth = odometry_run(
+        str(write_twin(tmp_path)), "reversing", replace(LIDAR_PRESETS["sick"], clockwise=True),
+        472, 600.0, start="origin", every=4, until=120.0,
+    )  # fmt: skip
+    error = np.hypot(*(estimate[:, :2] - truth[:, :2]).T)
     # one step on past the reversal (0.4 m), none after it
     assert len(error) > 290 and error.max() < 0.5 and error[-1] < 0.1, (error.max(), error[-1])

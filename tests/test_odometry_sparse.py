@@ -741,22 +741,12 @@ def test_a_clean_fit_is_not_given_up_for_a_step_like_the_recent_ones(tmp_path):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
     from blocks_floor_plan import write_blocks
 
-    from bioslam.sim import LIDAR_PRESETS, ROUTES, simulate_scans, world_from_map
-
-    world = world_from_map(write_blocks(tmp_path))
-    route = ROUTES["adversarial"](world, duration=600.0, seed=464)
     lidar = replace(LIDAR_PRESETS["sick361"], no_return_as_max=True)
-    odo, truth, poses = None, [], []
-    for k, (scan, pose) in enumerate(simulate_scans(world, lidar, route, seed=464)):
-        if scan.stamp > 240.0:
-            break
-        if k % 4:
-            continue
-        odo = odo or LidarOdometry(OdometryConfig())  # at the origin, as ``bioslam run``
-        odo.update(scan)
-        truth.append(pose)
-        poses.append(odo.pose.copy())
-    miss = between(between(np.array(truth[:-1]), np.array(truth[1:])),
-                   between(np.array(poses[:-1]), np.array(poses[1:])))  # fmt: skip
+    # at the origin, as ``bioslam run``
+    estimate, truth = odometry_run(
+        str(write_blocks(tmp_path)), "adversarial", lidar, 464, 600.0, start="origin", every=4,
+        until=240.0,
+    )  # fmt: skip
+    miss = between(between(truth[:-1], truth[1:]), between(estimate[:-1], estimate[1:]))
     off = np.hypot(miss[:, 0], miss[:, 1])
     assert len(off) > 290 and off.max() < 0.3, (int(np.sum(off > 0.3)), off.max())

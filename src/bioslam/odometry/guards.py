@@ -133,15 +133,13 @@ class PredictionGuards:
         better, 0.69 against 0.59 where 0.84 is typical, was a look-alike)."""
         if option[1].degenerate:
             return option
-        undone = compose(previous, inverse(self._last_delta))
-        if self._contradicted(option[1]):
-            alternative = self._option(level_pts, undone, normals)
-            return self._less_contradicted(option, alternative, level_pts)
-        if self._score_dropped(option[1]):
-            alternative = self._option(level_pts, undone, normals)
-            if not self._score_dropped(alternative[1]):
-                return self._less_contradicted(option, alternative, level_pts, strictly=False)
-        return option
+        contradicted = self._contradicted(option[1])
+        if not (contradicted or self._score_dropped(option[1])):
+            return option
+        alternative = self._option(level_pts, compose(previous, inverse(self._last_delta)), normals)
+        if not contradicted and self._score_dropped(alternative[1]):
+            return option  # the step undone fits no better than the drop
+        return self._less_contradicted(option, alternative, level_pts, strictly=contradicted)
 
     def _less_contradicted(
         self, option: tuple[FloatArray, MatchReport, bool],
@@ -152,10 +150,9 @@ class PredictionGuards:
         basin with fewer endpoints in known free space (not ``strictly``: no more), and
         beside it ``option`` is not plausible (:meth:`_plausible_beside`); else ``option``."""
         report, alt = option[1], alternative[1]
-        more = alt.free_fraction >= report.free_fraction if strictly else (
-            alt.free_fraction > report.free_fraction
-        )
-        if alternative[2] or more:
+        if alternative[2] or alt.free_fraction > report.free_fraction:
+            return option
+        if strictly and alt.free_fraction == report.free_fraction:
             return option
         if not self._different_start(alternative[0], option[0]):
             return option
