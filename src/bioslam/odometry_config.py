@@ -194,6 +194,15 @@ class OdometryConfig:
         sweep_rematch: where the measured rate bends the scan by at least this much (rad)
             against the one it was matched with, the scan is matched afresh, its match
             chosen again (a spin on the spot: the bent scan's choice may be a look-alike).
+        sweep_thinned: the rate is measured too where the scans are neither after a gap nor
+            sparse but each step spans more than this many sweeps (a 360° scanner's log
+            thinned by count, a topic recorded throttled): the motion model's twist is then a
+            mean over the last steps, each several sweeps long, and lags a turn's onset and end
+            by a step (cubicles floor, RPLIDAR every 3rd scan, 2.3 Hz, spins at 1.5 rad/s:
+            heading errors of 3.3° a step at the 90th percentile, 12° at the 99th). Such a scan
+            keeps its match unless the measured rate bends it by ``sweep_min_skew`` or more
+            against the twist, and is then matched afresh as de-skewed, the motion prior
+            holding it as any scan's. 0: never.
         min_points: fewer valid endpoints than this give a prediction-only update.
         recovery_free_fraction: a match that leaves more than this fraction of the matched
             endpoints in cells the map knows to be free has probably failed (a good match
@@ -534,6 +543,7 @@ class OdometryConfig:
     sweep_refinements: int = 2
     sweep_iterations: tuple[int, ...] = (10, 10)
     sweep_rematch: float = math.radians(4.0)
+    sweep_thinned: float = 1.5
     min_points: int = 20
     recovery_free_fraction: float = 0.2
     recovery_score_ratio: float = 0.5
@@ -616,11 +626,11 @@ class OdometryConfig:
             "fused_reach_scans and rebuild_scans must be non-negative, got "
             f"{(self.fused_reach_scans, self.rebuild_scans)}",
         )
-        sweep = (self.sweep_turn_rate, self.sweep_refinements, self.sweep_rates)
+        sweep = (self.sweep_turn_rate, self.sweep_refinements, self.sweep_thinned)
         _require(
-            min(sweep[:2]) >= 0 and self.sweep_rates >= 1,
-            "sweep_turn_rate and sweep_refinements must be non-negative and sweep_rates "
-            f"positive, got {sweep}",
+            min(sweep) >= 0 and self.sweep_rates >= 1,
+            "sweep_turn_rate, sweep_refinements and sweep_thinned must be non-negative and "
+            f"sweep_rates positive, got {(*sweep, self.sweep_rates)}",
         )
         if self.score_window < 1:
             raise ValueError(f"score_window must be at least 1, got {self.score_window}")

@@ -114,13 +114,21 @@ class SweepMotion:
         it at ``sweep_turn_rate``, and the motion model's twist is a mean over a gap or a
         thinned log's step (not :meth:`_gapless`, or the scans are :meth:`_sparse`; not
         the first scans of a log at the scanner's rate, searched while the motion model
-        has no twist yet: it is measured within a few scans)."""
+        has no twist yet: it is measured within a few scans), or over steps of several
+        sweeps each (:meth:`_steps_span_sweeps`)."""
         c = self.config
         if not (c.deskew and c.sweep_turn_rate > 0.0 and closes_circle(scan)):
             return False
         if c.sweep_turn_rate * sweep_seconds(scan) < c.sweep_min_skew:
             return False
-        return not self._gapless(dt) or self._sparse()
+        return not self._gapless(dt) or self._sparse() or self._steps_span_sweeps(scan, dt)
+
+    def _steps_span_sweeps(self, scan: LaserScan, dt: float) -> bool:
+        """Whether the step of ``dt`` seconds spans more than ``sweep_thinned`` of the scan's
+        sweeps: a log thinned by count (or recorded throttled) that is neither after a gap
+        nor sparse, whose motion model's twist lags a turn by a step of several sweeps."""
+        thinned = self.config.sweep_thinned
+        return thinned > 0.0 and dt > thinned * sweep_seconds(scan)
 
     def _settle_sweep(
         self, scan: LaserScan, previous: FloatArray, chosen: FloatArray, dt: float
