@@ -202,7 +202,8 @@ class OdometryConfig:
             heading errors of 3.3° a step at the 90th percentile, 12° at the 99th). Such a scan
             keeps its match unless the measured rate bends it by ``sweep_min_skew`` or more
             against the twist, and is then matched afresh as de-skewed, the motion prior
-            holding it as any scan's. 0: never.
+            holding it as any scan's; where its match failed, it is matched again de-skewed
+            as if the robot had stopped or reversed its motion and turn. 0: never.
         min_points: fewer valid endpoints than this give a prediction-only update.
         recovery_free_fraction: a match that leaves more than this fraction of the matched
             endpoints in cells the map knows to be free has probably failed (a good match

@@ -37,7 +37,7 @@ from bioslam.matching.registration import grazing_endpoints
 from bioslam.motion_model import ConstantVelocityModel, translation_part
 from bioslam.occupancy_grid import MapPyramid, OccupancyGrid, subsample_by_spacing, thinned_normals
 from bioslam.odometry.body_hits import BodyHits
-from bioslam.odometry.choice import MatchChoice
+from bioslam.odometry.choice import MatchChoice, match_quality
 from bioslam.odometry.guards import PredictionGuards
 from bioslam.odometry.local_map import Fusion, LocalMap
 from bioslam.odometry.search import WideSearch
@@ -420,20 +420,53 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         several sweeps, :meth:`~.sweep.SweepMotion._steps_span_sweeps`) the motion prior
         holds the match, which the settled match's search prior lets slide along a corridor
         (simulated maze, 3.5 m LDS-01 every 2nd scan: 15-35 cm a step): ``found`` stays
-        unless the rate bends the scan by ``sweep_min_skew``, and is then matched afresh."""
+        unless the rate bends the scan by ``sweep_min_skew``, and is then matched afresh; a
+        match that failed either way is tried with the robot stopped or reversed
+        (:meth:`_unless_failed_by_twist`)."""
         settled = self._settle_sweep(scan, previous, found.pose, dt)
         if settled is None:
             return found
         bend = sweep_bend(float(self._motion.twist[2]), settled.rate, scan)
         paced = self.at_scanner_rate(dt)
         if paced and bend < self.config.sweep_min_skew:
-            return found
-        if paced or bend >= self.config.sweep_rematch:
+            return self._unless_failed_by_twist(found, scan, previous, predicted, dt)
+        if paced:
+            rematched = self._match_scan(
+                settled.points, settled.keep, scan, previous, predicted, dt
+            )
+            return self._unless_failed_by_twist(rematched, scan, previous, predicted, dt)
+        if bend >= self.config.sweep_rematch:
             return self._match_scan(settled.points, settled.keep, scan, previous, predicted, dt)
         return replace(
             found, pose=settled.pose, points=settled.points, keep=settled.keep,
             levels=settled.levels, normals=settled.normals,
         )  # fmt: skip
+
+    def _unless_failed_by_twist(
+        self, found: ScanMatch, scan: LaserScan, previous: FloatArray, predicted: FloatArray,
+        dt: float,
+    ) -> ScanMatch:
+        """``found``, or where it failed (:meth:`_failed`), the scan de-skewed as if the robot
+        had stopped, or had reversed its motion and its turn, and matched afresh, whichever of
+        those did not fail and fits best. At the scanner's pace of a log thinned by count a
+        robot that reverses between two scans reverses its turn through the sweep too: the
+        motion model's twist then bends the scan by twice the turn (13° at 0.8 rad/s through a
+        RPLIDAR's sweep), no pose fits it, and the rate measured from the failed pose says
+        nothing (simulated maze, RPLIDAR every 3rd scan reversing s502: lost, 9 m, at the
+        reversal; found with the reversed twist)."""
+        if not self._failed(found.report):
+            return found
+        best, fit = found, match_quality(found.report)
+        vx, vy, w = (float(v) for v in self._motion.twist)
+        for twist in ((0.0, 0.0, 0.0), (-vx, -vy, -w)):
+            points = self._sensor_points(scan, twist)
+            if points.shape[0] < self.config.min_points:
+                continue
+            keep = subsample_by_spacing(points, self.config.point_spacing)
+            match = self._match_scan(points, keep, scan, previous, predicted, dt)
+            if not self._failed(match.report) and match_quality(match.report) > fit:
+                best, fit = match, match_quality(match.report)
+        return best
 
     def _note_match(self, found: ScanMatch, previous: FloatArray) -> None:
         """Remember the match kept: the motion model's miss, the step (for the step prior,
