@@ -427,14 +427,12 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         if settled is None:
             return found
         bend = sweep_bend(float(self._motion.twist[2]), settled.rate, scan)
-        paced = self.at_scanner_rate(dt)
-        if paced and bend < self.config.sweep_min_skew:
+        if self.at_scanner_rate(dt):
+            if bend >= self.config.sweep_min_skew:
+                found = self._match_scan(
+                    settled.points, settled.keep, scan, previous, predicted, dt
+                )
             return self._unless_failed_by_twist(found, scan, previous, predicted, dt)
-        if paced:
-            rematched = self._match_scan(
-                settled.points, settled.keep, scan, previous, predicted, dt
-            )
-            return self._unless_failed_by_twist(rematched, scan, previous, predicted, dt)
         if bend >= self.config.sweep_rematch:
             return self._match_scan(settled.points, settled.keep, scan, previous, predicted, dt)
         return replace(
@@ -459,13 +457,13 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         best, fit = found, match_quality(found.report)
         vx, vy, w = (float(v) for v in self._motion.twist)
         for twist in ((0.0, 0.0, 0.0), (-vx, -vy, -w)):
-            points = self._sensor_points(scan, twist)
-            if points.shape[0] < self.config.min_points:
+            deskewed = self._deskewed(scan, twist)
+            if deskewed is None:
                 continue
-            keep = subsample_by_spacing(points, self.config.point_spacing)
-            match = self._match_scan(points, keep, scan, previous, predicted, dt)
-            if not self._failed(match.report) and match_quality(match.report) > fit:
-                best, fit = match, match_quality(match.report)
+            match = self._match_scan(*deskewed, scan, previous, predicted, dt)
+            quality = match_quality(match.report)
+            if not self._failed(match.report) and quality > fit:
+                best, fit = match, quality
         return best
 
     def _note_match(self, found: ScanMatch, previous: FloatArray) -> None:

@@ -148,16 +148,27 @@ class SweepMotion:
         rate = best_rate(quality, c.sweep_turn_rate, c.sweep_rates, c.sweep_refinements)
         return None if rate is None else fits[rate]
 
+    def _deskewed(
+        self, scan: LaserScan, twist: tuple[float, float, float]
+    ) -> tuple[FloatArray, NDArray[np.bool_]] | None:
+        """The scan's endpoints de-skewed with ``twist`` and the ones kept for matching
+        (``point_spacing``); None with fewer than ``min_points``."""
+        c = self.config
+        points = self._sensor_points(scan, twist)
+        if points.shape[0] < c.min_points:
+            return None
+        return points, subsample_by_spacing(points, c.point_spacing)
+
     def _sweep_fit(
         self, scan: LaserScan, start: FloatArray, twist: tuple[float, float, float]
     ) -> SweepFit | None:
         """The scan de-skewed with ``twist`` and matched from ``start`` on the finest levels
         (``sweep_iterations``)."""
         c = self.config
-        points = self._sensor_points(scan, twist)
-        if points.shape[0] < c.min_points:
+        deskewed = self._deskewed(scan, twist)
+        if deskewed is None:
             return None
-        keep = subsample_by_spacing(points, c.point_spacing)
+        points, keep = deskewed
         level_pts, normals = self._levels(points, keep, scan)
         iterations = (c.sweep_iterations + (0,) * c.levels)[: c.levels]
         pose, report = self._match_from(
