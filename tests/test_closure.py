@@ -694,6 +694,27 @@ def test_slide_returns_pairs_a_slide_with_the_jump_that_undoes_it():
     assert slides.jump((-0.2, 0.0, 0.0), travelled=25.0) == "opened"
 
 
+def test_a_run_of_breaks_counts_a_jump_once_and_a_stall_between_two_jumps():
+    """A thinned log's steps 0.6 s apart, the robot driving 0.3 m a step: a sideways jump
+    and the step that resumes the motion after it put the odometry 0.78 m off, not twice
+    that; two jumps back with a stall between put it as far off as all three steps say
+    (1.36 + 0.3 + 1.84 m), each step along the odometry's own heading."""
+    from bioslam.closure import BreakRun
+
+    steady = np.array([0.3, 0.0, 0.0])
+    run = BreakRun(steady, 0.6)
+    assert run.step(np.array([0.3, 0.78, 0.0]), 0.6) == pytest.approx(0.78)
+    assert run.step(np.array([0.3, 0.0, 0.0]), 0.6) == pytest.approx(0.78)
+    run = BreakRun(steady, 0.6)
+    assert run.step(np.array([-1.06, 0.0, 0.0]), 0.6) == pytest.approx(1.36)
+    assert run.step(np.array([0.0, 0.0, 0.0]), 0.6) == pytest.approx(1.66)
+    assert run.step(np.array([-1.54, 0.0, 0.0]), 0.6) == pytest.approx(3.5)
+    # turned a quarter at the first step, the next step's shortfall lies across the first's
+    run = BreakRun(steady, 0.3)
+    assert run.step(np.array([0.6, 0.0, math.pi / 2]), 0.3) == pytest.approx(0.3)
+    assert run.step(np.array([0.0, 0.0, 0.0]), 0.3) == pytest.approx(math.hypot(0.3, 0.3))
+
+
 def _corridor_grid(end_wall: bool):
     """A corridor 2 m wide along x (walls at y = -1.03 and 0.97), with an end wall at
     x = 1.5 or open; its submap's score grid, the scan of a robot at the origin facing

@@ -267,6 +267,42 @@ def test_jumps_each_within_the_search_window_that_add_up_past_it_refuse_the_clos
     assert later and max(_closure_errors(slam, gt, later)) < 0.15
 
 
+def test_jumps_no_robot_can_make_between_a_thinned_logs_scans_add_up_to_refuse_closures():
+    """The rooms floor (identical rooms 5 m apart) with a 360° scanner kept every 4th scan:
+    the odometry jumps 2.5 m forward twice, a room along in all, each jump within the 3 m
+    window a check searches. Over a thinned log's step (0.8 s) a robot can change its motion
+    by half a metre at most, so each jump is the odometry's, not the robot's, and the two
+    together put the map's prediction a room off: the checks to the places made before them
+    are refused (not summed, 35 closures confirmed the look-alike room, 5.0 m off). The places
+    made after the jumps still close."""
+    world = load_world("rooms")
+    route = ROUTES["tour"](world, duration=300.0, seed=1)
+    pairs = list(simulate_scans(world, LIDAR_PRESETS["rplidar"], route, seed=1))[::4]
+    scans = [scan for scan, _ in pairs]
+    gt = Trajectory(np.array([s.stamp for s in scans]), np.array([p for _, p in pairs]))
+    heading = gt.poses[:, 2]
+    # the first scans a third of the way in with the robot driving along the rooms' row
+    first = next(
+        k for k in range(len(scans) // 3, len(scans))
+        if np.all(np.abs(np.sin(heading[k : k + 4])) < 0.09)
+    )  # fmt: skip
+    at = (first, first + 2)
+    slam = BioSLAM(SLAMConfig())
+    for k in at:
+        _jumping(slam, k, 2.5)
+    for scan in scans:
+        slam.process(scan)
+    assert not slam.odometry.at_scanner_rate(scans[1].stamp - scans[0].stamp)
+    before, after = scans[at[0]].stamp, scans[at[-1]].stamp
+    checks = [c for c in slam.checks if c.stamp > after]
+    across = [c for c in checks if c.experience_stamp < before and c.verdict.accepted]
+    later = [c for c in checks if c.experience_stamp > after and c.verdict.accepted]
+    refused = [c for c in checks if c.verdict.reason == "odometry broke"]
+    assert not across
+    assert refused and all(c.experience_stamp < after for c in refused)
+    assert later and max(_closure_errors(slam, gt, later)) < 0.15
+
+
 @pytest.mark.parametrize("at_rate", [True, False])
 def test_breaks_are_summed_against_the_search_window_only_at_the_scanners_rate(
     ring_drive, at_rate
@@ -274,8 +310,9 @@ def test_breaks_are_summed_against_the_search_window_only_at_the_scanners_rate(
     """Four breaks since a place, each departing 0.9 m from the robot's motion (within the
     3 m window alone): at the scanner's rate they are a slide of up to 3.6 m, past what a
     check searches, and its checks are refused; after gaps or on a thinned log's steps they
-    are the robot's own changes of motion over seconds (intel) and only a single departure
-    past the window refuses. Then one break of 3.5 m does."""
+    may be the robot's own changes of motion over seconds (intel), summed only where each is
+    more than a robot can make (the test above), and only a single departure past the window
+    refuses. Then one break of 3.5 m does."""
     scans, _ = ring_drive
     slam = BioSLAM(SLAMConfig())
     slam.process(scans[0])
@@ -285,7 +322,7 @@ def test_breaks_are_summed_against_the_search_window_only_at_the_scanners_rate(
         motion.breaks += 1
         motion.break_departures.append((0.9, 0.01))
         if at_rate:
-            motion.paced_departure += (0.9, 0.01)
+            motion.summed_departure += (0.9, 0.01)
     assert slam._jumped_beyond_search(place) is at_rate
     motion.breaks += 1
     motion.break_departures.append((3.5, 0.0))  # after a gap: not paced

@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 
 from bioslam.boundary import BoundaryCells
 from bioslam.closure import (
+    BreakRun,
     Candidate,
     Check,
     ClosureConsensus,
@@ -216,8 +217,15 @@ class SelfMotion:
         #: (:func:`bioslam.closure.break_departure`), in the order they came
         self.break_departures: list[tuple[float, float]] = []
         #: the same summed (m, rad) over the breaks that came at the scanner's rate
-        #: (:meth:`bioslam.odometry.LidarOdometry.at_scanner_rate`)
-        self.paced_departure = np.zeros(2)
+        #: (:meth:`bioslam.odometry.LidarOdometry.at_scanner_rate`) and, after gaps or on a
+        #: thinned log's steps, over the runs of breaks that began with one more than a
+        #: robot can change its motion by (:meth:`_count_run`): how far the breaks may have
+        #: slid the odometry, against what a closure's check searches
+        self.summed_departure = np.zeros(2)
+        # the run of breaks under way after gaps or on a thinned log's steps, and what it
+        # has added to ``summed_departure`` so far
+        self._run: BreakRun | None = None
+        self._run_departure = 0.0
         #: the same summed over the breaks and every other step no robot can make
         #: (:func:`bioslam.closure.jumped`: a slide, and the return to the robot's motion
         #: after it), each at most what a closure can measure
@@ -274,6 +282,8 @@ class SelfMotion:
                 departed = self._track_slide(dp, dt) and self.closure.distrust_slides
                 if broke or (weighed and (departed or self._jumped(dp, expected, dt))):
                     self._note_jump(dp, expected, dt, broke)
+                if not broke:
+                    self._run = None
             self._last_step, self._last_dt = dp.copy(), dt
             if self.heading_bias:
                 dp[2] += self.heading_bias * dt
@@ -298,10 +308,30 @@ class SelfMotion:
             departure = break_departure(dp, expected, self._last_step)
             self.break_departures.append(departure)
             if self.odometry.at_scanner_rate(dt):
-                self.paced_departure += departure
+                self.summed_departure += departure
+                self._run = None
+            else:
+                self._count_run(dp, dt, departure)
         self.jumps += int(broke or self.closure.distrust_jumps)
         if broke or self.closure.weigh_jumps:
             self.jump_extent += link_extent(extent, self.closure)
+
+    def _count_run(self, dp: FloatArray, dt: float, departure: tuple[float, float]) -> None:
+        """Add a break after a gap or on a thinned log's step to ``summed_departure``: the
+        run of breaks in a row it begins or goes on, by how far the run has now moved the
+        odometry's position from the motion before it (:class:`bioslam.closure.BreakRun`;
+        turns count by single breaks, :meth:`BioSLAM._jumped_beyond_search`). A run begins
+        only with a break whose ``departure`` from the motion is farther than a robot can
+        change its motion by in ``dt`` seconds (:func:`bioslam.closure.break_thresholds`); a
+        nearer one may be the robot's own change of motion over seconds (intel: true
+        closures across breaks summing to 3.6 m)."""
+        if self._run is None:
+            if departure[0] <= break_thresholds(dt, self.closure)[0]:
+                return
+            self._run, self._run_departure = BreakRun(self._last_step, self._last_dt), 0.0
+        moved = self._run.step(dp, dt)
+        self.summed_departure[0] += moved - self._run_departure
+        self._run_departure = moved
 
     def _track_slide(self, dp: FloatArray, dt: float) -> bool:
         """Note whether ``dp`` opens or undoes a slide (:class:`bioslam.closure.SlideReturns`):
@@ -425,7 +455,7 @@ class BioSLAM:
         # ... and of its breaks and jumps (:attr:`SelfMotion.jumps`)
         self._jumps_at = np.empty(1024, dtype=np.int64)
         self._extent_at = np.empty((1024, 2))
-        self._paced_at = np.empty((1024, 2))
+        self._summed_at = np.empty((1024, 2))
         # the odometry's pose when each experience was made: the old pass's chain of
         # relative poses for the closures' pairwise test (:class:`bioslam.closure.Candidate`)
         self._odometry_at = np.empty((1024, 3))
@@ -724,7 +754,7 @@ class BioSLAM:
     def _note_made(self, experience_id: int, verifiable: bool = True) -> None:
         if experience_id >= self._made_at.size:
             for name in (
-                "_made_at", "_breaks_at", "_jumps_at", "_extent_at", "_paced_at",
+                "_made_at", "_breaks_at", "_jumps_at", "_extent_at", "_summed_at",
                 "_odometry_at", "_doubts_at", "_heading_var_at", "_verifiable",
             ):  # fmt: skip
                 column = getattr(self, name)
@@ -736,7 +766,7 @@ class BioSLAM:
         self._breaks_at[experience_id] = self.self_motion.breaks
         self._jumps_at[experience_id] = self.self_motion.jumps
         self._extent_at[experience_id] = self.self_motion.break_extent
-        self._paced_at[experience_id] = self.self_motion.paced_departure
+        self._summed_at[experience_id] = self.self_motion.summed_departure
         self._verifiable[experience_id] = verifiable
 
     def _nearby(self, travelled: float, pending: FloatArray | None = None) -> int | None:
@@ -1095,10 +1125,14 @@ class BioSLAM:
         apart: the odometry slid back by one table in breaks of 0.1-0.9 m, each within the
         window, and four closures 4.0 m off confirmed it). Summed as magnitudes: a stall and
         the step that resumes the motion depart from the motion each way, and as vectors
-        they cancel where the slide they leave does not. Not summed after gaps or on a
-        thinned log's steps, whose departures are the robot's own changes of motion over
-        seconds (intel with a heading drift injected: summed, they refused the closures
-        that take it out, 0.87 m left of the odometry's 1.44). Departures, not the breaks'
+        they cancel where the slide they leave does not. After gaps or on a thinned log's
+        steps, whose departures may be the robot's own changes of motion over seconds (intel
+        with a heading drift injected: summed, they refused the closures that take it out,
+        0.87 m left of the odometry's 1.44), only the runs of breaks that began with one no
+        robot can make are summed, each by where it put the odometry
+        (:meth:`SelfMotion._count_run`: a cubicles floor's 3.5 m scanner kept every third
+        scan jumped back 4.0 m, one cubicle, in two breaks, and 25 closures confirmed the
+        cubicle it jumped to). Departures, not the breaks'
         extents: after a gap of seconds a break's extent is what a robot could have done
         meanwhile, and one gap refused every later closure to the places before it (intel:
         165-210 of its 245-287 checks, its 23 breaks all true steps)."""
@@ -1106,7 +1140,7 @@ class BioSLAM:
         since = self.self_motion.break_departures[int(self._breaks_at[experience_id]) :]
         if any(m > cfg.search_distance or a > cfg.search_angle for m, a in since):
             return True
-        moved, turned = self.self_motion.paced_departure - self._paced_at[experience_id]
+        moved, turned = self.self_motion.summed_departure - self._summed_at[experience_id]
         return bool(moved > cfg.search_distance or turned > cfg.search_angle)
 
     def _rival_window(
