@@ -742,16 +742,17 @@ class _ScriptedOdometry:
     """An odometry whose steps are given: ``update`` returns the next one, every match
     reported as the motion model's own (no search, no break)."""
 
-    def __init__(self, steps: list[tuple[float, float, float]]) -> None:
+    def __init__(self, steps: list[tuple[float, float, float]], at_rate: bool = True) -> None:
         self.config = OdometryConfig()
         self.last_report = MatchReport()
         self._steps = iter(steps)
+        self._at_rate = at_rate
 
     def update(self, scan: object) -> np.ndarray:
         return np.array(next(self._steps), dtype=float)
 
     def at_scanner_rate(self, dt: float) -> bool:
-        return True
+        return self._at_rate
 
 
 def _jumps_counted(
@@ -794,6 +795,33 @@ def test_a_robot_backing_up_along_its_path_makes_no_jumps():
     assert _jumps_counted(ahead + [(-0.05, 0.0, 0.0)] * 10 + ahead) >= 10
     # nor is a step back the odometry kept among look-alikes
     assert _jumps_counted(ahead + back + ahead, look_alike=True) >= 10
+
+
+def _summed_on_a_thinned_log(steps: list[tuple[float, float, float]]) -> float:
+    """How far (m) :class:`SelfMotion` sums the breaks along ``steps`` of a log thinned to
+    a scan every 0.6 s, every step a search's (``MatchReport.recovered``)."""
+    motion = SelfMotion(SLAMConfig())
+    motion.odometry = _ScriptedOdometry(steps, at_rate=False)
+    motion.odometry.last_report.recovered = True
+    for k in range(len(steps)):
+        motion.step(SimpleNamespace(stamp=0.6 * k))
+    return float(motion.summed_departure[0])
+
+
+def test_a_thinned_logs_jumps_are_summed_by_where_they_put_the_odometry_reversals_not():
+    # 0.3 m a step ahead; two jumps back with a stalled step between put the odometry
+    # 1.36 + 0.3 + 1.84 m off (the cubicles' 4 m, less the robot's own 0.6 m on)
+    ahead = [(0.3, 0.0, 0.0)] * 5
+    assert _summed_on_a_thinned_log(
+        [*ahead, (-1.06, 0.0, 0.0), (0.0, 0.0, 0.0), (-1.54, 0.0, 0.0), *ahead]
+    ) == pytest.approx(3.5)
+    # a sideways jump and the step after it that resumes the motion: once
+    assert _summed_on_a_thinned_log([*ahead, (0.3, 0.78, 0.0), *ahead]) == pytest.approx(0.78)
+    # a robot that reverses within a scan, 0.6 m from its motion in 0.6 s: no jump
+    back = [(-0.3, 0.0, 0.0)] * 5
+    assert _summed_on_a_thinned_log(ahead + back + ahead + back) == 0.0
+    # within what a robot can change its motion by in 0.6 s (0.46 m): its own
+    assert _summed_on_a_thinned_log([*ahead, (0.0, 0.0, 0.0), *ahead]) == 0.0
 
 
 def test_checks_across_doubted_odometry_steps_are_challenged_from_outside_their_window(

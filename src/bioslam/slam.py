@@ -324,9 +324,13 @@ class SelfMotion:
         only with a break whose ``departure`` from the motion is farther than a robot can
         change its motion by in ``dt`` seconds (:func:`bioslam.closure.break_thresholds`); a
         nearer one may be the robot's own change of motion over seconds (intel: true
-        closures across breaks summing to 3.6 m)."""
+        closures across breaks summing to 3.6 m), and so may one that drives the last step
+        back (:meth:`_mirrors`: a simulated robot reverses within a scan, 0.6 m from its
+        motion in 0.6 s, and its odometry's search follows it there)."""
         if self._run is None:
-            if departure[0] <= break_thresholds(dt, self.closure)[0]:
+            if departure[0] <= break_thresholds(dt, self.closure)[0] or self._mirrors(
+                dp, self._last_step * min(dt / self._last_dt, 1e3), dt
+            ):
                 return
             self._run, self._run_departure = BreakRun(self._last_step, self._last_dt), 0.0
         moved = self._run.step(dp, dt)
@@ -376,6 +380,12 @@ class SelfMotion:
         report = self.odometry.last_report
         if report.predicted_only or report.ambiguous or report.recovered:
             return False
+        return self._mirrors(dp, steady, dt)
+
+    def _mirrors(self, dp: FloatArray, steady: FloatArray, dt: float) -> bool:
+        """Whether ``dp`` is the ``steady`` motion driven back, its translation negated to
+        within ``REVERSAL_MISMATCH`` of its speed and its turn within what a robot can
+        change in ``dt``, however the odometry matched it."""
         speed = math.hypot(steady[0], steady[1])
         mismatch = math.hypot(dp[0] + steady[0], dp[1] + steady[1])
         return mismatch <= REVERSAL_MISMATCH * speed and not implausible(
