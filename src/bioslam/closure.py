@@ -245,16 +245,19 @@ class BreakRun:
         self._steady_dt = steady_dt
         self._offset = np.zeros(2)
         self._heading = 0.0
+        #: how far (m) the run has moved the odometry from the steady motion so far
+        self.moved = 0.0
 
     def step(self, dp: FloatArray, dt: float) -> float:
         """Take the run's next step ``dp`` (robot frame) ``dt`` seconds after the last: how
         far (m) the run has now moved the odometry from the steady motion."""
-        scale = min(dt / self._steady_dt, 1e3) if self._steady_dt > 0.0 else 0.0
-        dx, dy = dp[0] - self._steady[0] * scale, dp[1] - self._steady[1] * scale
+        steady = motion_over(self._steady, self._steady_dt, dt)
+        dx, dy = dp[0] - steady[0], dp[1] - steady[1]
         c, s = math.cos(self._heading), math.sin(self._heading)
         self._offset += (c * dx - s * dy, s * dx + c * dy)
         self._heading += float(dp[2])
-        return math.hypot(self._offset[0], self._offset[1])
+        self.moved = math.hypot(self._offset[0], self._offset[1])
+        return self.moved
 
 
 def break_extent(
@@ -311,6 +314,15 @@ def _departure(step: FloatArray, expected: FloatArray) -> tuple[float, float]:
         math.hypot(step[0] - expected[0], step[1] - expected[1]),
         abs(float(wrap_angle(float(step[2] - expected[2])))),
     )
+
+
+def motion_over(step: FloatArray, step_dt: float, dt: float) -> FloatArray:
+    """``step``, taken in ``step_dt`` seconds, carried on at its speed for ``dt`` seconds
+    (at most a thousand such steps: a stamp repeated in a log leaves ``step_dt`` near zero);
+    none when ``step_dt`` is none."""
+    if step_dt <= 0.0:
+        return np.zeros(3)
+    return step * min(dt / step_dt, 1e3)
 
 
 def break_thresholds(dt: float, config: LoopClosureConfig) -> tuple[float, float]:

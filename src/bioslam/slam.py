@@ -38,6 +38,7 @@ from bioslam.closure import (
     judged_shape,
     jumped,
     link_extent,
+    motion_over,
     nearest_experience,
     odometry_broke,
     odometry_doubted,
@@ -222,10 +223,8 @@ class SelfMotion:
         #: robot can change its motion by (:meth:`_count_run`): how far the breaks may have
         #: slid the odometry, against what a closure's check searches
         self.summed_departure = np.zeros(2)
-        # the run of breaks under way after gaps or on a thinned log's steps, and what it
-        # has added to ``summed_departure`` so far
+        # the run of breaks under way after gaps or on a thinned log's steps
         self._run: BreakRun | None = None
-        self._run_departure = 0.0
         #: the same summed over the breaks and every other step no robot can make
         #: (:func:`bioslam.closure.jumped`: a slide, and the return to the robot's motion
         #: after it), each at most what a closure can measure
@@ -265,7 +264,7 @@ class SelfMotion:
         dt = 0.0 if self._last_stamp is None else max(scan.stamp - self._last_stamp, 0.0)
         if self._last_stamp is not None:
             if self._last_dt > 0.0:  # the velocity of the step before is known
-                expected = self._last_step * min(dt / self._last_dt, 1e3)
+                expected = motion_over(self._last_step, self._last_dt, dt)
                 report = self.odometry.last_report
                 self.doubts += int(odometry_doubted(report))
                 self._since_break += 1
@@ -311,12 +310,14 @@ class SelfMotion:
                 self.summed_departure += departure
                 self._run = None
             else:
-                self._count_run(dp, dt, departure)
+                self._count_run(dp, expected, dt, departure)
         self.jumps += int(broke or self.closure.distrust_jumps)
         if broke or self.closure.weigh_jumps:
             self.jump_extent += link_extent(extent, self.closure)
 
-    def _count_run(self, dp: FloatArray, dt: float, departure: tuple[float, float]) -> None:
+    def _count_run(
+        self, dp: FloatArray, expected: FloatArray, dt: float, departure: tuple[float, float]
+    ) -> None:
         """Add a break after a gap or on a thinned log's step to ``summed_departure``: the
         run of breaks in a row it begins or goes on, by how far the run has now moved the
         odometry's position from the motion before it (:class:`bioslam.closure.BreakRun`;
@@ -325,17 +326,17 @@ class SelfMotion:
         change its motion by in ``dt`` seconds (:func:`bioslam.closure.break_thresholds`); a
         nearer one may be the robot's own change of motion over seconds (intel: true
         closures across breaks summing to 3.6 m), and so may one that drives the last step
-        back (:meth:`_mirrors`: a simulated robot reverses within a scan, 0.6 m from its
-        motion in 0.6 s, and its odometry's search follows it there)."""
+        back (``expected``, the last step's motion over ``dt``: :meth:`_mirrors`; a
+        simulated robot reverses within a scan, 0.6 m from its motion in 0.6 s, and its
+        odometry's search follows it there)."""
         if self._run is None:
             if departure[0] <= break_thresholds(dt, self.closure)[0] or self._mirrors(
-                dp, self._last_step * min(dt / self._last_dt, 1e3), dt
+                dp, expected, dt
             ):
                 return
-            self._run, self._run_departure = BreakRun(self._last_step, self._last_dt), 0.0
-        moved = self._run.step(dp, dt)
-        self.summed_departure[0] += moved - self._run_departure
-        self._run_departure = moved
+            self._run = BreakRun(self._last_step, self._last_dt)
+        before = self._run.moved
+        self.summed_departure[0] += self._run.step(dp, dt) - before
 
     def _track_slide(self, dp: FloatArray, dt: float) -> bool:
         """Note whether ``dp`` opens or undoes a slide (:class:`bioslam.closure.SlideReturns`):
@@ -350,7 +351,7 @@ class SelfMotion:
         if self._steady_dt <= 0.0:
             self._steady, self._steady_dt = dp.copy(), dt
             return False
-        steady = self._steady * min(dt / self._steady_dt, 1e3)
+        steady = motion_over(self._steady, self._steady_dt, dt)
         if not implausible(dp, steady, dt, self.closure) or self._reversed(dp, steady, dt):
             self._steady, self._steady_dt = dp.copy(), dt
             return False
