@@ -118,6 +118,67 @@ def test_a_map_pooled_for_a_wide_window_answers_a_narrower_windows_search_as_its
         assert (a.rival_pose is None) == (b.rival_pose is None)
 
 
+def test_a_wider_windows_search_given_a_narrower_ones_answer_finds_the_whole_windows():
+    """A closure check's rival outside its window is sought by searching a wider window
+    around the same prediction; given the check's own search (``known``), that lattice is
+    not searched again. The answer is the one a search of the whole wider window gives
+    (best, rival, scores, to the pose), on random maps where the best lies inside the
+    narrower window or outside it, its rival sought as there or across a slide, and the
+    search costs fewer nodes when the best lies inside and the rival is sought as there."""
+    rng = np.random.default_rng(11)
+    inside = 0
+    for _ in range(40):
+        res = rng.choice([0.05, 0.1])
+        grid = _random_grid(rng, res, 14.0)
+        points = rng.uniform(-5, 5, (int(rng.integers(5, 80)), 2))
+        centre = np.array([*rng.uniform(-1, 1, 2), rng.uniform(-math.pi, math.pi)])
+        rivals = dict(
+            rival_distance=rng.uniform(0.1, 0.6), rival_angle=rng.uniform(0.02, 0.3),
+            min_rival_ratio=rng.uniform(0.0, 0.95), blur=int(rng.integers(0, 3)),
+        )  # fmt: skip
+        narrow = WideBasinConfig(
+            distance=rng.uniform(0.2, 1.2), angle=rng.uniform(0.05, 0.5), **rivals
+        )
+        wide = WideBasinConfig(
+            distance=narrow.distance * rng.choice([1.0, rng.uniform(1.0, 2.0)]),
+            angle=narrow.angle * rng.uniform(1.0, 2.5), **rivals,
+        )  # fmt: skip
+        matcher = WideBasinMatcher(wide)
+        matcher.set_map(grid, matcher.reach_box(points, [(centre, wide.distance, wide.angle)], res))
+        matcher.config = narrow
+        known = matcher.search(points, centre)
+        matcher.config = wide
+        # the rival sought as in the known window, or across a slide (a strip around the
+        # best where the known search sought it around a disc)
+        slide = (math.cos(a := rng.uniform(-math.pi, math.pi)), math.sin(a))
+        for across in (None, slide):
+            whole = matcher.search(points, centre, slide=across)
+            reused = matcher.search(points, centre, slide=across, known=known)
+            assert np.array_equal(reused.pose, whole.pose)
+            assert reused.score == pytest.approx(whole.score, rel=1e-12)
+            assert (reused.rival_pose is None) == (whole.rival_pose is None)
+            if whole.rival_pose is not None:
+                assert np.array_equal(reused.rival_pose, whole.rival_pose)
+                assert reused.rival_score == pytest.approx(whole.rival_score, rel=1e-12)
+            if across is None and np.array_equal(known.pose, whole.pose):
+                inside += 1
+                assert reused.nodes < whole.nodes
+    assert 5 <= inside <= 35  # both cases met
+
+
+def test_a_known_window_with_nothing_on_it_is_searched_in_full():
+    """A known window where nothing scored above 0 stands for nothing: the wider window is
+    searched whole."""
+    rng = np.random.default_rng(3)
+    points = rng.uniform(-4, 4, (40, 2))
+    centre = np.array([0.2, -0.3, 0.4])
+    empty = WideBasinMatcher(WideBasinConfig(distance=1.5, angle=0.6))
+    empty.set_map(OccupancyGrid(0.1, 12.0))
+    nothing = empty.search(points, centre)
+    assert nothing.score == 0.0
+    assert empty.search(points, centre, known=nothing).nodes == nothing.nodes
+
+
 def test_a_map_pooled_over_the_reach_box_alone_gives_the_whole_maps_answers():
     """Searches of the windows a reach box was made for find, against the map pooled over
     that box, the best pose, rival and scores they find against the whole map pooled: no

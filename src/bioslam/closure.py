@@ -44,7 +44,12 @@ from bioslam.geometry import (
     unit,
     wrap_angle,
 )
-from bioslam.matching.branch_and_bound import WideBasinConfig, WideBasinMatcher, refine
+from bioslam.matching.branch_and_bound import (
+    WideBasinConfig,
+    WideBasinMatcher,
+    WideMatch,
+    refine,
+)
 from bioslam.matching.gauss_newton import MatchReport, levels_up_to
 from bioslam.matching.point_to_line import LineMap, refine_point_to_line
 from bioslam.matching.registration import RegistrationConfig, densify_scan
@@ -857,7 +862,7 @@ def verify(
         reason = "beyond drift"
     elif outside is not None and outside_rival(
         pyramid, query, predicted, (distance, angle), rival_window, fit, config, seen, searcher,
-        looked=score,
+        looked=score, known=found,
     ):
         reason = "ambiguous"
     elif (
@@ -877,7 +882,7 @@ def verify(
         # check waits for a partner anyway.
         and outside_rival(
             pyramid, query, predicted, (distance, angle), (config.outside_rival_distance, angle),
-            fit, config, seen, looked=score, better=True,
+            fit, config, seen, looked=score, better=True, known=found,
         )
     ):
         reason = "beyond drift"
@@ -970,7 +975,7 @@ def _partial_verdict(
     if not reason and rival_window is not None and outside_rival(
         pyramid, query, predicted, window, rival_window,
         seen_hit_fraction(judge, pinned, query, reg.hit_level), config, seen, searcher,
-        looked=score, free=free,
+        looked=score, free=free, known=found,
     ):  # fmt: skip
         # the map's prediction not vouched for: another corridor beside, outside the window
         # but within what the odometry's breaks may have moved it, fits as well
@@ -1041,12 +1046,14 @@ def sliding(direction: ArrayLike) -> bool:
 
 @dataclass(frozen=True)
 class _Found:
-    """The wide-basin search's best lattice pose, its rival ratio and the lattice spacing."""
+    """The wide-basin search's best lattice pose, its rival ratio and the lattice spacing;
+    ``match``, the search's whole answer (a wider window's search reuses it)."""
 
     pose: FloatArray
     ambiguity: float
     rival_pose: FloatArray | None
     resolution: float
+    match: WideMatch
 
 
 def _searcher(
@@ -1083,13 +1090,15 @@ def _wide_search(
     window: tuple[float, float],
     config: LoopClosureConfig,
     slide: FloatArray | None = None,
+    known: _Found | None = None,
 ) -> _Found:
     """Branch and bound over ``window`` (m, rad) around ``centre`` with ``matcher``, pooled
-    for it or a wider window (:func:`_searcher`); ``slide``: its rival is sought across it
+    for it or a wider window (:func:`_searcher`); ``slide``: its rival is sought across it;
+    ``known``: this search of a window within it, not searched again
     (:meth:`WideBasinMatcher.search`)."""
     matcher.config = _window_config(window, config)
-    found = matcher.search(query, centre, slide=slide)
-    return _Found(found.pose, found.ambiguity, found.rival_pose, matcher.resolution)
+    found = matcher.search(query, centre, slide=slide, known=None if known is None else known.match)
+    return _Found(found.pose, found.ambiguity, found.rival_pose, matcher.resolution, found)
 
 
 def _outside_window(
@@ -1122,6 +1131,7 @@ def outside_rival(
     looked: float | None = None,
     better: bool = False,
     free: FloatArray | None = None,
+    known: _Found | None = None,
 ) -> bool:
     """Whether a pose outside ``window`` (m, rad) around ``predicted`` but within ``rival_window``
     (capped at ``outside_rival_distance`` and ``outside_rival_angle``) fits ``query`` as well as
@@ -1150,13 +1160,16 @@ def outside_rival(
 
     ``free``: a partial closure's slide (unit, the submap's frame): a pose that differs from
     ``predicted`` beyond ``window`` only along it is the same corridor, no rival; the search's
-    rival is sought across it (a corridor beside), the corridor's own plateau left out."""
+    rival is sought across it (a corridor beside), the corridor's own plateau left out.
+
+    ``known``: the search of ``window`` the check made (:func:`verify`), which the wider
+    search reuses (:meth:`WideBasinMatcher.search`; its answer is the same)."""
     wide = _outside_window(window, rival_window, config)
     if wide is None:
         return False
     reg = config.registration
     searcher = searcher or _searcher(pyramid, query, predicted, wide, config)
-    found = _wide_search(searcher, query, predicted, wide, config, free)
+    found = _wide_search(searcher, query, predicted, wide, config, free, known)
     level = min(config.search_level, len(pyramid.grids) - 1)
     iterations = levels_up_to(reg.max_iterations, level)
     judge = pyramid.grids[reg.score_level]

@@ -51,7 +51,7 @@ int32 per endpoint and heading, two int64 more for those near the crop's edge) a
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
@@ -137,6 +137,9 @@ class WideMatch:
         nodes: search nodes whose bound was computed (the cost; brute force visits every
             lattice pose).
         lattice: (headings, positions per axis) of the window's lattice.
+        leaves: the best and the rival as the search found them, rows of (summed score,
+            heading, x, y) on the lattice (a score of -1: none), for a search of a wider
+            window around the same centre (:meth:`WideBasinMatcher.search`'s ``known``).
     """
 
     pose: FloatArray
@@ -145,6 +148,7 @@ class WideMatch:
     rival_score: float
     nodes: int
     lattice: tuple[int, int]
+    leaves: FloatArray = field(default_factory=lambda: np.full((2, 4), -1.0), repr=False)
 
     @property
     def ambiguity(self) -> float:
@@ -258,6 +262,19 @@ def _in_zone(j, ix, iy, span, zone, strip):
         for cy in (iy, iy + span - 1):
             across = max(across, abs(strip[0] * (cy - zone[2]) - strip[1] * (cx - zone[1])))
     return across <= zone[3]
+
+
+@numba.njit(cache=True)
+def _in_known(j, ix, iy, span, known):
+    """Whether all translations of the node (j, ix, iy) of ``span`` cells lie in the window
+    already searched, ``known`` = (headings, cells) either side of the centre (-1: none)."""
+    return (
+        abs(j) <= known[0]
+        and ix >= -known[1]
+        and iy >= -known[1]
+        and ix + span - 1 <= known[1]
+        and iy + span - 1 <= known[1]
+    )
 
 
 @numba.njit(cache=True)
@@ -446,15 +463,34 @@ def _heap_pop(heap_b, heap_n, n):
 
 
 @numba.njit(cache=True)
-def _open(pool_b, pool_k, heap_b, heap_n, n, size, bound, j, h, ix, iy):
-    """Store node ``n`` (heading j, level h, origin ix, iy) with its bound and push it on
-    the heap of ``size`` entries (both with room for it); returns (n + 1, size + 1)."""
+def _store(pool_b, pool_k, n, bound, j, h, ix, iy):
+    """Store node ``n`` (heading j, level h, origin ix, iy) with its bound in the pool (with
+    room for it); returns n + 1."""
     pool_b[n] = bound
     pool_k[n, 0] = j
     pool_k[n, 1] = h
     pool_k[n, 2] = ix
     pool_k[n, 3] = iy
+    return n + 1
+
+
+@numba.njit(cache=True)
+def _open(pool_b, pool_k, heap_b, heap_n, n, size, bound, j, h, ix, iy):
+    """Store node ``n`` (:func:`_store`) and push it on the heap of ``size`` entries (with
+    room for it); returns (n + 1, size + 1)."""
+    _store(pool_b, pool_k, n, bound, j, h, ix, iy)
     return n + 1, _heap_push(heap_b, heap_n, size, bound, n)
+
+
+@numba.njit(cache=True)
+def _appended(items, count, item):
+    """``items`` (grown when full) with ``item`` at index ``count``."""
+    if count == items.shape[0]:
+        more = np.empty(2 * count, dtype=np.int64)
+        _copy_into(more, items)
+        items = more
+    items[count] = item
+    return items
 
 
 @numba.njit(cache=True)
@@ -486,7 +522,7 @@ def _grown(pool_b, pool_k, heap_b, heap_n, need):
 
 
 @numba.njit(cache=True)
-def _search(levels, pts, args, nt, nx, dims, rival):
+def _search(levels, pts, args, nt, nx, dims, rival, known, seeds):
     """The whole search in one call: the best lattice pose of headings -nt..nt and
     translations -nx..nx (cells), then its best distinct rival.
 
@@ -502,6 +538,15 @@ def _search(levels, pts, args, nt, nx, dims, rival):
     of the winner). Of leaves scoring exactly alike, each phase keeps the first in
     (j, ix, iy) order. Only leaves scoring above 0 are sought: where none does, the answer
     is score 0 at the first lattice pose, without a rival.
+
+    ``known`` (headings, cells, whether its rival stands; -1 for none): a window within
+    this one already searched, whose best and best rival are ``seeds`` (rows of score, j,
+    ix, iy; a score of -1: none). Its nodes can hold no leaf better than its best, which is
+    pushed as a leaf instead: they are set aside, bounded, never expanded in the search for
+    the best. If that best is the whole window's and the known rival was sought as this
+    one is (the same settings, no slide: ``known[2]`` 1), the known rival is pushed as a
+    leaf for the rival search and the known window's nodes are dropped; otherwise they are
+    pushed back and searched for the rival as the whole window's search would.
 
     Returns (score, j, ix, iy, rival score, rj, rx, ry, nodes); rj is ``nt + 1`` without a
     rival."""
@@ -525,6 +570,8 @@ def _search(levels, pts, args, nt, nx, dims, rival):
     # passed to once more for the literal 0 (a first run's compilation time)
     n = np.int64(0)
     size = np.int64(0)
+    aside = np.empty(16, dtype=np.int64)  # the known window's nodes, set aside
+    n_aside = 0
     for j in range(-nt, nt + 1):
         for first in range(0, per_heading, 4):
             m = min(4, per_heading - first)
@@ -533,10 +580,23 @@ def _search(levels, pts, args, nt, nx, dims, rival):
                 ys[t] = -nx + ((first + t) % per_axis) * span
             _node_bounds4(levels, depth, table, j + nh, xs, ys, m, out, rows, cols, stride)
             for t in range(m):
-                n, size = _open(
-                    pool_b, pool_k, heap_b, heap_n, n, size, out[t], j, depth, xs[t], ys[t]
-                )
+                if _in_known(j, xs[t], ys[t], span, known):
+                    aside = _appended(aside, n_aside, n)
+                    n_aside += 1
+                    n = _store(pool_b, pool_k, n, out[t], j, depth, xs[t], ys[t])
+                else:
+                    n, size = _open(
+                        pool_b, pool_k, heap_b, heap_n, n, size, out[t], j, depth, xs[t], ys[t]
+                    )
     nodes = n
+    seed = -1  # the known best's leaf
+    if seeds.shape[0]:
+        seed = n
+        n, size = _open(
+            pool_b, pool_k, heap_b, heap_n, n, size, seeds[0, 0], int(seeds[0, 1]), 0,
+            int(seeds[0, 2]), int(seeds[0, 3]),
+        )  # fmt: skip
+    skip = False  # whether the known window's nodes are dropped in the rival search
     zone = np.zeros(5, dtype=np.int64)
     strip = np.array([rival[3], rival[4]])
     found = np.full((2, 4), -1.0)  # (score, j, ix, iy) of the winner, then of the rival
@@ -561,6 +621,15 @@ def _search(levels, pts, args, nt, nx, dims, rival):
                 break
             for t in range(n_held):
                 size = _heap_push(heap_b, heap_n, size, pool_b[held[t]], held[t])
+            skip = chosen == seed and known[2] == 1
+            if skip and seeds[1, 0] >= 0.0:
+                pool_b, pool_k, heap_b, heap_n = _grown(pool_b, pool_k, heap_b, heap_n, n + 1)
+                n, size = _open(
+                    pool_b, pool_k, heap_b, heap_n, n, size, seeds[1, 0], int(seeds[1, 1]), 0,
+                    int(seeds[1, 2]), int(seeds[1, 3]),
+                )  # fmt: skip
+            for t in range(0 if skip else n_aside):
+                size = _heap_push(heap_b, heap_n, size, pool_b[aside[t]], aside[t])
             zone[0] = pool_k[chosen, 0]
             zone[1] = pool_k[chosen, 2]
             zone[2] = pool_k[chosen, 3]
@@ -595,11 +664,7 @@ def _search(levels, pts, args, nt, nx, dims, rival):
             ):
                 q, chosen = chosen, q
             if q >= 0 and phase == 0:
-                if n_held == held.shape[0]:
-                    more = np.empty(2 * n_held, dtype=np.int64)
-                    _copy_into(more, held)
-                    held = more
-                held[n_held] = q
+                held = _appended(held, n_held, q)
                 n_held += 1
             continue
         half = 1 << (h - 1)
@@ -612,6 +677,8 @@ def _search(levels, pts, args, nt, nx, dims, rival):
                     continue
                 if phase == 1 and _in_zone(j, cx, cy, half, zone, strip):
                     continue
+                if skip and _in_known(j, cx, cy, half, known):
+                    continue
                 xs[m] = cx
                 ys[m] = cy
                 m += 1
@@ -621,7 +688,13 @@ def _search(levels, pts, args, nt, nx, dims, rival):
         nodes += m
         pool_b, pool_k, heap_b, heap_n = _grown(pool_b, pool_k, heap_b, heap_n, n + m)
         for t in range(m):
-            if out[t] > floor:
+            if not out[t] > floor:
+                continue
+            if phase == 0 and _in_known(j, xs[t], ys[t], half, known):
+                aside = _appended(aside, n_aside, n)
+                n_aside += 1
+                n = _store(pool_b, pool_k, n, out[t], j, h - 1, xs[t], ys[t])
+            else:
                 n, size = _open(
                     pool_b, pool_k, heap_b, heap_n, n, size, out[t], j, h - 1, xs[t], ys[t]
                 )
@@ -707,6 +780,10 @@ def _crosses(start, end, direction):
 
 # --------------------------------------------------------------------------------------------
 # The matcher
+
+#: no window searched before (:func:`_search`'s ``known`` and ``seeds``)
+_NOTHING_KNOWN = np.array([-1, -1, 0], dtype=np.int64)
+_NO_SEEDS = np.zeros((0, 4))
 
 
 class WideBasinMatcher:
@@ -840,6 +917,7 @@ class WideBasinMatcher:
         centre: ArrayLike,
         hint: ArrayLike | None = None,
         slide: ArrayLike | None = None,
+        known: WideMatch | None = None,
     ) -> WideMatch:
         """The best lattice pose of sensor-frame ``points`` (N, 2) within the window around
         ``centre`` (x, y, theta; map frame), and its best distinct rival. ``hint`` (a pose
@@ -848,7 +926,16 @@ class WideBasinMatcher:
         ``slide``: a direction (map frame) along which the scan is known not to pin the
         pose (a corridor's axis): the rival must then lie farther than ``rival_distance``
         across it, not merely along it (a corridor is one plateau; a rival on it is the
-        winner's own)."""
+        winner's own).
+
+        ``known``: this matcher's search of a window within this one, around the same
+        ``centre``, of the same ``points``, with the same rival settings and no ``slide``
+        (a closure check's own window, before the wider one its rival is sought in). Its
+        best stands for its lattice in the search for the best, and, where that best is the
+        whole window's and no ``slide`` is given here, its rival in the search for the
+        rival: its lattice is then not searched again. The answer is the one the whole
+        window's search gives (the known best is the first maximum of its window, the known
+        rival the best local maximum there outside the best's zone)."""
         pts, centre = self._prepare(points, centre)
         nt, nx, args = self._lattice(pts, centre)
         lattice = (2 * nt + 1, 2 * nx + 1)
@@ -862,7 +949,15 @@ class WideBasinMatcher:
             int(c.rival_distance / args[6]), int(c.rival_angle / args[3]), c.min_rival_ratio,
             float(along[0]), float(along[1]),
         )  # fmt: skip
-        best, j, ix, iy, score, rj, rx, ry, nodes = _search(levels, pts, args, nt, nx, dims, rival)
+        inner, seeds = _NOTHING_KNOWN, _NO_SEEDS
+        if known is not None and known.leaves[0, 0] > 0.0:
+            # the known rival, sought around a disc, stands for nothing across a slide
+            inner = np.array([(known.lattice[0] - 1) // 2, (known.lattice[1] - 1) // 2,
+                              int(slide is None)])  # fmt: skip
+            seeds = known.leaves
+        best, j, ix, iy, score, rj, rx, ry, nodes = _search(
+            levels, pts, args, nt, nx, dims, rival, inner, seeds
+        )
         found = rj <= nt
         return WideMatch(
             pose=self._pose(args, j, ix, iy),
@@ -871,6 +966,7 @@ class WideBasinMatcher:
             rival_score=score / n if found else 0.0,
             nodes=int(nodes),
             lattice=lattice,
+            leaves=np.array([[best, j, ix, iy], [score if found else -1.0, rj, rx, ry]]),
         )
 
     def score_at(self, points: ArrayLike, pose: ArrayLike) -> float:
