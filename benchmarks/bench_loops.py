@@ -585,13 +585,17 @@ def main() -> None:
                          "closure's loading of the sparse solver count as the scans'")
     args = ap.parse_args()
     config = config_from_dict(overrides(args.set), "--set")
+    cases = []
+    for name in args.cases.split(",") if args.cases else ():
+        parts = name.rsplit("-", 2)  # the world may be a map YAML's path
+        if len(parts) != 3:
+            ap.error(f"--cases: {name!r} is not world-lidar-route (none at all: --cases '')")
+        cases.append(SimCase(*parts, args.mount_yaw, args.clockwise, args.no_return_as_max))
     if not args.cold:
         print(f"warm-up (as bioslam run does): {warm_up(config):.1f} s", flush=True)
     for path in args.log:
         print(report_log(path, config), flush=True)
-    for name in args.cases.split(",") if args.cases else ():
-        world, lidar, route = name.rsplit("-", 2)  # the world may be a map YAML's path
-        case = SimCase(world, lidar, route, args.mount_yaw, args.clockwise, args.no_return_as_max)
+    for case in cases:
         print(
             report(case, args.duration, args.seed, args.gap, config, args.thin, args.people),
             flush=True,

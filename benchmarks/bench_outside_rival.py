@@ -74,9 +74,11 @@ def report(name: str, rows: np.ndarray) -> str:
         return (f"{np.median(ms):.2f} / {np.percentile(ms, 90):.2f} / {ms.max():.2f} ms, "
                 f"sum {ms.sum():.0f} ms")  # fmt: skip
 
+    slid = rows[:, 4] > 0
     return (
-        f"{name}: {len(rows)} searches outside a check's window ({int(rows[:, 4].sum())} across "
-        f"a slide); nodes {int(rows[:, 2].sum())} -> {int(rows[:, 3].sum())}\n"
+        f"{name}: {len(rows)} searches outside a check's window; nodes {int(rows[:, 2].sum())} "
+        f"-> {int(rows[:, 3].sum())} ({int(slid.sum())} across a slide: "
+        f"{int(rows[slid, 2].sum())} -> {int(rows[slid, 3].sum())})\n"
         f"  median / 90th percentile / largest, whole: {times(whole)}\n"
         f"  the check's search reused:                 {times(reused)}\n"
         f"  median of the paired ratios {np.median(reused / whole):.2f}"

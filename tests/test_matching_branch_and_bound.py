@@ -7,6 +7,7 @@ from scipy import ndimage
 
 from bioslam.geometry import compose
 from bioslam.matching.branch_and_bound import (
+    KNOWN_SHARE,
     WideBasinConfig,
     WideBasinMatcher,
     refine,
@@ -166,17 +167,31 @@ def test_a_wider_windows_search_given_a_narrower_ones_answer_finds_the_whole_win
     assert 5 <= inside <= 35  # both cases met
 
 
-def test_a_known_window_with_nothing_on_it_is_searched_in_full():
-    """A known window where nothing scored above 0 stands for nothing: the wider window is
-    searched whole."""
+def test_a_known_window_with_nothing_on_it_or_a_sliver_of_the_lattice_is_searched_in_full():
+    """A known window where nothing scored above 0 stands for nothing, and one holding less
+    than ``KNOWN_SHARE`` of the lattice spares too little to be worth its bookkeeping: the
+    wider window is searched whole (the same nodes), one holding more is not."""
     rng = np.random.default_rng(3)
     points = rng.uniform(-4, 4, (40, 2))
     centre = np.array([0.2, -0.3, 0.4])
-    empty = WideBasinMatcher(WideBasinConfig(distance=1.5, angle=0.6))
+    wide = WideBasinConfig(distance=1.5, angle=0.6)
+    empty = WideBasinMatcher(wide)
     empty.set_map(OccupancyGrid(0.1, 12.0))
     nothing = empty.search(points, centre)
     assert nothing.score == 0.0
     assert empty.search(points, centre, known=nothing).nodes == nothing.nodes
+    matcher = WideBasinMatcher(wide)
+    matcher.set_map(_random_grid(rng, 0.1, 12.0))
+    whole = matcher.search(points, centre)
+    for distance, reused in ((0.2, False), (1.0, True)):
+        matcher.config = WideBasinConfig(distance=distance, angle=0.3)
+        known = matcher.search(points, centre)
+        (nt, nx), (wt, wx) = known.lattice, whole.lattice
+        assert (nt * nx**2 >= KNOWN_SHARE * wt * wx**2) is reused
+        matcher.config = wide
+        again = matcher.search(points, centre, known=known)
+        assert (again.nodes < whole.nodes) is reused
+        assert np.array_equal(again.pose, whole.pose)
 
 
 def test_a_map_pooled_over_the_reach_box_alone_gives_the_whole_maps_answers():
