@@ -783,8 +783,8 @@ def _crosses(start, end, direction):
 
 #: A known window (:meth:`WideBasinMatcher.search`) is reused when it holds at least this
 #: share of the lattice searched: one of tens of centimetres under a rival window of metres
-#: (freiburg-079's checks, 0.2 % of the lattice) spares nothing, and its bookkeeping cost
-#: the slowest of those searches 10-40 % more.
+#: (freiburg-079's checks, 0.2 % of the lattice) spares nothing, and the slowest of those
+#: searches cost 10-50 % more with it, the same nodes bounded (``benchmarks/README.md``).
 KNOWN_SHARE = 0.05
 
 
