@@ -539,14 +539,15 @@ def _search(levels, pts, args, nt, nx, dims, rival, known, seeds):
     (j, ix, iy) order. Only leaves scoring above 0 are sought: where none does, the answer
     is score 0 at the first lattice pose, without a rival.
 
-    ``known`` (headings, cells, whether its rival stands; -1 for none): a window within
-    this one already searched, whose best and best rival are ``seeds`` (rows of score, j,
-    ix, iy; a score of -1: none). Its nodes can hold no leaf better than its best, which is
-    pushed as a leaf instead: they are set aside, bounded, never expanded in the search for
-    the best. If that best is the whole window's and the known rival was sought as this
-    one is (the same settings, no slide: ``known[2]`` 1), the known rival is pushed as a
-    leaf for the rival search and the known window's nodes are dropped; otherwise they are
-    pushed back and searched for the rival as the whole window's search would.
+    ``known`` (headings, cells; -1 for none): a window within this one already searched,
+    with the same rival settings and no slide, whose best and best rival are ``seeds``
+    (rows of score, j, ix, iy; a score of -1: none). Its nodes can hold no leaf better than
+    its best, which is pushed as a leaf instead: they are set aside, bounded, never expanded
+    in the search for the best. If that best is the whole window's and the known rival lies
+    outside this search's zone around it (or there is none), the known rival stands for the
+    known window in the rival search, pushed as a leaf, and its nodes are dropped; otherwise
+    (a rival inside a slide's strip) they are pushed back and searched for the rival as the
+    whole window's search would.
 
     Returns (score, j, ix, iy, rival score, rj, rx, ry, nodes); rj is ``nt + 1`` without a
     rival."""
@@ -621,8 +622,20 @@ def _search(levels, pts, args, nt, nx, dims, rival, known, seeds):
                 break
             for t in range(n_held):
                 size = _heap_push(heap_b, heap_n, size, pool_b[held[t]], held[t])
-            skip = chosen == seed and known[2] == 1
-            if skip and seeds[1, 0] >= 0.0:
+            zone[0] = pool_k[chosen, 0]
+            zone[1] = pool_k[chosen, 2]
+            zone[2] = pool_k[chosen, 3]
+            zone[3] = int(rival[0])
+            zone[4] = int(rival[1])
+            # The known rival is the best local maximum of its window outside a disc around
+            # the same best: outside this zone, which holds that disc (a strip along a slide
+            # holds it too), it is the window's best as well; none there, none here.
+            rival_known = seeds.shape[0] > 1 and seeds[1, 0] >= 0.0
+            skip = chosen == seed and not (
+                rival_known
+                and _in_zone(int(seeds[1, 1]), int(seeds[1, 2]), int(seeds[1, 3]), 1, zone, strip)
+            )
+            if skip and rival_known:
                 pool_b, pool_k, heap_b, heap_n = _grown(pool_b, pool_k, heap_b, heap_n, n + 1)
                 n, size = _open(
                     pool_b, pool_k, heap_b, heap_n, n, size, seeds[1, 0], int(seeds[1, 1]), 0,
@@ -630,11 +643,6 @@ def _search(levels, pts, args, nt, nx, dims, rival, known, seeds):
                 )  # fmt: skip
             for t in range(0 if skip else n_aside):
                 size = _heap_push(heap_b, heap_n, size, pool_b[aside[t]], aside[t])
-            zone[0] = pool_k[chosen, 0]
-            zone[1] = pool_k[chosen, 2]
-            zone[2] = pool_k[chosen, 3]
-            zone[3] = int(rival[0])
-            zone[4] = int(rival[1])
             low = max(rival[2] * pool_b[chosen], 0.0)
             floor = np.nextafter(low, -np.inf) if low > 0 else -1.0
             chosen = -1
@@ -794,7 +802,7 @@ def _poses(lattice: tuple[int, int]) -> int:
 
 
 #: no window searched before (:func:`_search`'s ``known`` and ``seeds``)
-_NOTHING_KNOWN = np.array([-1, -1, 0], dtype=np.int64)
+_NOTHING_KNOWN = np.array([-1, -1], dtype=np.int64)
 _NO_SEEDS = np.zeros((0, 4))
 
 
@@ -944,10 +952,11 @@ class WideBasinMatcher:
         ``centre``, of the same ``points``, with the same rival settings and no ``slide``
         (a closure check's own window, before the wider one its rival is sought in). Its
         best stands for its lattice in the search for the best, and, where that best is the
-        whole window's and no ``slide`` is given here, its rival in the search for the
-        rival: its lattice is then not searched again. The answer is the one the whole
-        window's search gives (the known best is the first maximum of its window, the known
-        rival the best local maximum there outside the best's zone)."""
+        whole window's, its rival in the search for the rival unless, across a ``slide``
+        given here, that rival lies in the best's strip: its lattice is then not searched
+        again. The answer is the one the whole window's search gives (the known best is the
+        first maximum of its window, the known rival the best local maximum there outside
+        the best's zone)."""
         pts, centre = self._prepare(points, centre)
         nt, nx, args = self._lattice(pts, centre)
         lattice = (2 * nt + 1, 2 * nx + 1)
@@ -965,9 +974,7 @@ class WideBasinMatcher:
         if known is not None and known.leaves[0, 0] > 0.0 and (
             _poses(known.lattice) >= KNOWN_SHARE * _poses(lattice)
         ):
-            # the known rival, sought around a disc, stands for nothing across a slide
-            inner = np.array([(known.lattice[0] - 1) // 2, (known.lattice[1] - 1) // 2,
-                              int(slide is None)])  # fmt: skip
+            inner = np.array([(known.lattice[0] - 1) // 2, (known.lattice[1] - 1) // 2])
             seeds = known.leaves
         best, j, ix, iy, score, rj, rx, ry, nodes = _search(
             levels, pts, args, nt, nx, dims, rival, inner, seeds
