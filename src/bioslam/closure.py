@@ -1046,14 +1046,26 @@ def sliding(direction: ArrayLike) -> bool:
 
 @dataclass(frozen=True)
 class _Found:
-    """The wide-basin search's best lattice pose, its rival ratio and the lattice spacing;
-    ``match``, the search's whole answer (a wider window's search reuses it)."""
+    """The wide-basin search's answer (``match``; a wider window's search reuses it) and its
+    lattice spacing."""
 
-    pose: FloatArray
-    ambiguity: float
-    rival_pose: FloatArray | None
-    resolution: float
     match: WideMatch
+    resolution: float
+
+    @property
+    def pose(self) -> FloatArray:
+        """The best lattice pose."""
+        return self.match.pose
+
+    @property
+    def ambiguity(self) -> float:
+        """The best distinct rival's score over the best's."""
+        return self.match.ambiguity
+
+    @property
+    def rival_pose(self) -> FloatArray | None:
+        """The best distinct rival's lattice pose, if any."""
+        return self.match.rival_pose
 
 
 def _searcher(
@@ -1094,11 +1106,11 @@ def _wide_search(
 ) -> _Found:
     """Branch and bound over ``window`` (m, rad) around ``centre`` with ``matcher``, pooled
     for it or a wider window (:func:`_searcher`); ``slide``: its rival is sought across it;
-    ``known``: this search of a window within it, not searched again
+    ``known``: its search of a window within this one, reused
     (:meth:`WideBasinMatcher.search`)."""
     matcher.config = _window_config(window, config)
     found = matcher.search(query, centre, slide=slide, known=None if known is None else known.match)
-    return _Found(found.pose, found.ambiguity, found.rival_pose, matcher.resolution, found)
+    return _Found(found, matcher.resolution)
 
 
 def _outside_window(
