@@ -432,6 +432,38 @@ def test_checks_near_one_old_place_share_a_submap_until_the_map_bends_it():
     assert np.array_equal(rebuilt.points, now) and not np.array_equal(first.points, now)
 
 
+def test_a_submap_built_ahead_serves_its_check_only_as_the_check_would_have_built_it():
+    around = np.array([(5.0 + 0.5 * k, 1.5, 0.0) for k in range(5)])
+    payloads = [_points(HALL, p, seed=k + 1) for k, p in enumerate(around)]
+    config = LoopClosureConfig()
+    cache = SubmapCache()
+    assert cache.prefetch(around, payloads, 2, range(5), config)
+    assert not cache.prefetch(around, payloads, 2, range(5), config)  # held ahead already
+    ahead = cache.get(around, payloads, 2, range(5), config)
+    assert (cache.prefetch_used, cache.builds, cache.hits) == (1, 1, 0)
+    fresh = SubmapCache().get(around, payloads, 2, range(5), config)
+    assert np.array_equal(ahead.points, fresh.points)
+    assert np.array_equal(ahead.seen.mask, fresh.seen.mask)
+    # now in the cache, as a submap the check built: asked again, a hit; not built ahead
+    assert cache.get(around, payloads, 2, range(5), config) is ahead and cache.hits == 1
+    assert not cache.prefetch(around, payloads, 2, range(5), config)
+    # a pass moved by a millimetre (within the cache's tolerance) since it was built ahead,
+    # or a check to another place: it is built as the check asks, where the map puts it now
+    other = SubmapCache()
+    assert other.prefetch(around, payloads, 2, range(5), config)
+    moved = around.copy()
+    moved[4, 1] += 0.001
+    now = other.get(moved, payloads, 2, range(5), config)
+    assert other.prefetch_used == 0
+    fused = fuse_submap(moved, payloads, 2, range(5), config.submap_spacing)
+    assert np.array_equal(now.points, fused)
+    assert other.prefetch(around, payloads, 1, range(4), config)
+    other.get(around, payloads, 3, range(1, 5), config)
+    assert other.prefetch_used == 0 and other.builds == 2
+    # a cache that keeps nothing builds nothing ahead
+    assert not SubmapCache(size=0).prefetch(around, payloads, 2, range(5), config)
+
+
 @pytest.mark.parametrize("world, start, ahead", [("hall", 7.0, 0.0), ("doors", 4.0, -0.5)])
 def test_a_scanner_passing_the_other_way_is_not_moved_along_the_corridor(world, start, ahead):
     # The old pass drove east with a 180 deg scanner; the robot comes back facing west, where

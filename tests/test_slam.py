@@ -578,6 +578,35 @@ def test_the_map_relaxes_after_a_closure_on_the_next_scan_to_the_same_trajectory
     np.testing.assert_allclose(at_once.trajectory().poses, slam.trajectory().poses, atol=1e-9)
 
 
+@pytest.mark.parametrize("every", [1, 8])
+def test_submaps_built_ahead_on_scans_without_a_check_leave_the_run_as_it_was(ring_drive, every):
+    scans = ring_drive[0][::every]  # at the scanner's rate, and a scan each 0.32 m
+    config = dataclasses.replace(SLAMConfig(), heading_bias=0.002)
+    plain = run(scans, _with_loop_closure(config, prefetch_submaps=False))
+    slam = BioSLAM(config)
+    both = 0
+    for scan in scans:
+        asked, ahead = slam.submaps.requests, slam.submaps.prefetched
+        slam.process(scan)
+        both += slam.submaps.requests > asked and slam.submaps.prefetched > ahead
+    slam.finish()
+    assert plain.submaps.prefetched == 0 and slam.submaps.prefetch_used > 0
+    assert both == 0  # never on a scan that paid for a check already
+    assert _outcomes(slam) == _outcomes(plain)
+    assert slam.summary()["loop_closures"] == plain.summary()["loop_closures"] >= 1
+    np.testing.assert_array_equal(slam.trajectory().poses, plain.trajectory().poses)
+
+
+def _outcomes(slam: BioSLAM) -> list[tuple]:
+    return [(c.stamp, c.verdict.reason, c.verdict.score, *c.verdict.pose) for c in slam.checks]
+
+
+def _with_loop_closure(config: SLAMConfig, **settings: object) -> SLAMConfig:
+    return dataclasses.replace(
+        config, loop_closure=dataclasses.replace(config.loop_closure, **settings)
+    )
+
+
 def _relaxations(scans: list, config: SLAMConfig) -> tuple[BioSLAM, list[int], np.ndarray]:
     """The scans whose look closed a loop, and per scan: whether the map relaxed, whether
     the odometry fused the scan, whether the system looked."""

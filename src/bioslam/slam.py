@@ -100,6 +100,25 @@ class StepRecord:
     experience_id: int
 
 
+@dataclass(frozen=True)
+class _CheckPlan:
+    """How a loop-closure check to one place runs (:meth:`BioSLAM._plan_check`): the submap
+    that verifies it (``anchor``'s frame, ``members``' scans); whether the odometry vouches
+    for the map's prediction (``trusted``, ``chained`` through earlier links); the breaks'
+    summed extent since (m, rad; ``broken``, None for none); the drift bound (``bound``) and
+    the window searched, the bound widened by the breaks (``window``); ``broke``: one of the
+    breaks departed from the motion beyond any search, and the check is refused."""
+
+    anchor: int
+    members: list[int]
+    trusted: bool
+    chained: bool
+    broken: FloatArray | None
+    bound: tuple[float, float]
+    window: tuple[float, float]
+    broke: bool
+
+
 def _scan_payload(points: FloatArray, spacing: float) -> NDArray[np.float32]:
     """The scan kept with a place for registration: its endpoints at least ``spacing`` apart
     along the scan (computed at every look, so cheaper than :func:`thin_points`)."""
@@ -504,6 +523,8 @@ class BioSLAM:
         self.submaps = SubmapCache()
         self._scans_since_look = 0
         self._last_forced = -np.inf
+        # the proximity cue found no place near the robot at this scan (:meth:`_due`)
+        self._cue_silent = False
         # a relaxation after a closure, left for a later scan (``SLAMConfig.defer_relaxation``),
         # and the scans it has waited for a look or one the odometry fuses
         self._relax_due = False
@@ -538,6 +559,8 @@ class BioSLAM:
     def process(self, scan: LaserScan) -> Pose2D:
         """Feed one scan; return the robot's current pose in the cognitive map's frame."""
         before = (self._pending, self.self_motion.pose)
+        checks = self.submaps.requests
+        self._cue_silent = False
         dp = self.self_motion.step(scan)
         if self.self_motion.slide:
             self._note_slide(*before)
@@ -551,6 +574,8 @@ class BioSLAM:
             self._pending = np.zeros(3)
             self._scans_since_look = self._scans_waited = 0
         self._record(scan.stamp)
+        if self.submaps.requests == checks:  # no check registered this scan
+            self._prefetch_submap(dp)
         return Pose2D(*compose(self.cognitive_map.pose(), self._pending))
 
     def _note_slide(self, pending: FloatArray, odometry: FloatArray) -> None:
@@ -643,6 +668,7 @@ class BioSLAM:
         if self._travelled + moved - self._last_forced < cfg.loop_closure.registration_interval:
             return False  # a candidate forces one look per registration interval at most
         if self._nearby(self._travelled + moved, self._pending) is None:
+            self._cue_silent = True
             return False
         if self._held_by_count(step) and self._waits(step):
             return False  # the cue holds over a scan or two: check on the fused scan
@@ -673,6 +699,43 @@ class BioSLAM:
             return False
         self._scans_waited += 1
         return True
+
+    def _prefetch_submap(self, step: FloatArray) -> None:
+        """On a scan that ran no closure check, fuse the submap of the check the next look
+        will make (:meth:`bioslam.closure.SubmapCache.prefetch`): the place the proximity
+        cue will propose where steps like ``step`` put the robot at that look (the next
+        scan, or the fused one a slow scanner's look waits for, :meth:`_waits`), when a
+        registration will be due there; not while a relaxation is due (it moves the pass the
+        submap is fused along before the look). Only the time moves: the check adopts the
+        submap only as it would have built it, so the run's results are the same."""
+        cfg = self.config.loop_closure
+        if not cfg.prefetch_submaps or self._relax_due:
+            return
+        if self._travelled - self._last_registration < cfg.registration_interval:
+            return  # (the look's check reads this travel too: none is due before it)
+        if self._cue_silent:
+            return  # no place near the robot now: none a step on either, as a rule
+        pending = self._pending
+        for _ in range(self._scans_to_look(step)):
+            pending = compose(pending, step)
+        found = self._nearby(self._travelled, pending)
+        if found is None:
+            return
+        cmap = self.cognitive_map
+        poses = cmap.experience_poses_view
+        plan = self._plan_check(found, between(poses[found], compose(cmap.pose(), pending)))
+        if plan is not None and not plan.broke:
+            self.submaps.prefetch(poses, cmap.payloads, plan.anchor, plan.members, cfg)
+
+    def _scans_to_look(self, step: FloatArray) -> int:
+        """How many scans like ``step`` from now the next look falls on: the next, or where
+        a slow scanner's look waits for the scan the odometry fuses (:meth:`_waits`), that
+        one."""
+        if not self._held_by_count(step):
+            return 1
+        until = math.ceil(self.self_motion.odometry.steps_to_insert(step))
+        left = self.config.view_wait - self._scans_waited
+        return until if 1 < until <= left + 1 else 1
 
     def _payload(self, scan: LaserScan, points: FloatArray) -> NDArray[np.float32] | None:
         """The scan kept with an experience made now, for the closures to it; None for the
@@ -830,32 +893,18 @@ class BioSLAM:
         if self._travelled - self._last_registration < cfg.registration_interval:
             return None
         predicted = between(experience.pose, self.cognitive_map.pose())
-        if self._beyond_any_check(experience.id, predicted):
+        plan = self._plan_check(experience.id, predicted)
+        if plan is None:
             return None
-        linked, since = self._odometry_relation(experience.id)
-        anchor, members = self._submap_members(experience.id)
-        trusted, since, by_chain = self._trust(min(anchor, experience.id), since, anchor)
-        chained = by_chain is not None
-        drift, drift_angle = self._drift_bound(since, linked or chained)
-        bound = (drift, drift_angle)
-        # a trusted relation has no break; one trusted only through the chain none on it
-        broken = None if trusted else self._break_since(min(anchor, experience.id))
-        if broken is not None:
-            # The map relates the robot to the place through a break of the odometry (a
-            # jump to a look-alike, a match it could not tell from one, a step it could not
-            # match): its prediction may be off by as much as the breaks since, so the
-            # window covers that too (a registration within the drift bound alone would
-            # only confirm the break: a corridor seen along its axis fits anywhere along
-            # it, and the look-alike the odometry jumped to fits where the map puts it).
-            drift, drift_angle = drift + broken[0], drift_angle + broken[1]
-        if np.hypot(predicted[0], predicted[1]) > cfg.recognition_radius + drift:
-            return None
-        if broken is not None and self._jumped_beyond_search(min(anchor, experience.id)):
+        if plan.broke:
             # a break since departed from the robot's motion by more than the verification
             # searches: a look-alike the odometry jumped to, which a check could only confirm
             self._last_registration = self._travelled
             self._refuse(experience, predicted, "odometry broke")
             return None
+        anchor, members, trusted, broken = plan.anchor, plan.members, plan.trusted, plan.broken
+        chained, bound = plan.chained, plan.bound
+        drift, drift_angle = plan.window
         submap = self.submaps.get(
             self.cognitive_map.experience_poses_view, self.cognitive_map.payloads, anchor,
             members, cfg,
@@ -974,6 +1023,36 @@ class BioSLAM:
             unsettled_in_place = compose(anchor_in_experience, unsettled)
             self._learn_noise(experience.id, unsettled_in_place, modes()[:2, 2])
         return measured
+
+    def _plan_check(self, experience_id: int, predicted: FloatArray) -> _CheckPlan | None:
+        """How a check to ``experience_id``, with the robot predicted at ``predicted`` in its
+        frame, is to run (:class:`_CheckPlan`), or None when the map puts the robot beyond
+        any check's reach. Reads the map and the odometry's record; changes nothing."""
+        cfg = self.config.loop_closure
+        if self._beyond_any_check(experience_id, predicted):
+            return None
+        linked, since = self._odometry_relation(experience_id)
+        anchor, members = self._submap_members(experience_id)
+        trusted, since, by_chain = self._trust(min(anchor, experience_id), since, anchor)
+        chained = by_chain is not None
+        drift, drift_angle = self._drift_bound(since, linked or chained)
+        bound = (drift, drift_angle)
+        # a trusted relation has no break; one trusted only through the chain none on it
+        broken = None if trusted else self._break_since(min(anchor, experience_id))
+        if broken is not None:
+            # The map relates the robot to the place through a break of the odometry (a
+            # jump to a look-alike, a match it could not tell from one, a step it could not
+            # match): its prediction may be off by as much as the breaks since, so the
+            # window covers that too (a registration within the drift bound alone would
+            # only confirm the break: a corridor seen along its axis fits anywhere along
+            # it, and the look-alike the odometry jumped to fits where the map puts it).
+            drift, drift_angle = drift + broken[0], drift_angle + broken[1]
+        if np.hypot(predicted[0], predicted[1]) > cfg.recognition_radius + drift:
+            return None
+        broke = broken is not None and self._jumped_beyond_search(min(anchor, experience_id))
+        return _CheckPlan(
+            anchor, members, trusted, chained, broken, bound, (drift, drift_angle), broke
+        )
 
     def _learn_noise(self, experience_id: int, registered: FloatArray, pinned: FloatArray) -> None:
         """Refine the map's link noise model (:mod:`bioslam.link_noise`) by an accepted
