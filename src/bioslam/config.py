@@ -136,9 +136,10 @@ class LoopClosureConfig:
             (a thinned log), the reach grows with their spacing up to this (m)
             (:func:`bioslam.closure.submap_span`).
         submap_spacing: the submap is thinned to one point per cell of this size (m).
-        prefetch_submaps: on a scan that runs no check, fuse the submap of the check the
-            next look will make (:meth:`bioslam.slam.BioSLAM._prefetch_submap`): the same
-            results, a third of a check's cost moved off its scan.
+        prefetch_submaps: on a scan that runs no check but is slow already (the odometry
+            fused it, or a look ran), fuse the submap of the check the next look will make
+            (:meth:`bioslam.slam.BioSLAM._prefetch_submap`): the same results, a third of a
+            check's cost moved off its scan.
         search_distance, search_angle: caps (m, rad) on the window the verification
             searches around the map's prediction; within them the window is the drift bound.
             The distance is the drift bound's own cap (``max_drift``): searching less, a
