@@ -562,8 +562,9 @@ class SubmapCache:
     68 of 360 on freiburg-079; 67 with 6 MB).
 
     One more submap may be built ahead of its check (:meth:`prefetch`), on a scan that runs
-    none: fusing a submap is a third of a check's cost (5-6 ms of 15-20 on the simulated
-    warehouse and maze), and most checks go to a place whose submap no check has built yet.
+    none, with the lines an accepted check is polished on: fusing a submap is a third of a
+    check's cost (5-6 ms of 15-20 on the simulated warehouse and maze), and most checks go to
+    a place whose submap no check has built yet.
     The check adopts it only if its members still lie exactly where they did, so that it
     sees the submap it would have built itself, and the cache fills as it would have."""
 
@@ -635,6 +636,8 @@ class SubmapCache:
         if ahead is not None and _key(ahead) == key and np.array_equal(ahead.layout, layout):
             return False
         self._ahead = _build_submap(poses, payloads, anchor, key[1], layout, config)
+        if config.polish:
+            self._ahead.lines()  # what an accepted check is polished on: most are accepted
         self.prefetched += 1
         return True
 
