@@ -561,7 +561,7 @@ class BioSLAM:
     def process(self, scan: LaserScan) -> Pose2D:
         """Feed one scan; return the robot's current pose in the cognitive map's frame."""
         before = (self._pending, self.self_motion.pose)
-        checks = self.submaps.requests
+        asked = self.submaps.requests
         self._cue_silent = False
         dp = self.self_motion.step(scan)
         if self.self_motion.slide:
@@ -577,7 +577,7 @@ class BioSLAM:
             self._pending = np.zeros(3)
             self._scans_since_look = self._scans_waited = 0
         self._record(scan.stamp)
-        if self.submaps.requests == checks:  # no check registered this scan
+        if self.submaps.requests == asked:  # no check registered this scan
             self._prefetch_submap(dp)
         return Pose2D(*compose(self.cognitive_map.pose(), self._pending))
 
@@ -742,9 +742,9 @@ class BioSLAM:
         one."""
         if not self._held_by_count(step):
             return 1
-        until = math.ceil(self.self_motion.odometry.steps_to_insert(step))
+        steps = self.self_motion.odometry.steps_to_insert(step)  # (inf for no motion)
         left = self.config.view_wait - self._scans_waited
-        return until if 1 < until <= left + 1 else 1
+        return math.ceil(steps) if 1.0 < steps <= left + 1 else 1
 
     def _payload(self, scan: LaserScan, points: FloatArray) -> NDArray[np.float32] | None:
         """The scan kept with an experience made now, for the closures to it; None for the
