@@ -105,6 +105,18 @@ DEFAULT_CASES = (
 )
 
 
+def sim_cases(names: str, *options: float | bool) -> list[SimCase]:
+    """The cases named in ``names``, comma-separated world-lidar-route (none for ''), each
+    with ``options`` (:class:`SimCase`'s after the route); ValueError naming a bad one."""
+    cases = []
+    for name in names.split(",") if names else ():
+        parts = name.rsplit("-", 2)  # the world may be a map YAML's path
+        if len(parts) != 3:
+            raise ValueError(f"{name!r} is not world-lidar-route (none at all: '')")
+        cases.append(SimCase(*parts, *options))
+    return cases
+
+
 def simulate(
     case: SimCase, duration: float, seed: int, thin: int = 1, people: int = 0
 ) -> tuple[list, Trajectory]:
@@ -136,16 +148,16 @@ def timed_run(scans: list, config: SLAMConfig) -> tuple[BioSLAM, np.ndarray, np.
     full_ms, odo_ms = np.empty(len(scans)), np.empty(len(scans))
     for k, scan in enumerate(scans):
         if k % 2:
-            odo_ms[k] = _wall_ms(odo.update, scan)
-            full_ms[k] = _wall_ms(slam.process, scan)
+            odo_ms[k] = wall_ms(odo.update, scan)
+            full_ms[k] = wall_ms(slam.process, scan)
         else:
-            full_ms[k] = _wall_ms(slam.process, scan)
-            odo_ms[k] = _wall_ms(odo.update, scan)
+            full_ms[k] = wall_ms(slam.process, scan)
+            odo_ms[k] = wall_ms(odo.update, scan)
     slam.finish()
     return slam, full_ms, odo_ms
 
 
-def _wall_ms(step: Callable[[LaserScan], object], scan: LaserScan) -> float:
+def wall_ms(step: Callable[[LaserScan], object], scan: LaserScan) -> float:
     t0 = time.perf_counter()
     step(scan)
     return (time.perf_counter() - t0) * 1e3
@@ -585,12 +597,10 @@ def main() -> None:
                          "closure's loading of the sparse solver count as the scans'")
     args = ap.parse_args()
     config = config_from_dict(overrides(args.set), "--set")
-    cases = []
-    for name in args.cases.split(",") if args.cases else ():
-        parts = name.rsplit("-", 2)  # the world may be a map YAML's path
-        if len(parts) != 3:
-            ap.error(f"--cases: {name!r} is not world-lidar-route (none at all: --cases '')")
-        cases.append(SimCase(*parts, args.mount_yaw, args.clockwise, args.no_return_as_max))
+    try:
+        cases = sim_cases(args.cases, args.mount_yaw, args.clockwise, args.no_return_as_max)
+    except ValueError as error:
+        ap.error(f"--cases: {error}")
     if not args.cold:
         print(f"warm-up (as bioslam run does): {warm_up(config):.1f} s", flush=True)
     for path in args.log:

@@ -21,7 +21,7 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
-from bench_loops import SimCase, _wall_ms, simulate
+from bench_loops import sim_cases, simulate, wall_ms
 
 from bioslam.config import SLAMConfig
 from bioslam.io.logs import open_log
@@ -47,7 +47,7 @@ def paired_run(scans: list) -> tuple[dict[bool, BioSLAM], dict[bool, np.ndarray]
     for k, scan in enumerate(scans):
         asked = systems[False].submaps.requests
         for ahead in (False, True) if k % 2 else (True, False):
-            ms[ahead][k] = _wall_ms(systems[ahead].process, scan)
+            ms[ahead][k] = wall_ms(systems[ahead].process, scan)
         checked[k] = systems[False].submaps.requests > asked
     for slam in systems.values():
         slam.finish()
@@ -85,9 +85,12 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=600.0)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
+    try:
+        cases = sim_cases(args.cases)
+    except ValueError as error:
+        ap.error(f"--cases: {error}")
     warm_up(SLAMConfig())
-    for name in filter(None, args.cases.split(",")):
-        case = SimCase(*name.rsplit("-", 2))
+    for case in cases:
         print(report(case.name, simulate(case, args.duration, args.seed)[0]), flush=True)
     for log in args.log or [p for p in DEFAULT_LOGS if p.exists()]:
         print(report(log.name, list(open_log(log))), flush=True)

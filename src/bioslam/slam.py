@@ -525,8 +525,6 @@ class BioSLAM:
         self._last_forced = -np.inf
         # the proximity cue found no place near the robot at this scan (:meth:`_due`)
         self._cue_silent = False
-        # this scan's look ran (:meth:`_due`)
-        self._looked_now = False
         # a relaxation after a closure, left for a later scan (``SLAMConfig.defer_relaxation``),
         # and the scans it has waited for a look or one the odometry fuses
         self._relax_due = False
@@ -569,8 +567,8 @@ class BioSLAM:
         self._pending = compose(self._pending, dp)
         self._scans_since_look += 1
         self._relax_if_due()
-        self._looked_now = self._due(dp)
-        if self._looked_now:
+        looked = self._due(dp)
+        if looked:
             # the scan as the odometry matched it: the robot's own body left out
             seen = self.self_motion.odometry.last_scan
             self._perceive(scan if seen is None else seen, self._pending)
@@ -578,7 +576,7 @@ class BioSLAM:
             self._scans_since_look = self._scans_waited = 0
         self._record(scan.stamp)
         if self.submaps.requests == asked:  # no check registered this scan
-            self._prefetch_submap(dp)
+            self._prefetch_submap(dp, looked)
         return Pose2D(*compose(self.cognitive_map.pose(), self._pending))
 
     def _note_slide(self, pending: FloatArray, odometry: FloatArray) -> None:
@@ -703,22 +701,22 @@ class BioSLAM:
         self._scans_waited += 1
         return True
 
-    def _prefetch_submap(self, step: FloatArray) -> None:
+    def _prefetch_submap(self, step: FloatArray, looked: bool) -> None:
         """On a scan that ran no closure check, fuse the submap of the check the next look
         will make (:meth:`bioslam.closure.SubmapCache.prefetch`): the place the proximity
         cue will propose where steps like ``step`` put the robot at that look (the next
         scan, or the fused one a slow scanner's look waits for, :meth:`_waits`), when a
         registration will be due there. Only on a scan above the median's cost already (the
-        odometry fused it into its map, or a look ran), so that the median scan stays as it
-        was: built on any scan without a check, the simulated maze's RPLIDAR route moved 7 %
-        of its scans above the median, and the median rose by 15 %. Not while a relaxation
-        is due (it moves the pass the submap is fused along before the look). Only the time
-        moves: the check adopts the submap only as it would have built it, so the run's
-        results are the same."""
+        odometry fused it into its map, or a look ran: ``looked``), so that the median scan
+        stays as it was: built on any scan without a check, the simulated maze's RPLIDAR
+        route moved 7 % of its scans above the median, and the median rose by 15 %. Not
+        while a relaxation is due (it moves the pass the submap is fused along before the
+        look). Only the time moves: the check adopts the submap only as it would have built
+        it, so the run's results are the same."""
         cfg = self.config.loop_closure
         if not cfg.prefetch_submaps or self._relax_due:
             return
-        if not (self.self_motion.odometry.last_report.inserted or self._looked_now):
+        if not (self.self_motion.odometry.last_report.inserted or looked):
             return
         if self._travelled - self._last_registration < cfg.registration_interval:
             return  # (the look's check reads this travel too: none is due before it)

@@ -483,6 +483,17 @@ def _open(pool_b, pool_k, heap_b, heap_n, n, size, bound, j, h, ix, iy):
 
 
 @numba.njit(cache=True)
+def _place(pool_b, pool_k, heap_b, heap_n, n, size, aside, n_aside, known, bound, j, h, ix, iy):
+    """Store node ``n`` and push it on the heap (:func:`_open`), or, ``known`` (it lies in a
+    window already searched), store it and set it aside; returns (aside, n_aside, n, size)."""
+    if known:
+        aside = _appended(aside, n_aside, n)
+        return aside, n_aside + 1, _store(pool_b, pool_k, n, bound, j, h, ix, iy), size
+    n, size = _open(pool_b, pool_k, heap_b, heap_n, n, size, bound, j, h, ix, iy)
+    return aside, n_aside, n, size
+
+
+@numba.njit(cache=True)
 def _appended(items, count, item):
     """``items`` (grown when full) with ``item`` at index ``count``."""
     if count == items.shape[0]:
@@ -581,14 +592,10 @@ def _search(levels, pts, args, nt, nx, dims, rival, known, seeds):
                 ys[t] = -nx + ((first + t) % per_axis) * span
             _node_bounds4(levels, depth, table, j + nh, xs, ys, m, out, rows, cols, stride)
             for t in range(m):
-                if _in_known(j, xs[t], ys[t], span, known):
-                    aside = _appended(aside, n_aside, n)
-                    n_aside += 1
-                    n = _store(pool_b, pool_k, n, out[t], j, depth, xs[t], ys[t])
-                else:
-                    n, size = _open(
-                        pool_b, pool_k, heap_b, heap_n, n, size, out[t], j, depth, xs[t], ys[t]
-                    )
+                aside, n_aside, n, size = _place(
+                    pool_b, pool_k, heap_b, heap_n, n, size, aside, n_aside,
+                    _in_known(j, xs[t], ys[t], span, known), out[t], j, depth, xs[t], ys[t],
+                )  # fmt: skip
     nodes = n
     seed = -1  # the known best's leaf
     if seeds.shape[0]:
@@ -696,16 +703,12 @@ def _search(levels, pts, args, nt, nx, dims, rival, known, seeds):
         nodes += m
         pool_b, pool_k, heap_b, heap_n = _grown(pool_b, pool_k, heap_b, heap_n, n + m)
         for t in range(m):
-            if not out[t] > floor:
-                continue
-            if phase == 0 and _in_known(j, xs[t], ys[t], half, known):
-                aside = _appended(aside, n_aside, n)
-                n_aside += 1
-                n = _store(pool_b, pool_k, n, out[t], j, h - 1, xs[t], ys[t])
-            else:
-                n, size = _open(
-                    pool_b, pool_k, heap_b, heap_n, n, size, out[t], j, h - 1, xs[t], ys[t]
-                )
+            if out[t] > floor:
+                aside, n_aside, n, size = _place(
+                    pool_b, pool_k, heap_b, heap_n, n, size, aside, n_aside,
+                    phase == 0 and _in_known(j, xs[t], ys[t], half, known), out[t], j, h - 1,
+                    xs[t], ys[t],
+                )  # fmt: skip
     if found[0, 0] < 0.0:  # nothing above 0
         return 0.0, -nt, -nx, -nx, 0.0, nt + 1, 0, 0, nodes
     score, bj, bx, by = found[0, 0], int(found[0, 1]), int(found[0, 2]), int(found[0, 3])
