@@ -193,6 +193,10 @@ class ConstantVelocityModel:
         self._history: deque[tuple[float, FloatArray]] = deque()
         # measurements rejected in a row along the weak direction, signed by their side
         self._rejected_run = 0
+        #: A scan has measured the velocity along its weakest direction (a gain above 0:
+        #: one that constrained it at least partly). Until then the velocity carried there
+        #: is the start's zero, which no scan measured.
+        self.weak_measured = False
 
     def predict(self, pose: ArrayLike, dt: float) -> FloatArray:
         """The pose ``dt`` seconds after ``pose`` at the current twist."""
@@ -235,6 +239,7 @@ class ConstantVelocityModel:
             direction = translation_part(weakest)
         if direction is not None:
             gain = weak_direction_gain(condition, self.degeneracy_ratio, self.constrained_ratio)
+        self.weak_measured = self.weak_measured or gain > 0.0
         if gain >= 1.0:
             self.twist = measured
             self.variance = self.velocity_noise**2

@@ -587,9 +587,15 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         """``prior_weight`` for a scan that came without a gap, ``search_prior_weight``
         after one: the constant-velocity prediction across a gap (a thinned log's second)
         is no better than the last pose (intel: RPE 52 cm with the full weight, 44 cm
-        without)."""
+        without). Nor is it before any scan measured the velocity along its weakest
+        direction (:attr:`~bioslam.motion_model.ConstantVelocityModel.weak_measured`): a
+        run that starts in a corridor carries the start's standstill along it, and held
+        there by the full weight, the pose stood while the robot drove off (a 180°
+        scanner facing backwards, its corridor's far end 12 m behind: 5.1 m short after
+        8 s, the far wall's 22 endpoints outweighed)."""
         c = self.config
-        return c.prior_weight if self._gapless(dt) else c.search_prior_weight
+        trusted = self._gapless(dt) and self._motion.weak_measured
+        return c.prior_weight if trusted else c.search_prior_weight
 
     def _option(
         self, level_pts: list[FloatArray], start: FloatArray, normals: FloatArray,
