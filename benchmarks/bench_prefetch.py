@@ -22,15 +22,15 @@ from pathlib import Path
 
 import numpy as np
 from bench_loops import sim_cases, simulate, wall_ms
+from cases import DATA_DIR
 
 from bioslam.config import SLAMConfig
 from bioslam.io.logs import open_log
 from bioslam.pipeline import warm_up
 from bioslam.slam import BioSLAM
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 DEFAULT_CASES = "warehouse-sick-tour,maze-rplidar-adversarial,maze-utm30lx-adversarial"
-DEFAULT_LOGS = (DATA / "intel-corrected.log.gz", DATA / "freiburg-079-corrected.log.gz")
+DEFAULT_LOGS = (DATA_DIR / "intel-corrected.log.gz", DATA_DIR / "freiburg-079-corrected.log.gz")
 
 
 def paired_run(scans: list) -> tuple[dict[bool, BioSLAM], dict[bool, np.ndarray], np.ndarray]:

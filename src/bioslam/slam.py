@@ -629,10 +629,14 @@ class BioSLAM:
         self._relax_waited += 1
         if self._relax_waited <= cfg.relax_wait:
             return
-        fused = self.self_motion.odometry.last_report.inserted
-        if not fused and self._relax_waited <= cfg.relax_wait + cfg.view_wait:
+        if not self._fused() and self._relax_waited <= cfg.relax_wait + cfg.view_wait:
             return
         self._relax_now()
+
+    def _fused(self) -> bool:
+        """The odometry fused this scan into its local map: a scan slow already, on which
+        deferred work (a relaxation, a submap built ahead) adds least to the median."""
+        return self.odometry.last_report.inserted
 
     def _relax_now(self) -> None:
         """The relaxation left for later, before anything reads the map's poses (a look, the
@@ -716,7 +720,7 @@ class BioSLAM:
         cfg = self.config.loop_closure
         if not cfg.prefetch_submaps or self._relax_due:
             return
-        if not (self.self_motion.odometry.last_report.inserted or looked):
+        if not (self._fused() or looked):
             return
         if self._travelled - self._last_registration < cfg.registration_interval:
             return  # (the look's check reads this travel too: none is due before it)
@@ -740,7 +744,7 @@ class BioSLAM:
         one."""
         if not self._held_by_count(step):
             return 1
-        steps = self.self_motion.odometry.steps_to_insert(step)  # (inf for no motion)
+        steps = self.odometry.steps_to_insert(step)  # (inf for no motion)
         left = self.config.view_wait - self._scans_waited
         return math.ceil(steps) if 1.0 < steps <= left + 1 else 1
 
