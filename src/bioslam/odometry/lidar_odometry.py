@@ -63,6 +63,11 @@ class ScanMatch:
     normals: FloatArray
 
 
+def within_range(points: FloatArray, limit: float) -> NDArray[np.bool_]:
+    """Endpoints (sensor frame) no farther than ``limit`` metres from the scanner."""
+    return points[:, 0] ** 2 + points[:, 1] ** 2 <= limit * limit
+
+
 class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMotion):
     """Pose change from consecutive LiDAR scans alone (paper Sec. III-A).
 
@@ -190,8 +195,8 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
         fixes the pose, and that pull stalled it (simulated URG-04LX, 5.6 m). All endpoints
         are still fused into the map."""
         c = self.config
-        limit = self._usable_range(scan) - c.matched_range_margin
-        matched = pts[:, 0] ** 2 + pts[:, 1] ** 2 <= limit * limit
+        limit = self._matched_range(scan)
+        matched = within_range(pts, limit)
         if not matched.all():
             matched |= self._within_fused_reach(pts, limit)
         if c.grazing_ratio is not None and self._weakly_pinned():
@@ -200,6 +205,16 @@ class LidarOdometry(LocalMap, PredictionGuards, WideSearch, MatchChoice, SweepMo
             return pts, keep
         pts = kept_rows(pts, matched)
         return pts, subsample_by_spacing(pts, c.point_spacing)
+
+    def _matched_range(self, scan: LaserScan) -> float:
+        """How far from the scan's pose its endpoints are matched on their own:
+        ``matched_range_margin`` short of the usable range."""
+        return self._usable_range(scan) - self.config.matched_range_margin
+
+    def _own_reach(self, points: FloatArray) -> NDArray[np.bool_]:
+        """The current scan's endpoints ``points`` (sensor frame) within its own matched
+        range (:meth:`_matched_range`)."""
+        return within_range(points, self._matched_range(self.last_scan))
 
     def _last_fused(self, count: int) -> list[FloatArray]:
         """The poses the last ``count`` scans were fused at (fewer at the start)."""
