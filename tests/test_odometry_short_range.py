@@ -272,26 +272,40 @@ def test_the_map_overrules_the_motion_prior_only_within_a_scans_reach(moved, tur
     np.testing.assert_array_equal(pose, alternative if overruled else start)
 
 
-@pytest.mark.parametrize(("prior_points", "alternative_points", "explained"),
-                         [(5, 1, True), (16, 2, True), (5, 2, True), (3, 2, False),
-                          (4, 3, False), (3, 1, False), (4, 2, False)])  # fmt: skip
+@pytest.mark.parametrize(("prior_points", "alternative_points", "clipped", "explained"),
+                         [(5, 1, False, True), (16, 2, False, True), (3, 1, False, True),
+                          (3, 2, False, False), (4, 3, False, False), (3, 1, True, False),
+                          (16, 2, True, False)])  # fmt: skip
 def test_stray_endpoints_explain_a_contradiction_away_only_against_many(
-    prior_points, alternative_points, explained
+    prior_points, alternative_points, clipped, explained
 ):
     """In a clean world no endpoint in free space is typical: a match that leaves one or two
     there (stray, fewer than ``contradiction_points``) explains the prior's contradiction
-    away only where it leaves that many fewer (a robot speeding up along an aisle); one or
-    two endpoints fewer is noise against noise (URG-04LX, maze, seed 2: 3 against 2, the
-    match 0.19 m the wrong way; the standard benchmark's maze tour: 3 against 1, 0.25 m)."""
+    away only where it leaves at most half as many (a robot speeding up along an aisle);
+    one endpoint fewer is noise against noise (URG-04LX, maze, seed 2: 3 against 2, the
+    match 0.19 m the wrong way). Nor does it where the reach stopped it (``clipped``): the
+    standard benchmark's URG-04LX maze tour, 3 against 1 at the whole reach, 0.25 m back
+    from the true step."""
     odo = LidarOdometry()
     odo._typical_free = 0.0
     n = 135
     prior = MatchReport(num_points=n, score=0.8, free_fraction=prior_points / n)
     alternative = MatchReport(num_points=n, score=0.85, free_fraction=alternative_points / n)
     pose = np.zeros(3)
-    assert odo._contradiction_explained((pose, prior, False), (pose, alternative, False)) == (
-        explained
-    )
+    assert odo._contradiction_explained(
+        (pose, prior, False), (pose, alternative, False), clipped
+    ) == explained
+
+
+@pytest.mark.parametrize(("apart", "edge"), [(0.1, False), (0.19, False), (0.22, True),
+                                             (0.25, True)])  # fmt: skip
+def test_a_match_at_the_edge_of_a_scans_reach_is_clipped(apart, edge):
+    """At 0.5 m/s and 10 Hz the reach is (2 + 0.5) m/s x 0.1 s = 0.25 m: a match farther than
+    a finest cell (5 cm) short of it is where the reach stopped it."""
+    odo = LidarOdometry()
+    odo._motion.twist = np.array([0.5, 0.0, 0.0])
+    pose = np.array([2.0, 1.0, 0.0])
+    assert odo._at_reach_edge(pose, pose + np.array([apart, 0.0, 0.0]), 0.1) == edge
 
 
 def test_endpoints_matched_by_the_fused_reach_alone_are_no_contradiction():
@@ -315,7 +329,8 @@ def test_the_short_range_maze_tour_is_not_lost_to_the_far_endpoints_behind():
     three and overruled the motion prior; 478 s in, five endpoints 4.9-5.1 m behind the
     robot, three of them matched only by the fused reach, overruled it 0.16 m forward. Each
     time the speed so measured (-0.3 and 1.05 m/s against 0.5) was carried down the
-    corridor: 5.5 m RMS off the truth. Now neither overrules (12.5 cm)."""
+    corridor: 5.5 m RMS off the truth. Now neither overrules (12.5 cm): the first went to
+    the edge of a scan's reach, the second counted endpoints beyond the scan's own range."""
     estimate, truth = odometry_run("maze", "tour", "urg04lx", 1, 600.0, start="origin")
     error = np.hypot(*(estimate[:, :2] - truth[:, :2]).T)
     assert np.sqrt(np.mean(error**2)) < 0.25
