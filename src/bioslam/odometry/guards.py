@@ -30,11 +30,6 @@ def _contradicted_where_constrained(report: MatchReport) -> bool:
     return not report.degenerate and report.free_fraction > 0.0
 
 
-def free_count(report: MatchReport) -> int:
-    """How many of the match's endpoints lie in known free space."""
-    return round(report.free_fraction * report.num_points)
-
-
 class PredictionGuards:
     """The trusted prediction's match, unless the map says it is wrong."""
 
@@ -302,7 +297,7 @@ class PredictionGuards:
     def _stray(self, report: MatchReport) -> bool:
         """Fewer than ``contradiction_points`` of the match's endpoints in known free space:
         as many as a beam grazing a wall's end puts there."""
-        return free_count(report) < self.config.contradiction_points
+        return round(report.free_fraction * report.num_points) < self.config.contradiction_points
 
     def _contradicted(self, report: MatchReport) -> bool:
         """The match put at least ``contradiction_factor`` times the run's typical share of
@@ -363,12 +358,11 @@ class PredictionGuards:
         match 0.25 m back, the whole reach, left 1 against the true pose's 3 (a wall 4.5-4.9
         m off that an earlier pass along the maze's corridor mapped a little elsewhere) and
         taught a URG-04LX's motion model -0.3 m/s against a true 0.5, which the corridor
-        carried on. A robot
-        that reversed along an aisle longer than the range (simulated warehouse, SICK
-        scanner: backing up at 0.5 m/s while the prior carried it forward) left 4.3 % of its
-        prior's endpoints where the map saw through (2.2 % typical), the weak prior's match
-        19 cm back 2.2 % and a better fit, yet plausible beside it the prior's match was
-        kept."""
+        carried on. A robot that reversed along an aisle longer than the range (simulated
+        warehouse, SICK scanner: backing up at 0.5 m/s while the prior carried it forward)
+        left 4.3 % of its prior's endpoints where the map saw through (2.2 % typical), the
+        weak prior's match 19 cm back 2.2 % and a better fit, yet plausible beside it the
+        prior's match was kept."""
         report, alt = option[1], alternative[1]
         return (
             not alternative[2]
