@@ -317,10 +317,12 @@ def test_endpoints_matched_by_the_fused_reach_alone_are_no_contradiction():
                               max_range=URG_RANGE)  # fmt: skip
     ranges = np.array([1.0, 3.0, 4.9, 5.1, 5.4])
     points = np.column_stack([-ranges, np.zeros_like(ranges)])  # behind the scanner
+    every = MatchReport(num_points=5, free_fraction=1.0)  # all five in known free space
     odo._not_in_known_free_space = lambda pose, pts: np.zeros(pts.shape[0], dtype=bool)
-    assert odo._free_in_own_reach(np.zeros(3), points) == 3
+    assert odo._free_in_own_reach(np.zeros(3), every, points) == 3
+    far_three = MatchReport(num_points=5, free_fraction=3 / 5)  # the three beyond 4 m
     odo._not_in_known_free_space = lambda pose, pts: np.linalg.norm(pts, axis=1) < 4.0
-    assert odo._free_in_own_reach(np.zeros(3), points) == 1
+    assert odo._free_in_own_reach(np.zeros(3), far_three, points) == 1
 
 
 def test_the_short_range_maze_tour_is_not_lost_to_the_far_endpoints_behind():

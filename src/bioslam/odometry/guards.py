@@ -185,7 +185,7 @@ class PredictionGuards:
         if not report.degenerate or report.free_fraction <= 0.0:
             return option
         points = level_pts[0]
-        own = self._free_in_own_reach(option[0], points)
+        own = self._free_in_own_reach(option[0], report, points)
         if own == 0:
             return option
         # the prior's match judged by the endpoints within the scan's own range alone
@@ -199,9 +199,11 @@ class PredictionGuards:
         free[1].iterations += report.iterations
         return free
 
-    def _free_in_own_reach(self, pose: FloatArray, points: FloatArray) -> int:
-        """How many of the scan's endpoints ``points`` (sensor frame) within its own matched
-        range (:meth:`_own_reach`) lie in known free space at ``pose``. Those matched beyond
+    def _free_in_own_reach(self, pose: FloatArray, report: MatchReport, points: FloatArray) -> int:
+        """How many of the scan's endpoints ``points`` (sensor frame, those ``report``'s
+        ``free_fraction`` counted at ``pose``) within its own matched range
+        (:meth:`_own_reach`) lie in known free space there: the report's count less the
+        endpoints beyond that range it counted, the only ones looked up again. Those matched beyond
         it because one of the last fusions mapped their place are fitted, but lie where that
         scan's beams ended or grazed, at the edge of what it swept: a cell freed there says
         little against the motion prior. Five such endpoints 4.9-5.1 m behind a URG-04LX
@@ -209,8 +211,12 @@ class PredictionGuards:
         speed so measured was twice the robot's, and the corridor carried it on (ATE 2.15 m;
         7.1 cm where neither they nor stray endpoints at the reach's edge overrule it,
         :meth:`_contradiction_explained`; the maze's odometry before the fused reach 4.4)."""
-        free = ~self._not_in_known_free_space(pose, points) & self._own_reach(points)
-        return int(np.count_nonzero(free))
+        free = round(report.free_fraction * points.shape[0])
+        beyond = ~self._own_reach(points)
+        if not beyond.any():
+            return free
+        seen = self._not_in_known_free_space(pose, points[beyond])
+        return free - int(np.count_nonzero(~seen))
 
     def _overrules(
         self, option: tuple[FloatArray, MatchReport, bool],
