@@ -284,7 +284,11 @@ def noise_line(slam: BioSLAM) -> str:
         f"closure {100 * math.sqrt(noise.closure_var):.2f} cm / "
         f"{math.degrees(math.sqrt(noise.closure_heading_var)):.3f} deg; model "
         f"{settings}{_test_text(slam.settings_test, 'taught', 'settings')}, jumps "
-        f"{jumps}{_test_text(slam.jump_test, 'free', 'held')}, closures "
+        f"{jumps}{_test_text(slam.jump_test, 'free', 'held')}"
+        + (f", {slam.unbent_held} bent little held"
+           f"{_test_text(slam.unbent_test, 'held', 'free')}"
+           if slam.unbent_test is not None else "")
+        + ", closures "
         f"{'dropped' if slam.cognitive_map.closures_dropped else 'kept'}"
         f"{_test_text(slam.closures_test, 'kept', 'dropped')}"
     )

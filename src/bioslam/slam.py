@@ -549,6 +549,11 @@ class BioSLAM:
         #: was nothing to choose
         self.settings_test: SharpnessComparison | None = None
         self.jump_test: SharpnessComparison | None = None
+        #: of holding the jumps the map bent by a small share of their allowance, against
+        #: the map as it was (:meth:`bioslam.cognitive_map.CognitiveMap.hold_unbent_jumps`)
+        self.unbent_test: SharpnessComparison | None = None
+        #: how many jumps' links that test held
+        self.unbent_held = 0
         #: of the run's own model where too few closures taught it to be taken unasked
         self.few_taught_test: SharpnessComparison | None = None
         #: and of the map with its loop links weighing nothing (the odometry's chain)
@@ -1386,9 +1391,11 @@ class BioSLAM:
         by fewer than ``noise_min_closures_finished`` closures, the model is the untaught
         one (:meth:`_finished_noise`). Then the map's own scans judge the alternatives
         (:meth:`bioslam.cognitive_map.CognitiveMap.adopt_if_sharper`): the odometry's jumps
-        held as any other step where the model lets them bend, the run's own model where
-        the untaught one stood in for it, the settings' weighing instead of the taught one,
-        and last the map without its closures' weight
+        held as any other step where the model lets them bend (where they stay free, those
+        the map bent by a small share of their allowance held unless the scans say
+        otherwise: :meth:`bioslam.cognitive_map.CognitiveMap.hold_unbent_jumps`), the run's
+        own model where the untaught one stood in for it, the settings' weighing instead of
+        the taught one, and last the map without its closures' weight
         (:meth:`~bioslam.cognitive_map.CognitiveMap.drop_closures_if_sharper`)."""
         self._relax_now()
         cmap = self.cognitive_map
@@ -1408,6 +1415,9 @@ class BioSLAM:
         # SICK reversing s72's jumps out of the test)
         each = self.config.cognitive_map.scan_test_significance / 3.0
         self.jump_test = cmap.hold_jumps_if_sharper(each)
+        free = int(cmap.jump_links().sum())
+        self.unbent_test = cmap.hold_unbent_jumps(self.config.cognitive_map.hold_unbent_jumps, each)
+        self.unbent_held = free - int(cmap.jump_links().sum())
         jumps = cmap.noise.jump_scale
         settings = dataclasses.replace(configured_noise(cmap.config), jump_scale=jumps)
         likeliest = dataclasses.replace(taught.likely(), jump_scale=jumps)
@@ -1419,7 +1429,10 @@ class BioSLAM:
         self.settings_test = cmap.adopt_if_sharper(settings, each)
         # last, the map as weighed against none of its closures
         self.closures_test = cmap.drop_closures_if_sharper(each)
-        tests = (self.jump_test, self.few_taught_test, self.settings_test, self.closures_test)
+        tests = (
+            self.jump_test, self.unbent_test, self.few_taught_test, self.settings_test,
+            self.closures_test,
+        )  # fmt: skip
         if any(t is not None for t in tests):
             cmap.relax()
 
@@ -1542,6 +1555,10 @@ class BioSLAM:
             # the scans' tests of the finished map (None: nothing to choose)
             "settings_noise_p": _p_value(self.settings_test),
             "jumps_held_p": _p_value(self.jump_test),
+            # the jumps the map bent little held, unless its scans agreed better with them
+            # free (this p below the test's significance)
+            "unbent_jumps_held": self.unbent_held,
+            "unbent_jumps_free_p": _p_value(self.unbent_test),
             # the run's own model against the untaught one, where too few closures taught it
             "few_taught_noise_p": _p_value(self.few_taught_test),
             # the map the odometry's chain, its closures weighing nothing (the test's p below
