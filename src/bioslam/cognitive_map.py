@@ -1762,9 +1762,9 @@ class CognitiveMap:
         take back; a wrong jump is taken back about whole, as far as it went wrong. One the
         closures bend by a small share of its allowance was no error: the bend is their own
         centimetres, which a free hinge gathers and turns by the length of the map beyond."""
-        if share <= 0.0 or self.noise.jump_scale == 0.0:
-            return None
         jumps = np.flatnonzero(self.jump_links())
+        if share <= 0.0 or self.noise.jump_scale == 0.0 or jumps.size == 0:
+            return None
         terms = self._link_terms.view()
         saved = (
             self._poses.view().copy(), self._link_scale.view().copy(), terms[jumps].copy(),
