@@ -560,6 +560,14 @@ def _map_frame_information(
     return out
 
 
+def link_residuals(
+    poses: FloatArray, src: NDArray[np.int64], dst: NDArray[np.int64], dps: FloatArray
+) -> FloatArray:
+    """(E, 3) each link's target pose in the frame of where its source and Δp put it: zero
+    where the map agrees with the link."""
+    return between(compose(poses[src], dps), poses[dst])
+
+
 def _link_chi2(
     poses: FloatArray, src: NDArray[np.int64], dst: NDArray[np.int64], dps: FloatArray,
     info: FloatArray, shapes: FloatArray, partial: NDArray[np.bool_],
@@ -567,7 +575,7 @@ def _link_chi2(
     """Each link's squared residual in units of its own (isotropic) variance (its χ²); a
     partial link's position residual only along what it pins (its shape, whose free
     direction weighs nothing)."""
-    r = between(compose(poses[src], dps), poses[dst])
+    r = link_residuals(poses, src, dst, dps)
     position = r[:, 0] ** 2 + r[:, 1] ** 2
     if partial.any():
         # the residual is in the target's frame, the shape in the source's: turned by the
@@ -1792,8 +1800,7 @@ class CognitiveMap:
     def _bends(self, links: NDArray[np.int64]) -> FloatArray:
         """(len(links), 2) how far (m, rad) the map's poses depart from each link's Δp."""
         ends = self._link_ends.view()[links].astype(np.int64)
-        poses = self._poses.view()
-        r = between(compose(poses[ends[:, 0]], self._link_dp.view()[links]), poses[ends[:, 1]])
+        r = link_residuals(self._poses.view(), ends[:, 0], ends[:, 1], self._link_dp.view()[links])
         return np.column_stack([np.hypot(r[:, 0], r[:, 1]), np.abs(wrap_angle(r[:, 2]))])
 
     # --- output ----------------------------------------------------------------------------
