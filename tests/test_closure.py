@@ -638,6 +638,65 @@ def test_a_trusted_check_is_challenged_beyond_its_drift_bound():
     assert math.hypot(*between(truth, near.pose)[:2]) < 0.03
 
 
+def _doors_revisit_facing_back() -> tuple[np.ndarray, SeenArea, np.ndarray, np.ndarray]:
+    """The old pass facing east down a corridor of identical doors 2.4 m apart with a
+    180 deg scanner (its submap, where it looked); the robot back 0.15 m short of the
+    anchor facing west, seeing mostly what the old pass left behind it: the true pose in the
+    submap's frame and the scan."""
+    walls = _corridor_with_doors(2.4, 10)
+    around = [(9.0 + 0.5 * k, 1.0, 0.0) for k in range(-2, 3)]
+    submap, seen = _submap(walls, 2, around, fov=180.0)
+    robot = (8.85, 1.0, math.pi)
+    return submap, seen, np.array(between(around[2], robot)), _points(walls, robot, fov=180.0)
+
+
+def test_a_look_alike_is_refused_where_the_prediction_slides_short_of_the_true_place():
+    # Facing back, the scan fits the look-alike a door on better than its true place (on
+    # every point and where the submap looked): only the map's prediction, 0.4 m from the
+    # truth along the corridor, tells them apart. Refined where it stands it slides and stops
+    # short, and the look-alike beats it by the margin; the true place near it does not.
+    submap, seen, truth, query = _doors_revisit_facing_back()
+    config = LoopClosureConfig()
+    pyramid = _submap_pyramid(submap, config.registration)
+    judge, hit = pyramid.grids[config.registration.score_level], config.registration.hit_level
+    iterations = levels_up_to(config.registration.max_iterations, 0)
+    true_place, _ = refine_where_seen(pyramid, truth, query, iterations, seen)
+    look_alike, _ = refine_where_seen(pyramid, compose(truth, (-2.4, 0.0, 0.0)), query,
+                                      iterations, seen)  # fmt: skip
+    for where_seen in (None, seen):
+        assert seen_hit_fraction(judge, look_alike, query, hit, where_seen) > seen_hit_fraction(
+            judge, true_place, query, hit, where_seen
+        )
+    predicted = compose(truth, (0.4, 0.0, 0.0))
+    unsearched = dataclasses.replace(config, search_prediction_plateau=False)
+    gap = verify(submap, query, predicted, (3.0, 0.5), unsearched, seen)
+    assert gap.accepted  # the gap: a closure to the look-alike
+    assert math.hypot(*between(truth, gap.pose)[:2]) > 2.0
+    verdict = verify(submap, query, predicted, (3.0, 0.5), config, seen)
+    assert not verdict.accepted and verdict.reason == "ambiguous"
+
+
+@pytest.mark.parametrize(
+    ("world", "off"), [("hall", 1.0), ("hall", 1.5), ("corridor", 0.7), ("corridor", 1.5)]
+)
+def test_a_true_correction_beyond_the_rival_distance_still_closes(world, off):
+    # The map's prediction is off by more than the rival distance in a place unlike any
+    # other: no peak near it rivals the true place, and the check closes there. (Nearer,
+    # 0.6-0.8 m, the prediction refined where it stands already fits within the margin.)
+    walls, around, fov = {
+        "hall": (HALL, [(5.0 + 0.5 * k, 1.5, 0.0) for k in range(5)], 270.0),
+        "corridor": (CORRIDOR_ROOM, [(8.0 + 0.5 * k, 1.0, 0.0) for k in range(5)], 180.0),
+    }[world]
+    submap, seen = _submap(walls, 2, around, fov=fov)
+    robot = _offset(around[2], 0.3, 0.1)
+    truth = between(around[2], robot)
+    predicted = compose(truth, (off, 0.05, 0.03))
+    query = _points(walls, robot, fov=fov)
+    verdict = verify(submap, query, predicted, (3.0, 0.5), LoopClosureConfig(), seen)
+    assert verdict.accepted, verdict.reason
+    assert math.hypot(*between(truth, verdict.pose)[:2]) < 0.03
+
+
 def test_score_plateau_is_wide_along_a_corridor_and_narrow_across_it():
     # A registration pins a corridor's sideways position but not its position along it: the
     # closure's information there must come from how far its score stays flat, whatever
