@@ -1178,6 +1178,67 @@ def test_the_finished_map_keeps_free_a_jump_its_closure_takes_back():
     assert cm.hold_unbent_jumps(0.0, 0.05) is None
 
 
+def hall_and_back_partially(lean: float, apart: float) -> tuple[CognitiveMap, np.ndarray]:
+    """Down the hall and back as :func:`hall_and_back`, the odometry exact, with a routine
+    jump at step 34 on the way back (free by 0.3 m and 21°), and no closure across it but
+    three partial ones after it, each onto the first pass's experience where the robot
+    stands: free along the hall turned ``lean`` radians either way by turns, and off across
+    it by half of ``apart`` metres either way by turns, weighed as the closures taught a run
+    (1.4 mm). Returns the map, finished, and the true poses of its experiences."""
+    rng = np.random.default_rng(4)
+    world = _hall_points()
+    steps = np.array([(0.2, 0.0, 0.0)] * 30 + [(0.0, 0.0, math.pi)] + [(0.2, 0.0, 0.0)] * 29)
+    truth = integrate(steps)
+    closures = (40, 48, 54)
+    cm = CognitiveMap(CognitiveMapConfig())
+    for k, d in enumerate(steps):
+        stamp = k + (100.0 if k > 30 else 0.0)
+        broken = (0.3, math.radians(21.0)) if k == 34 else (0.0, 0.0)
+        cm.integrate_odometry(d, stamp=stamp, broken=broken)
+        if k in closures:
+            side = 1.0 if closures.index(k) % 2 == 0 else -1.0
+            old = 59 - k  # the first pass's step where the robot stands
+            pose = np.array(between(truth[old], truth[k])) + np.array([0.0, side * apart / 2, 0.0])
+            slide = (math.cos(side * lean), math.sin(side * lean))
+            measured = Measurement(pose, free_along(ISOTROPIC, slide), partial=True)
+            event = cm.update(old, False, PC, stamp=stamp, refine=lambda e, m=measured: m)
+            assert event.kind == "loop"
+            continue
+        seen = compose(inverse(truth[k]), np.column_stack([world, np.zeros(len(world))]))[:, :2]
+        seen += rng.normal(0.0, 0.01, seen.shape)
+        cm.update(k, True, PC, stamp=stamp, payload=seen[np.hypot(*seen.T) < 8.0])
+    taught = dataclasses.replace(untaught_noise(CognitiveMapConfig()), closure_var=2e-6)
+    cm.set_noise(dataclasses.replace(taught, jump_scale=1.0))
+    cm.solve(window=None)
+    steps_made = [round(e.stamp - (100.0 if e.stamp > 100.0 else 0.0)) for e in cm.experiences]
+    return cm, truth[steps_made]
+
+
+def test_the_finished_map_holds_a_jump_only_its_partial_closures_bend_beyond_its_allowance():
+    """Three partial closures after a routine jump, 6 mm apart across the hall and leaning
+    0.2° either way, slide the stretch beyond the jump along the hall to reconcile them:
+    the jump's link is bent beyond its 0.3 m allowance. Without the partial closures the
+    map bends it not at all; so it is held, and the scans agree. Leaning 0.5° and 3 mm
+    apart, they bend it by half its allowance, which may be theirs to make: more than the
+    share held, it stays free."""
+    cm, truth = hall_and_back_partially(math.radians(0.2), 0.006)
+    jump = np.flatnonzero(cm.jump_links())
+    assert jump.size == 1
+    slid = _rms(cm, truth)
+    assert slid > 0.2
+    assert cm._bends(jump)[0, 0] > 0.3
+    assert cm._bends(jump, cm.solved(partial=False))[0, 0] < 0.001
+    test = cm.hold_unbent_jumps(0.25, 0.05)
+    assert test is not None and test.p_second_sharper >= 0.05
+    assert not cm.jump_links().any()
+    assert _rms(cm, truth) < 0.01 * slid
+
+    cm, truth = hall_and_back_partially(math.radians(0.5), 0.003)
+    assert 0.25 * 0.3 < cm._bends(np.flatnonzero(cm.jump_links()))[0, 0] < 0.3
+    assert cm.hold_unbent_jumps(0.25, 0.05) is None
+    assert cm.jump_links().sum() == 1
+
+
 def test_holding_unbent_jumps_takes_a_share_between_none_and_all():
     with pytest.raises(ValueError, match="hold_unbent_jumps"):
         CognitiveMapConfig(hold_unbent_jumps=1.5)
