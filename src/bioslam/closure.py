@@ -916,7 +916,6 @@ def verify(
     plateau = (
         not agree
         and config.search_prediction_plateau
-        and kept_report.degenerate
         and kept_score >= config.partner_score
     )
     reason = ""
