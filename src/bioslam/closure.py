@@ -912,7 +912,7 @@ def verify(
     score = seen_hit_fraction(judge, pose, query, reg.hit_level, seen, config.min_seen)
     kept_score = seen_hit_fraction(judge, kept, query, reg.hit_level, seen, config.min_seen)
     slid = not within(between(found.pose, pose), 2.0 * found.resolution, config.rival_angle)
-    # the prediction refined fits the place but slides: it may have stopped short of its peak
+    # the prediction refined fits the place: it may have stopped short of its peak
     plateau = (
         not agree
         and config.search_prediction_plateau
@@ -993,13 +993,14 @@ def _prediction_peak_rivals(
     the rival distance (``scores``: its share on every point and where the submap looked):
     refined (Gauss-Newton, where the submap looked) from starts along the line to it within
     the rival distance of the prediction, and farther than that from the correction (not
-    its own peak's shoulder), it fits within ``prior_margin`` of it. Where the prediction
-    refined where it stands fits but is degenerate (:func:`verify`), it stays where the
-    scan stops pinning it: along an aisle 0.30 m from its true place, fitting 0.840 where
-    the submap looked, while the true place fitted 0.945 refined and a look-alike 2.8 m
-    along the aisle 0.955 (the built-in warehouse, SICK, reversing route kept every third
-    scan, seed 630: two such closures, 13.3 cm of error against the odometry's 1.0). The
-    line is where such a slide lies; the wide-basin search near the prediction, which
+    its own peak's shoulder), it fits within ``prior_margin`` of it. The prediction refined
+    where it stands (:func:`verify`) stops where the scan stops pinning it: along an aisle
+    0.30 m from its true place, fitting 0.840 where the submap looked, while the true place
+    fitted 0.945 refined and a look-alike 2.8 m along the aisle 0.955 (the built-in
+    warehouse, SICK, reversing route kept every third scan, seed 630: two such closures,
+    13.3 cm of error against the odometry's 1.0; a third, its prediction refined 24 cm
+    uncertain along the aisle but not flagged degenerate, when the first two were refused).
+    The line is where such a slide lies; the wide-basin search near the prediction, which
     scores every point, ran to the window's edge toward the look-alike, where more of the
     scan lands on the submap."""
     reg = config.registration

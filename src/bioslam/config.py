@@ -176,8 +176,8 @@ class LoopClosureConfig:
             one beyond the rival distance must (the ``prior_tie`` alone let a registration
             slide 0.39 m along a corridor with people in it, 0.948 against 0.893: a closure
             0.40 m off on the simulated rooms, SICK, 5 people, seed 171).
-        search_prediction_plateau: where the prediction refined fits (``partner_score``)
-            but slides, a correction beyond the rival distance must also beat by
+        search_prediction_plateau: where the prediction refined fits the place
+            (``partner_score``), a correction beyond the rival distance must also beat by
             ``prior_margin`` the peaks found near the prediction along the line to it
             (:func:`bioslam.closure.verify`): Gauss-Newton stops where the scan stops pinning
             the pose, and along an aisle the true place 0.3 m from the prediction fitted
