@@ -913,7 +913,7 @@ def verify(
     kept_score = seen_hit_fraction(judge, kept, query, reg.hit_level, seen, config.min_seen)
     slid = not within(between(found.pose, pose), 2.0 * found.resolution, config.rival_angle)
     # the prediction refined fits the place: it may have stopped short of its peak
-    plateau = (
+    search_near_prediction = (
         not agree
         and config.search_prediction_plateau
         and kept_score >= config.partner_score
@@ -943,7 +943,7 @@ def verify(
     elif not within(between(predicted, pose), distance, angle):
         reason = "beyond drift"
     elif (
-        plateau
+        search_near_prediction
         and _prediction_peak_rivals(pyramid, query, predicted, pose, seen, (fit, score), config)
     ) or (
         outside is not None
