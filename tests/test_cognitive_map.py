@@ -1067,6 +1067,13 @@ def _hall_points(step: float = 0.05) -> np.ndarray:
     return np.vstack(points)
 
 
+def _hall_scan(world: np.ndarray, pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The hall's points within 8 m of ``pose``, in its frame, with 1 cm of range noise."""
+    seen = compose(inverse(pose), np.column_stack([world, np.zeros(len(world))]))[:, :2]
+    seen += rng.normal(0.0, 0.01, seen.shape)
+    return seen[np.hypot(*seen.T) < 8.0]
+
+
 def hall_and_back(
     jumps: tuple[int, ...], odometry_error: tuple[int, float], closure_offset: float,
     noise: LinkNoise,
@@ -1090,9 +1097,7 @@ def hall_and_back(
         odometry = d + np.array([odometry_error[1] if k == odometry_error[0] else 0.0, 0.0, 0.0])
         stamp = k + (100.0 if k > 30 else 0.0)
         cm.integrate_odometry(odometry, stamp=stamp, broken=broken)
-        seen = compose(inverse(truth[k]), np.column_stack([world, np.zeros(len(world))]))[:, :2]
-        seen += rng.normal(0.0, 0.01, seen.shape)
-        cm.update(k, True, PC, stamp=stamp, payload=seen[np.hypot(*seen.T) < 8.0])
+        cm.update(k, True, PC, stamp=stamp, payload=_hall_scan(world, truth[k], rng))
     cm.integrate_odometry(steps[-1] + np.array([closure_offset, 0.0, 0.0]))
     measured = Measurement(between(truth[0], truth[-1]))
     assert cm.update(0, False, PC, stamp=400.0, refine=lambda e: measured).kind == "loop"
@@ -1204,9 +1209,7 @@ def hall_and_back_partially(lean: float, apart: float) -> tuple[CognitiveMap, np
             event = cm.update(old, False, PC, stamp=stamp, refine=lambda e, m=measured: m)
             assert event.kind == "loop"
             continue
-        seen = compose(inverse(truth[k]), np.column_stack([world, np.zeros(len(world))]))[:, :2]
-        seen += rng.normal(0.0, 0.01, seen.shape)
-        cm.update(k, True, PC, stamp=stamp, payload=seen[np.hypot(*seen.T) < 8.0])
+        cm.update(k, True, PC, stamp=stamp, payload=_hall_scan(world, truth[k], rng))
     taught = dataclasses.replace(untaught_noise(CognitiveMapConfig()), closure_var=2e-6)
     cm.set_noise(dataclasses.replace(taught, jump_scale=1.0))
     cm.solve(window=None)

@@ -1017,10 +1017,7 @@ def _prediction_peak_rivals(
             continue
         if within(between(accepted, pose), config.rival_distance, config.rival_angle):
             continue  # the accepted pose's own peak
-        if seen_hit_fraction(judge, pose, query, reg.hit_level) >= fit - config.prior_margin:
-            return True
-        there = seen_hit_fraction(judge, pose, query, reg.hit_level, seen, config.min_seen)
-        if there >= score - config.prior_margin:
+        if _outfits(judge, pose, query, fit, score, seen, config, False, config.prior_margin):
             return True
     return False
 
@@ -1338,11 +1335,12 @@ def _outfits(
     seen: SeenArea | None,
     config: LoopClosureConfig,
     better: bool,
+    margin: float | None = None,
 ) -> bool:
-    """Whether ``query`` at ``pose`` fits as well as the accepted pose, to within
-    ``prior_tie``, on every point (``fit``) or, given ``looked``, where the submap looked; or,
-    ``better``, clearly better on both (:func:`outside_rival`). Each score is computed only
-    when the ones before have not decided."""
+    """Whether ``query`` at ``pose`` fits as well as the accepted pose, to within ``margin``
+    (None: ``prior_tie``), on every point (``fit``) or, given ``looked``, where the submap
+    looked; or, ``better``, clearly better on both (:func:`outside_rival`). Each score is
+    computed only when the ones before have not decided."""
     reg = config.registration
 
     def gain(where_looked: bool) -> float:
@@ -1352,9 +1350,10 @@ def _outfits(
         return seen_hit_fraction(judge, pose, query, reg.hit_level) - fit
 
     scores = (False, True) if looked is not None else (False,)
+    margin = config.prior_tie if margin is None else margin
     if better:
-        return all(gain(s) > config.prior_tie for s in scores)
-    return any(gain(s) >= -config.prior_tie for s in scores)
+        return all(gain(s) > margin for s in scores)
+    return any(gain(s) >= -margin for s in scores)
 
 
 def refine_where_seen(

@@ -1798,16 +1798,16 @@ class CognitiveMap:
             self._link_info.view()[jumps].copy(),
         )  # fmt: skip
         allowed = np.sqrt(self.noise.jump_scale * terms[jumps][:, [TERM_EXTRA_XY, TERM_EXTRA_TH]])
+        bends = self._bends(jumps)
         # bent little where the partial closures weigh nothing, beyond its allowance where
         # they weigh: a pull along their slides, which they claim nothing about
         alone = np.zeros(jumps.size, dtype=bool)
         if self._link_partial.view().any():
-            beyond = np.any(self._bends(jumps) > allowed, axis=1)
             unpulled = self._bends(jumps, self.solved(partial=False)) <= share * allowed
-            alone = beyond & np.all(unpulled, axis=1)
+            alone = np.any(bends > allowed, axis=1) & np.all(unpulled, axis=1)
         held = np.zeros(jumps.size, dtype=bool)
         while True:
-            unbent = ~held & (alone | np.all(self._bends(jumps) <= share * allowed, axis=1))
+            unbent = ~held & (alone | np.all(bends <= share * allowed, axis=1))
             if not unbent.any():
                 break
             held |= unbent
@@ -1815,6 +1815,7 @@ class CognitiveMap:
             terms[chosen, TERM_EXTRA_XY] = terms[chosen, TERM_EXTRA_TH] = 0.0
             self._link_info.view()[chosen] = self._weigh(terms[chosen])
             self.solve(window=None)
+            bends = self._bends(jumps)
         if not held.any():
             return None
         comparison = self._compare_scans(saved[0])
