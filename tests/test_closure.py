@@ -366,21 +366,6 @@ def test_submap_members_are_taken_on_the_candidate_pass_and_before_the_cutoff():
     assert len(members) == 5  # 3.5, 4.0, 4.5, 5.0, 5.5 m
 
 
-def test_a_submap_slot_whose_place_kept_no_scan_takes_the_nearest_that_did():
-    travelled = np.arange(0.0, 20.0, 0.1)
-    stored = np.ones(travelled.size, dtype=bool)
-    stored[[40, 41, 55, 56]] = False  # 4.0 m kept no scan, nor 5.5 m, nor the next ones
-    stored[44:48] = False  # 4.4-4.7 m
-    members = pass_neighbours(travelled, 50, 1.5, 0.5, np.inf, stored)
-    # 4.0 -> 3.9, 4.5 -> 4.3 (0.2 m off: within a quarter metre), 5.5 -> 5.4
-    assert members == [35, 39, 43, 50, 54, 60, 65]
-    stored[[42, 43, 48]] = False  # nothing left within a quarter metre of 4.5 m
-    members = pass_neighbours(travelled, 50, 1.5, 0.5, np.inf, stored)
-    assert members == [35, 39, 50, 54, 60, 65]
-    everything = pass_neighbours(travelled, 50, 1.5, 0.5, np.inf)
-    assert everything == [35, 40, 45, 50, 55, 60, 65]  # without ``stored``, as before
-
-
 def test_nearest_experience_skips_places_just_left():
     poses = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.2, 0.1, 0.0]])
     travelled = np.array([0.0, 1.0, 2.0, 10.0])

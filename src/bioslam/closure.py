@@ -80,64 +80,19 @@ def thin_points(points: FloatArray, spacing: float) -> NDArray[np.float32]:
 
 
 def pass_neighbours(
-    travelled: FloatArray,
-    anchor: int,
-    reach: float,
-    step: float,
-    before: float,
-    stored: NDArray[np.bool_] | None = None,
+    travelled: FloatArray, anchor: int, reach: float, step: float, before: float
 ) -> list[int]:
     """The experiences whose scans make ``anchor``'s submap: on its own pass (ids are in
     creation order, ``travelled`` the odometry distance at which each was made,
     non-decreasing), the one nearest each multiple of ``step`` metres of travel within
-    ``reach`` of it, made no later than ``before`` metres of travel; ``anchor`` always.
-    ``stored``: which experiences kept a scan (all when None). Where the one at a multiple
-    kept none, the nearest that did within half a step of it stands in: a scan bent by a
-    turn, or the run's first, keeps none, and a turning robot kept a scan at half its places
-    (exp1.dat, URG-04LX: 95 of 184). Its first place's submap fused one scan of the four
-    members picked, where three were kept within half a step of them; the return's checks
-    against it scored 0.62 and 0.78, and 0.82 and 0.79 with three."""
+    ``reach`` of it, made no later than ``before`` metres of travel; ``anchor`` always."""
     centre = travelled[anchor]
     k = int(reach // step) if step > 0 else 0
     targets = centre + step * np.arange(-k, k + 1)
     targets = targets[targets <= before]
     picks = np.clip(np.searchsorted(travelled, targets), 0, travelled.size - 1)
-    if stored is not None:
-        picks = _stored_picks(travelled, picks, targets, 0.5 * step, stored, centre)
-    near = [
-        int(i) for i in picks
-        if i >= 0 and abs(travelled[i] - centre) <= reach and travelled[i] <= before
-    ]  # fmt: skip
+    near = [int(i) for i in picks if abs(travelled[i] - centre) <= reach and travelled[i] <= before]
     return sorted({anchor, *near})
-
-
-def _stored_picks(
-    travelled: FloatArray,
-    picks: NDArray[np.intp],
-    targets: FloatArray,
-    within: float,
-    stored: NDArray[np.bool_],
-    centre: float,
-) -> NDArray[np.intp]:
-    """``picks`` with each experience that kept no scan replaced by the one nearest its
-    target (m of travel) that did, within ``within`` of the target (of two as near, the one
-    nearer ``centre``, the anchor's); -1 where none did."""
-    keeping = np.flatnonzero(stored[: travelled.size])
-    kept_at = travelled[keeping]
-    out = picks.copy()
-    for slot, (pick, target) in enumerate(zip(picks, targets, strict=True)):
-        if stored[pick]:
-            continue
-        out[slot] = -1
-        i = int(np.searchsorted(kept_at, target))
-        near = [int(keeping[j]) for j in (i - 1, i) if 0 <= j < keeping.size]
-        if near:
-            best = min(
-                near, key=lambda j: (abs(travelled[j] - target), abs(travelled[j] - centre))
-            )
-            if abs(travelled[best] - target) <= within:
-                out[slot] = best
-    return out
 
 
 def odometry_broke(

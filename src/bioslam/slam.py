@@ -1294,10 +1294,7 @@ class BioSLAM:
         reach, step = submap_span(
             made_at, anchor, cfg.submap_reach, cfg.submap_step, cfg.submap_max_reach
         )
-        members = pass_neighbours(
-            made_at, anchor, reach, step, self._travelled - reach,
-            self._verifiable[: len(self.cognitive_map)],
-        )  # fmt: skip
+        members = pass_neighbours(made_at, anchor, reach, step, self._travelled - reach)
         if cfg.refuse_broken_odometry:
             members = unbroken(self._jumps_at, anchor, members)
         return anchor, members
