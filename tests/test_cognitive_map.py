@@ -588,6 +588,47 @@ def test_a_partial_closure_is_free_along_its_registrations_slide_not_its_scans_w
     assert slide[2] == pytest.approx(tilted[2], rel=1e-9) and abs(slide[1]) < 1e-9
 
 
+def _back_along_a_corridor(share: float, tilt_deg: float) -> float:
+    """Exact odometry 8 m east and back; a partial closure onto the first place whose slide
+    was found ``tilt_deg`` off the corridor's axis and whose pose along it (the map's
+    prediction) is 0.5 m off: across the slide that puts it 0.5 m x sin(tilt) off. Returns
+    the map's largest error (m)."""
+    steps = np.array([(0.2, 0.0, 0.0)] * 40 + [(0.0, 0.0, math.pi)] + [(0.2, 0.0, 0.0)] * 39)
+    truth = integrate(steps)
+    config = CognitiveMapConfig(
+        odometry_var_per_m=1e-4, odometry_heading_var_per_m=1e-5, closure_sigma_m=0.01,
+        closure_sigma_rad=1e-3, robust_sigmas=0.0, partial_across_share=share,
+    )  # fmt: skip
+    cm = CognitiveMap(config)
+    for k, d in enumerate(steps[:-1]):
+        cm.integrate_odometry(d, stamp=float(k))
+        cm.update(k, True, PC, stamp=float(k))
+    cm.integrate_odometry(steps[-1])
+    tilt = math.radians(tilt_deg)
+    slide = (math.cos(tilt), math.sin(tilt))  # the robot faces back along the corridor
+    measured = compose(between(truth[0], truth[-1]), (0.5, 0.0, 0.0))
+    shape = free_along(ISOTROPIC, slide, config.partial_across_share)
+    refined = Measurement(measured, shape, partial=True)
+    assert cm.update(0, False, PC, stamp=99.0, refine=lambda e: refined).kind == "loop"
+    cm.relax()
+    poses = cm.experience_poses
+    return float(np.max(np.hypot(*(poses[:, :2] - truth[: len(poses), :2]).T)))
+
+
+def test_a_partial_closure_across_a_slide_found_off_the_axis_pulls_by_its_share():
+    # A slide found 2 deg off the corridor's axis turns the prediction's 0.5 m along it into
+    # 1.7 cm across: weighed as a whole closure is across, it bends exact odometry by about
+    # that (1.6 cm); at a hundredth of that weight (the default), by a seventh as much.
+    whole = _back_along_a_corridor(1.0, 2.0)
+    shared = _back_along_a_corridor(CognitiveMapConfig().partial_across_share, 2.0)
+    assert whole > 0.012
+    assert shared < 0.2 * whole
+    # found along the axis it claims nothing false, and bends nothing either way
+    assert _back_along_a_corridor(1.0, 0.0) < 1e-3
+    with pytest.raises(ValueError):
+        CognitiveMapConfig(partial_across_share=0.0)
+
+
 def closure_round_a_corner(east: int, partial: bool, vouched: bool = True) -> tuple:
     """East ``east`` steps of 0.5 m, a quarter turn, north 2 m (exact odometry), then a closure
     onto the first place measured exactly, ``partial`` free along the robot's x (north).

@@ -1010,10 +1010,11 @@ class BioSLAM:
         # prediction, which joins the places by a chain only where the odometry vouched for it
         free = None if not partial else rotation(-verdict.pose[2]) @ verdict.free
         vouched = trusted or not partial
+        share = self.config.cognitive_map.partial_across_share
         if within(between(predicted, verdict.pose), cfg.deadband, cfg.deadband_angle):
             # The map already agrees with the registration to within the registration's own
             # error: keep the map's estimate rather than inject that error into the map.
-            shape = free_along(scan_shape(), free) if partial else ISOTROPIC.copy()
+            shape = free_along(scan_shape(), free, share) if partial else ISOTROPIC.copy()
             measured = Measurement(
                 np.asarray(predicted, dtype=np.float64), shape, chained, partial=partial,
                 vouched=vouched,
@@ -1026,8 +1027,8 @@ class BioSLAM:
                 else None  # (only that weighting reads it; a slide's says nothing)
             )
             measured = Measurement(
-                verdict.pose, free_along(shape, free) if partial else shape, chained, covariance,
-                partial, vouched,
+                verdict.pose, free_along(shape, free, share) if partial else shape, chained,
+                covariance, partial, vouched,
             )  # fmt: skip
         # a correction only the breaks' widening of the window let in: checks that matched
         # the same old scans share its error, and cannot vouch for one another
