@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
@@ -489,6 +490,29 @@ def test_registration_shape_follows_the_scans_geometry():
     np.testing.assert_allclose(registration_shape(pts[:2], nrm[:2], 50.0), (1.0, 0.0, 1.0))
 
 
+def closed_corridor(
+    refined: Callable[[np.ndarray], Measurement | np.ndarray],
+    config: CognitiveMapConfig,
+    bias: ArrayLike = (0.0, 0.0, 0.0),
+) -> tuple[np.ndarray, CognitiveMap, np.ndarray]:
+    """Down an 8 m corridor and back, the odometry's every step off by ``bias``, then a
+    closure onto the first experience: ``refined`` of the true relative pose. Returns the
+    experiences' poses before the closure, the relaxed map and the true poses."""
+    steps = np.array([(0.2, 0.0, 0.0)] * 40 + [(0.0, 0.0, math.pi)] + [(0.2, 0.0, 0.0)] * 40)
+    truth = integrate(steps)
+    bias = np.asarray(bias, dtype=np.float64)
+    cm = CognitiveMap(config)
+    for k, d in enumerate(steps[:-1]):
+        cm.integrate_odometry(d + bias, stamp=float(k))
+        cm.update(k, True, PC, stamp=float(k))
+    odometry = cm.experience_poses
+    cm.integrate_odometry(steps[-1] + bias)
+    measured = refined(between(truth[0], truth[-1]))
+    assert cm.update(0, False, PC, stamp=99.0, refine=lambda e: measured).kind == "loop"
+    cm.relax()
+    return odometry, cm, truth
+
+
 def corridor_return(
     measurement_shape: np.ndarray | None, slide: float, config: CognitiveMapConfig | None = None,
     covariance: np.ndarray | None = None, partial: bool = False,
@@ -498,29 +522,21 @@ def corridor_return(
     the corridor (a registration sliding along it). Returns the odometry's and the relaxed
     map's position RMS errors of the experiences against the truth, and the robust kernel's
     factor on the closure."""
-    steps = np.array([(0.2, 0.0, 0.0)] * 40 + [(0.0, 0.0, math.pi)] + [(0.2, 0.0, 0.0)] * 40)
-    truth = integrate(steps)
-    bias = np.array([0.0, 0.0, 0.003])
     config = config or CognitiveMapConfig(
         odometry_var_per_m=0.01, odometry_heading_var_per_m=1e-3, closure_sigma_m=0.01,
         closure_sigma_rad=1e-3, closure_shape_ratio=1e4, robust_sigmas=0.0,
         registration_covariance=True,
     )  # fmt: skip
-    cm = CognitiveMap(config)
-    for k, d in enumerate(steps[:-1]):
-        cm.integrate_odometry(d + bias, stamp=float(k))
-        cm.update(k, True, PC, stamp=float(k))
-    odometry = cm.experience_poses
-    cm.integrate_odometry(steps[-1] + bias)
-    measured = compose(between(truth[0], truth[-1]), (slide, 0.0, 0.0))
-    refined = (
-        measured if measurement_shape is None
-        else Measurement(measured, measurement_shape, partial=partial)
-    )  # fmt: skip
-    if covariance is not None:
-        refined = Measurement(measured, ISOTROPIC, covariance=covariance)
-    assert cm.update(0, False, PC, stamp=99.0, refine=lambda e: refined).kind == "loop"
-    cm.relax()
+
+    def refined(true_pose: np.ndarray) -> Measurement | np.ndarray:
+        measured = compose(true_pose, (slide, 0.0, 0.0))
+        if covariance is not None:
+            return Measurement(measured, ISOTROPIC, covariance=covariance)
+        if measurement_shape is None:
+            return measured
+        return Measurement(measured, measurement_shape, partial=partial)
+
+    odometry, cm, truth = closed_corridor(refined, config, (0.0, 0.0, 0.003))
     rms = lambda p: float(np.sqrt(np.mean(np.sum((p[:, :2] - truth[: len(p), :2]) ** 2, 1))))  # noqa: E731
     return rms(odometry), rms(cm.experience_poses), float(cm._link_scale.view()[-1])
 
@@ -593,24 +609,17 @@ def _back_along_a_corridor(share: float, tilt_deg: float) -> float:
     was found ``tilt_deg`` off the corridor's axis and whose pose along it (the map's
     prediction) is 0.5 m off: across the slide that puts it 0.5 m x sin(tilt) off. Returns
     the map's largest error (m)."""
-    steps = np.array([(0.2, 0.0, 0.0)] * 40 + [(0.0, 0.0, math.pi)] + [(0.2, 0.0, 0.0)] * 39)
-    truth = integrate(steps)
     config = CognitiveMapConfig(
         odometry_var_per_m=1e-4, odometry_heading_var_per_m=1e-5, closure_sigma_m=0.01,
         closure_sigma_rad=1e-3, robust_sigmas=0.0, partial_across_share=share,
     )  # fmt: skip
-    cm = CognitiveMap(config)
-    for k, d in enumerate(steps[:-1]):
-        cm.integrate_odometry(d, stamp=float(k))
-        cm.update(k, True, PC, stamp=float(k))
-    cm.integrate_odometry(steps[-1])
     tilt = math.radians(tilt_deg)
     slide = (math.cos(tilt), math.sin(tilt))  # the robot faces back along the corridor
-    measured = compose(between(truth[0], truth[-1]), (0.5, 0.0, 0.0))
     shape = free_along(ISOTROPIC, slide, config.partial_across_share)
-    refined = Measurement(measured, shape, partial=True)
-    assert cm.update(0, False, PC, stamp=99.0, refine=lambda e: refined).kind == "loop"
-    cm.relax()
+    _, cm, truth = closed_corridor(
+        lambda true_pose: Measurement(compose(true_pose, (0.5, 0.0, 0.0)), shape, partial=True),
+        config,
+    )
     poses = cm.experience_poses
     return float(np.max(np.hypot(*(poses[:, :2] - truth[: len(poses), :2]).T)))
 

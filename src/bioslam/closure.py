@@ -878,11 +878,8 @@ def verify(
     searcher = _searcher(pyramid, query, predicted, widest, config)
     found = _wide_search(searcher, query, predicted, (distance, angle), config)
     judge = pyramid.grids[reg.score_level]
-    # Gauss-Newton from the lattice pose on the searched level and finer only: a coarser
-    # level's blur would let it slide along a corridor, away from what the search found.
-    level = min(config.search_level, len(pyramid.grids) - 1)
     pose, report = refine_where_seen(
-        pyramid, found.pose, query, levels_up_to(reg.max_iterations, level), seen
+        pyramid, found.pose, query, _searched_levels(pyramid, config), seen
     )
     # The map's own prediction, refined where it stands. Along a corridor the window's best
     # may lie on a plateau the scan barely constrains, far from the truth and with no
@@ -980,6 +977,14 @@ def verify(
     )  # fmt: skip
 
 
+def _searched_levels(pyramid: MapPyramid, config: LoopClosureConfig) -> tuple[int, ...]:
+    """Gauss-Newton's iterations per level from a pose the wide-basin search found: on the
+    searched level and finer only, since a coarser level's blur would let it slide along a
+    corridor, away from what the search found."""
+    level = min(config.search_level, len(pyramid.grids) - 1)
+    return levels_up_to(config.registration.max_iterations, level)
+
+
 def _prediction_peak_rivals(
     pyramid: MapPyramid,
     query: FloatArray,
@@ -1006,8 +1011,7 @@ def _prediction_peak_rivals(
     reg = config.registration
     judge = pyramid.grids[reg.score_level]
     toward = unit(accepted[:2] - predicted[:2])
-    level = min(config.search_level, len(pyramid.grids) - 1)
-    iterations = levels_up_to(reg.max_iterations, level)
+    iterations = _searched_levels(pyramid, config)
     fit, score = scores
     for step in np.linspace(-1.0, 1.0, 2 * _PEAK_STARTS + 1) * config.rival_distance:
         start = predicted.copy()
@@ -1312,8 +1316,7 @@ def outside_rival(
     reg = config.registration
     searcher = searcher or _searcher(pyramid, query, predicted, wide, config)
     found = _wide_search(searcher, query, predicted, wide, config, free, known)
-    level = min(config.search_level, len(pyramid.grids) - 1)
-    iterations = levels_up_to(reg.max_iterations, level)
+    iterations = _searched_levels(pyramid, config)
     judge = pyramid.grids[reg.score_level]
     for start in (found.pose, found.rival_pose):
         if start is None or within(_across(start, predicted, free), *window):

@@ -1798,7 +1798,8 @@ class CognitiveMap:
         such a slide runs along the walls that would show it. Within its allowance the bend
         may be theirs to make: partial closures in a corridor across the slide pin it (a
         thinned parking deck's jump, allowed 1.58 m, bent 0.57 m by them: 40.6 cm held
-        48.3, against the odometry's 28.7)."""
+        48.3, against the odometry's 28.7; both with partial closures weighed across as
+        whole ones, before ``partial_across_share``)."""
         jumps = np.flatnonzero(self.jump_links())
         if share <= 0.0 or self.noise.jump_scale == 0.0 or jumps.size == 0:
             return None
