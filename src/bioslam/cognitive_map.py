@@ -1657,13 +1657,11 @@ class CognitiveMap:
         dps: ArrayLike | None = None,
         loops: bool = True,
         noise: LinkNoise | None = None,
-        partial: bool = True,
     ) -> FloatArray:
         """(N, 3) the experience poses the whole map solves to (:meth:`solve`, every
         experience free, the robust kernel started afresh) with every link's Δp replaced by
         ``dps`` ((E, 3), e.g. the true relative poses), with ``loops`` False without its
-        loop links (``partial`` False: without its partial ones,
-        :attr:`Measurement.partial`), and with ``noise`` its links weighed by that model
+        loop links, and with ``noise`` its links weighed by that model
         instead of the map's (:func:`information_of`); the map itself is left as it was.
         Measures how much of the trajectory's error the closures' own errors cause (the
         closures given the truth), how much they correct (none at all) and what the learned
@@ -1681,8 +1679,6 @@ class CognitiveMap:
             if not loops:
                 loop = self._link_loop.view()
                 self._link_info.view()[loop] = WEIGHTLESS  # as if absent
-            if not partial:
-                self._link_info.view()[self._link_partial.view()] = WEIGHTLESS
             self.solve(window=None)
             return view.copy()
         finally:
@@ -1787,19 +1783,14 @@ class CognitiveMap:
         take back; a wrong jump is taken back about whole, as far as it went wrong. One the
         closures bend by a small share of its allowance was no error: the bend is their own
         centimetres, which a free hinge gathers and turns by the length of the map beyond.
-        So is one bent little in the map solved without its partial closures
-        (:meth:`solved` with ``partial`` False) that they bend beyond its allowance: they
-        pin only across their slides, but each pin is off by its registration's millimetres
-        and tilted by its slide's direction error, and many of them along aisles add up to
-        a pull along one that a free hinge gives way to (the built-in warehouse, SICK,
-        reversing route kept every third scan, seed 633: 109 partial closures bent the
-        reversal's jump 46.8 cm, 1.6 times its allowance, where the map without them bent
-        it 0.0 cm; 19.64 cm against the odometry's 1.05, 1.05 held). The scans cannot tell:
-        such a slide runs along the walls that would show it. Within its allowance the bend
-        may be theirs to make: partial closures in a corridor across the slide pin it (a
-        thinned parking deck's jump, allowed 1.58 m, bent 0.57 m by them: 40.6 cm held
-        48.3, against the odometry's 28.7; both with partial closures weighed across as
-        whole ones, before ``partial_across_share``)."""
+        Partial closures need no rule of their own here: weighed across their slides at
+        ``partial_across_share``, as :class:`bioslam.slam.BioSLAM` makes them, many of them
+        along aisles no longer add up to a pull along one that a free hinge gives way to
+        (the built-in warehouse, SICK, reversing route kept every third scan, seed 633:
+        109 partial closures weighed whole bent the reversal's jump 46.8 cm, 1.6 times its
+        allowance, 19.64 cm against the odometry's 1.05 until a rule held such jumps; at a
+        hundredth, 1.05 without that rule, whose removal left 87 runs as they were;
+        ``benchmarks/README.md``, "Jumps only partial closures bend: the rule removed")."""
         jumps = np.flatnonzero(self.jump_links())
         if share <= 0.0 or self.noise.jump_scale == 0.0 or jumps.size == 0:
             return None
@@ -1810,15 +1801,9 @@ class CognitiveMap:
         )  # fmt: skip
         allowed = np.sqrt(self.noise.jump_scale * terms[jumps][:, [TERM_EXTRA_XY, TERM_EXTRA_TH]])
         bends = self._bends(jumps)
-        # bent little where the partial closures weigh nothing, beyond its allowance where
-        # they weigh: a pull along their slides, which they claim nothing about
-        alone = np.zeros(jumps.size, dtype=bool)
-        if self._link_partial.view().any():
-            unpulled = self._bends(jumps, self.solved(partial=False)) <= share * allowed
-            alone = np.any(bends > allowed, axis=1) & np.all(unpulled, axis=1)
         held = np.zeros(jumps.size, dtype=bool)
         while True:
-            unbent = ~held & (alone | np.all(bends <= share * allowed, axis=1))
+            unbent = ~held & np.all(bends <= share * allowed, axis=1)
             if not unbent.any():
                 break
             held |= unbent
