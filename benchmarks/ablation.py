@@ -1,11 +1,15 @@
 """Ablation: odometry alone vs the full system on the demo's maze, with and without an injected
 gyro-like heading drift, in one run. Prints a table and writes it to
-``benchmarks/results/ablation/maze-<duration>s-<date>.md``.
+``benchmarks/results/ablation/maze-<lidar>-<duration>s-<date>.md`` (``-seeds-A-B`` before the
+date when several seeds are run).
 
     python benchmarks/ablation.py [--duration 600] [--bias 0.0005] [--lidar utm30lx] [--seed 0]
+    python benchmarks/ablation.py ... --seeds 0-13 [--jobs 2]
 
 The README's 20 min row: ``--duration 1200 --seed 2 --lidar rplidar --bias 0.0002007``
-(0.0115 deg/s).
+(0.0115 deg/s). One seed's figure is one draw: two odometries that differ by a fraction of
+a millimetre in one match drift apart within a minute, so a change is judged on the median
+over seeds (``--seeds``), which the several-seed table ends with.
 """
 
 from __future__ import annotations
@@ -14,6 +18,7 @@ import argparse
 import dataclasses
 import datetime
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -26,8 +31,10 @@ from bioslam.trajectory import Trajectory
 
 RESULTS = Path(__file__).resolve().parent / "results" / "ablation"
 
+Row = tuple[str, str, dict, object, float]  # drift, system, ATE metrics, closures, wall s
 
-def run(scans: list, gt: Trajectory, bias: float) -> list[tuple[str, dict, dict, float]]:
+
+def run(scans: list, gt: Trajectory, bias: float) -> list[Row]:
     slam = BioSLAM(dataclasses.replace(SLAMConfig(), heading_bias=bias))
     started = time.perf_counter()
     for scan in scans:
@@ -35,41 +42,89 @@ def run(scans: list, gt: Trajectory, bias: float) -> list[tuple[str, dict, dict,
     slam.finish()
     wall = time.perf_counter() - started
     label = f"heading bias {bias:g} rad/s" if bias else "no injected drift"
+    closures = slam.summary().get("loop_closures", "")
     return [
-        (label, {"system": "odometry only"}, evaluate(slam.odometry_trajectory(), gt), wall),
-        (label, {"system": "bioslam", **slam.summary()}, evaluate(slam.trajectory(), gt), wall),
+        (label, "odometry only", evaluate(slam.odometry_trajectory(), gt), "", wall),
+        (label, "bioslam", evaluate(slam.trajectory(), gt), closures, wall),
     ]
+
+
+def ablate(duration: float, seed: int, lidar: str, bias: float) -> list[Row]:
+    """The four rows of one seed: each system without and with the drift, on one route."""
+    world = maze_world()
+    route = make_route(world, duration=duration, seed=seed)
+    pairs = list(simulate_scans(world, LIDAR_PRESETS[lidar], route, seed=seed))
+    scans = [scan for scan, _ in pairs]
+    gt = Trajectory(np.array([s.stamp for s in scans]), np.array([p for _, p in pairs]))
+    return run(scans, gt, 0.0) + run(scans, gt, bias)
+
+
+def seed_list(text: str) -> list[int]:
+    """``"0-13"`` or ``"0,2,5"`` (or both, comma-separated) as a list of seeds."""
+    seeds: list[int] = []
+    for part in text.split(","):
+        first, _, last = part.partition("-")
+        seeds += range(int(first), int(last or first) + 1)
+    return seeds
+
+
+def table(by_seed: dict[int, list[Row]]) -> list[str]:
+    """The rows of every seed (a seed column when there are several), then, for several,
+    each row's ATE RMSE over the seeds: median, least and most."""
+    several = len(by_seed) > 1
+    head = "| seed " if several else ""
+    lines = [
+        f"{head}| drift | system | ATE RMSE m | ATE mean m | ATE max m | loop closures | wall s |",
+        f"{'|---' if several else ''}|---|---|---|---|---|---|---|",
+    ]
+    for seed, rows in by_seed.items():
+        for drift, system, metrics, closures, wall in rows:
+            lines.append(
+                (f"| {seed} " if several else "")
+                + f"| {drift} | {system} | {metrics['ate_rmse_m']:.4f} | "
+                f"{metrics['ate_mean_m']:.4f} | {metrics['ate_max_m']:.4f} | {closures} | "
+                f"{wall:.0f} |"
+            )
+    if several:
+        lines += [
+            "", "| drift | system | ATE RMSE m, median | least | most |", "|---|---|---|---|---|",
+        ]
+        for k, (drift, system, *_) in enumerate(next(iter(by_seed.values()))):
+            ates = np.array([rows[k][2]["ate_rmse_m"] for rows in by_seed.values()])
+            lines.append(
+                f"| {drift} | {system} | {np.median(ates):.4f} | {ates.min():.4f} | "
+                f"{ates.max():.4f} |"
+            )
+    return lines
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--duration", type=float, default=600.0)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seeds", type=seed_list, default=None,
+                        help="several seeds instead, e.g. 0-13 or 0,2,5; medians at the end")
+    parser.add_argument("--jobs", type=int, default=1, help="seeds run at once")
     parser.add_argument("--bias", type=float, default=0.0005, help="rad/s (0.0005 = 0.03 deg/s)")
     parser.add_argument("--lidar", default="utm30lx", choices=sorted(LIDAR_PRESETS))
     args = parser.parse_args()
-    world = maze_world()
-    route = make_route(world, duration=args.duration, seed=args.seed)
-    pairs = list(simulate_scans(world, LIDAR_PRESETS[args.lidar], route, seed=args.seed))
-    scans = [scan for scan, _ in pairs]
-    gt = Trajectory(np.array([s.stamp for s in scans]), np.array([p for _, p in pairs]))
-    rows = run(scans, gt, 0.0) + run(scans, gt, args.bias)
+    seeds = args.seeds or [args.seed]
+    with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+        n = len(seeds)
+        runs = pool.map(ablate, [args.duration] * n, seeds, [args.lidar] * n, [args.bias] * n)
+        by_seed = dict(zip(seeds, runs, strict=True))
+    named = f"seeds {','.join(map(str, seeds))}" if args.seeds else f"seed {args.seed}"
     lines = [
-        f"# Ablation on the simulated maze ({args.duration:g} s, {args.lidar}, seed {args.seed})",
+        f"# Ablation on the simulated maze ({args.duration:g} s, {args.lidar}, {named})",
         "",
-        "| drift | system | ATE RMSE m | ATE mean m | ATE max m | loop closures | wall s |",
-        "|---|---|---|---|---|---|---|",
+        *table(by_seed),
     ]
-    for label, info, metrics, wall in rows:
-        lines.append(
-            f"| {label} | {info['system']} | {metrics['ate_rmse_m']:.4f} | "
-            f"{metrics['ate_mean_m']:.4f} | {metrics['ate_max_m']:.4f} | "
-            f"{info.get('loop_closures', '')} | {wall:.0f} |"
-        )
     text = "\n".join(lines) + "\n"
     print(text)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    out = RESULTS / f"maze-{args.lidar}-{args.duration:g}s-{datetime.date.today().isoformat()}.md"
+    span = f"-seeds-{min(seeds)}-{max(seeds)}" if args.seeds else ""
+    day = datetime.date.today().isoformat()
+    out = RESULTS / f"maze-{args.lidar}-{args.duration:g}s{span}-{day}.md"
     out.write_text(text)
     print(f"written: {out}")
 
