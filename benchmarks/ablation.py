@@ -31,7 +31,7 @@ from bioslam.trajectory import Trajectory
 
 RESULTS = Path(__file__).resolve().parent / "results" / "ablation"
 
-Row = tuple[str, str, dict, object, float]  # drift, system, ATE metrics, closures, wall s
+Row = tuple[str, str, dict, int | str, float]  # drift, system, ATE metrics, closures, wall s
 
 
 def run(scans: list, gt: Trajectory, bias: float) -> list[Row]:
