@@ -20,6 +20,7 @@ import datetime
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -31,7 +32,13 @@ from bioslam.trajectory import Trajectory
 
 RESULTS = Path(__file__).resolve().parent / "results" / "ablation"
 
-Row = tuple[str, str, dict, int | str, float]  # drift, system, ATE metrics, closures, wall s
+
+class Row(NamedTuple):
+    drift: str
+    system: str
+    metrics: dict  # evaluate()'s ATE figures against the simulator's truth
+    closures: int | str  # blank for the odometry alone
+    wall: float  # seconds for the whole run, both systems
 
 
 def run(scans: list, gt: Trajectory, bias: float) -> list[Row]:
@@ -42,10 +49,10 @@ def run(scans: list, gt: Trajectory, bias: float) -> list[Row]:
     slam.finish()
     wall = time.perf_counter() - started
     label = f"heading bias {bias:g} rad/s" if bias else "no injected drift"
-    closures = slam.summary().get("loop_closures", "")
     return [
-        (label, "odometry only", evaluate(slam.odometry_trajectory(), gt), "", wall),
-        (label, "bioslam", evaluate(slam.trajectory(), gt), closures, wall),
+        Row(label, "odometry only", evaluate(slam.odometry_trajectory(), gt), "", wall),
+        Row(label, "bioslam", evaluate(slam.trajectory(), gt), slam.cognitive_map.loop_closures,
+            wall),
     ]
 
 
@@ -78,21 +85,22 @@ def table(by_seed: dict[int, list[Row]]) -> list[str]:
         f"{'|---' if several else ''}|---|---|---|---|---|---|---|",
     ]
     for seed, rows in by_seed.items():
-        for drift, system, metrics, closures, wall in rows:
+        for row in rows:
+            ate = row.metrics
             lines.append(
                 (f"| {seed} " if several else "")
-                + f"| {drift} | {system} | {metrics['ate_rmse_m']:.4f} | "
-                f"{metrics['ate_mean_m']:.4f} | {metrics['ate_max_m']:.4f} | {closures} | "
-                f"{wall:.0f} |"
+                + f"| {row.drift} | {row.system} | {ate['ate_rmse_m']:.4f} | "
+                f"{ate['ate_mean_m']:.4f} | {ate['ate_max_m']:.4f} | {row.closures} | "
+                f"{row.wall:.0f} |"
             )
     if several:
         lines += [
             "", "| drift | system | ATE RMSE m, median | least | most |", "|---|---|---|---|---|",
         ]
-        for k, (drift, system, *_) in enumerate(next(iter(by_seed.values()))):
-            ates = np.array([rows[k][2]["ate_rmse_m"] for rows in by_seed.values()])
+        for k, row in enumerate(next(iter(by_seed.values()))):
+            ates = np.array([rows[k].metrics["ate_rmse_m"] for rows in by_seed.values()])
             lines.append(
-                f"| {drift} | {system} | {np.median(ates):.4f} | {ates.min():.4f} | "
+                f"| {row.drift} | {row.system} | {np.median(ates):.4f} | {ates.min():.4f} | "
                 f"{ates.max():.4f} |"
             )
     return lines
@@ -109,10 +117,14 @@ def main() -> None:
     parser.add_argument("--lidar", default="utm30lx", choices=sorted(LIDAR_PRESETS))
     args = parser.parse_args()
     seeds = args.seeds or [args.seed]
-    with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        n = len(seeds)
-        runs = pool.map(ablate, [args.duration] * n, seeds, [args.lidar] * n, [args.bias] * n)
-        by_seed = dict(zip(seeds, runs, strict=True))
+    n = len(seeds)
+    each = ([args.duration] * n, seeds, [args.lidar] * n, [args.bias] * n)
+    if args.jobs > 1 and n > 1:
+        with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+            runs = list(pool.map(ablate, *each))
+    else:  # in this process, as a single seed always ran
+        runs = list(map(ablate, *each))
+    by_seed = dict(zip(seeds, runs, strict=True))
     named = f"seeds {','.join(map(str, seeds))}" if args.seeds else f"seed {args.seed}"
     lines = [
         f"# Ablation on the simulated maze ({args.duration:g} s, {args.lidar}, {named})",
