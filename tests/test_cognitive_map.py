@@ -615,9 +615,10 @@ def _back_along_a_corridor(share: float, tilt_deg: float) -> float:
     )  # fmt: skip
     tilt = math.radians(tilt_deg)
     slide = (math.cos(tilt), math.sin(tilt))  # the robot faces back along the corridor
-    shape = free_along(ISOTROPIC, slide, config.partial_across_share)
     _, cm, truth = closed_corridor(
-        lambda true_pose: Measurement(compose(true_pose, (0.5, 0.0, 0.0)), shape, partial=True),
+        lambda true_pose: Measurement(
+            compose(true_pose, (0.5, 0.0, 0.0)), ISOTROPIC, partial=True, free=slide
+        ),
         config,
     )
     poses = cm.experience_poses
@@ -636,6 +637,38 @@ def test_a_partial_closure_across_a_slide_found_off_the_axis_pulls_by_its_share(
     assert _back_along_a_corridor(1.0, 0.0) < 1e-3
     with pytest.raises(ValueError):
         CognitiveMapConfig(partial_across_share=0.0)
+
+
+def _loop_link_shape(measured: Measurement, share: float) -> np.ndarray:
+    """The position shape (source frame) of the loop link ``measured`` makes onto the first
+    of four places 0.5 m apart along x, in a map weighing partial closures at ``share``."""
+    cm = CognitiveMap(CognitiveMapConfig(partial_across_share=share))
+    for k in range(4):
+        cm.integrate_odometry(np.array((0.5, 0.0, 0.0)), stamp=float(k))
+        cm.update(k, True, PC, stamp=float(k))
+    cm.integrate_odometry(np.array((0.5, 0.0, 0.0)))
+    assert cm.update(0, False, PC, stamp=99.0, refine=lambda e: measured).kind == "loop"
+    return cm._link_shape.view()[-1].copy()  # the robot heads along x: no turn between frames
+
+
+def test_the_map_weighs_a_partial_closure_by_its_own_share_across_the_given_slide():
+    # The scan's shape is weakest 60 deg off the slide the registration found: the map frees
+    # the slide itself, and across it keeps its configured share of what the shape pins.
+    shape = np.array([1.0, 0.3, 0.4])
+    slide = np.array([math.cos(0.2), math.sin(0.2)])
+    across = np.array([-slide[1], slide[0]])
+
+    def pinned(s: np.ndarray, d: np.ndarray) -> float:
+        return float(d @ np.array([[s[0], s[1]], [s[1], s[2]]]) @ d)
+
+    partial = Measurement(np.array((2.0, 0.0, 0.0)), shape, partial=True, free=slide)
+    whole_share, tenth = _loop_link_shape(partial, 1.0), _loop_link_shape(partial, 0.1)
+    assert pinned(whole_share, across) == pytest.approx(pinned(shape, across), rel=1e-9)
+    assert pinned(tenth, across) == pytest.approx(0.1 * pinned(shape, across), rel=1e-9)
+    assert pinned(tenth, slide) < 1e-9
+    # an ordinary closure keeps its shape whatever the share
+    ordinary = Measurement(np.array((2.0, 0.0, 0.0)), shape)
+    assert np.allclose(_loop_link_shape(ordinary, 0.1), shape, rtol=1e-12)
 
 
 def closure_round_a_corner(east: int, partial: bool, vouched: bool = True) -> tuple:
@@ -1248,7 +1281,7 @@ def hall_and_back_partially(
     steps = np.array([(0.2, 0.0, 0.0)] * 30 + [(0.0, 0.0, math.pi)] + [(0.2, 0.0, 0.0)] * 29)
     truth = integrate(steps)
     closures = (40, 48, 54)
-    cm = CognitiveMap(CognitiveMapConfig())
+    cm = CognitiveMap(CognitiveMapConfig(partial_across_share=share))
     for k, d in enumerate(steps):
         stamp = k + (100.0 if k > 30 else 0.0)
         broken = (0.3, math.radians(21.0)) if k == 34 else (0.0, 0.0)
@@ -1258,7 +1291,7 @@ def hall_and_back_partially(
             old = 59 - k  # the first pass's step where the robot stands
             pose = np.array(between(truth[old], truth[k])) + np.array([0.0, side * apart / 2, 0.0])
             slide = (math.cos(side * lean), math.sin(side * lean))
-            measured = Measurement(pose, free_along(ISOTROPIC, slide, share), partial=True)
+            measured = Measurement(pose, ISOTROPIC, partial=True, free=slide)
             event = cm.update(old, False, PC, stamp=stamp, refine=lambda e, m=measured: m)
             assert event.kind == "loop"
             continue

@@ -368,8 +368,10 @@ class Measurement:
     robot's frame (:func:`bioslam.closure.place_covariance`); when given (and finite) the
     loop link's information is its inverse (:func:`measured_information`) instead of
     ``closure_sigma_m`` shaped by ``shape``. ``partial``: the registration left the position
-    free along its slide (:func:`free_along`), which the link
-    then neither pulls along nor is judged along by the robust kernel. ``vouched``: False for
+    free along its slide ``free`` (unit, the robot's frame; None: ``shape``'s weakest
+    direction), which the link then neither pulls along nor is judged along by the robust
+    kernel, and across which it weighs ``partial_across_share`` of ``shape``
+    (:func:`free_along`). ``vouched``: False for
     a partial one whose pose along its slide, the map's prediction, the odometry did not
     vouch for: it may be metres off there, and its link joins the places by no chain of links
     (:meth:`CognitiveMap.link_distance`, the drift bound between places); any other link
@@ -381,6 +383,16 @@ class Measurement:
     covariance: FloatArray | None = None
     partial: bool = False
     vouched: bool = True
+    free: FloatArray | None = None
+
+    def link_shape(self, share: float) -> FloatArray:
+        """The position information's shape (xx, xy, yy, the robot's frame) the loop link
+        takes: ``shape``, or a partial one's free along its slide and ``share`` of it across
+        (:func:`free_along`)."""
+        shape = np.asarray(self.shape, dtype=np.float64)
+        if not self.partial:
+            return shape
+        return free_along(shape, weakest(shape) if self.free is None else self.free, share)
 
 
 @dataclass
@@ -1501,7 +1513,7 @@ class CognitiveMap:
                 float(self._offset[2]),
             )  # fmt: skip
         else:
-            shape = np.asarray(measurement.shape, dtype=np.float64)
+            shape = measurement.link_shape(self.config.partial_across_share)
             shape = rotate_shape(shape, float(self._offset[2]))
         doubted = self._doubted or measurement.doubted
         return NewLink(
@@ -1784,7 +1796,7 @@ class CognitiveMap:
         closures bend by a small share of its allowance was no error: the bend is their own
         centimetres, which a free hinge gathers and turns by the length of the map beyond.
         Partial closures need no rule of their own here: weighed across their slides at
-        ``partial_across_share``, as :class:`bioslam.slam.BioSLAM` makes them, many of them
+        ``partial_across_share`` (:meth:`Measurement.link_shape`), many of them
         along aisles no longer add up to a pull along one that a free hinge gives way to
         (the built-in warehouse, SICK, reversing route kept every third scan, seed 633:
         109 partial closures weighed whole bent the reversal's jump 46.8 cm, 1.6 times its

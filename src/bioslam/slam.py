@@ -62,7 +62,6 @@ from bioslam.cognitive_map import (
     Experience,
     Measurement,
     configured_noise,
-    free_along,
     link_terms,
     modelled_heading_var,
     registration_shape,
@@ -1010,14 +1009,13 @@ class BioSLAM:
         # prediction, which joins the places by a chain only where the odometry vouched for it
         free = None if not partial else rotation(-verdict.pose[2]) @ verdict.free
         vouched = trusted or not partial
-        share = self.config.cognitive_map.partial_across_share
         if within(between(predicted, verdict.pose), cfg.deadband, cfg.deadband_angle):
             # The map already agrees with the registration to within the registration's own
             # error: keep the map's estimate rather than inject that error into the map.
-            shape = free_along(scan_shape(), free, share) if partial else ISOTROPIC.copy()
             measured = Measurement(
-                np.asarray(predicted, dtype=np.float64), shape, chained, partial=partial,
-                vouched=vouched,
+                np.asarray(predicted, dtype=np.float64),
+                scan_shape() if partial else ISOTROPIC.copy(), chained, partial=partial,
+                vouched=vouched, free=free,
             )  # fmt: skip
         else:
             shape = self._pinned_shape(scan_shape(), registered, pts, submap)
@@ -1027,8 +1025,7 @@ class BioSLAM:
                 else None  # (only that weighting reads it; a slide's says nothing)
             )
             measured = Measurement(
-                verdict.pose, free_along(shape, free, share) if partial else shape, chained,
-                covariance, partial, vouched,
+                verdict.pose, shape, chained, covariance, partial, vouched, free
             )  # fmt: skip
         # a correction only the breaks' widening of the window let in: checks that matched
         # the same old scans share its error, and cannot vouch for one another
