@@ -848,6 +848,22 @@ def test_a_registration_slid_along_an_open_corridor_keeps_the_maps_position_alon
     np.testing.assert_array_equal(kept, slid)
 
 
+def test_a_registration_keeps_its_heading_correction_of_a_drifted_prediction():
+    # The odometry's heading drifted 0.34 deg since the old pass, and the map's prediction
+    # with it; the registration found the true place, and slid 12 cm along the corridor on
+    # the way. The slide is taken back; the heading correction, which the corridor's walls
+    # measure, stands (taken back as well, every closure would confirm the drift).
+    from bioslam.closure import settle_weak_direction
+
+    cfg, grid, query, modes = _corridor_grid(end_wall=False)
+    predicted = np.array([0.0, 0.0, 0.006])
+    settled = settle_weak_direction(grid, np.array([0.12, 0.0, 0.0]), predicted, query, modes, cfg)
+    np.testing.assert_allclose(settled, [0.0, 0.0, 0.0], atol=1e-9)
+    both = dataclasses.replace(cfg, weak_modes=2)
+    confirmed = settle_weak_direction(grid, np.zeros(3), predicted, query, modes, both)
+    assert confirmed[2] == pytest.approx(0.006)  # judged by the score, the drift stays
+
+
 def test_a_registration_pinned_by_the_corridors_end_keeps_its_correction_along_it():
     # The end wall scores the true place clearly better than the map's prediction 12 cm
     # short of it: that correction is measured, and stays.
