@@ -333,10 +333,10 @@ class LoopClosureConfig:
             correction stands, however little it moves the score. Where the odometry's
             heading drifted since the old pass the map's prediction carries the drift, and
             taken back (2) nine in ten closures did, each confirming the prediction's
-            heading: with a heading drift injected, closures' heading errors 0.12-0.35 deg
-            at the median against 0.02-0.14 at 1, and the 20 min RPLIDAR route 2.54 -> 2.29 cm
-            at the median over 14 seeds (``benchmarks/README.md``, "A closure's heading
-            stands").
+            heading: with a heading drift injected, closures' heading errors 0.05-0.35 deg
+            at the median of a run against 0.02-0.19 at 1 (15 runs on drawn floors), and
+            the 20 min RPLIDAR route 2.54 -> 2.29 cm at the median over 14 seeds
+            (``benchmarks/README.md``, "A closure's heading stands").
         close_to_first_scan: keep the run's first scan for closures to its experience
             where the scanner sweeps (``time_increment`` > 0). The odometry knew no
             velocity yet to de-skew it, so that scan and the odometry's first step carry
