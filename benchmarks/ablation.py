@@ -23,10 +23,11 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
+from bench_loops import SimCase, simulate
 
 from bioslam.config import SLAMConfig
 from bioslam.evaluation import evaluate
-from bioslam.sim import LIDAR_PRESETS, make_route, maze_world, simulate_scans
+from bioslam.sim import LIDAR_PRESETS
 from bioslam.slam import BioSLAM
 from bioslam.trajectory import Trajectory
 
@@ -57,12 +58,9 @@ def run(scans: list, gt: Trajectory, bias: float) -> list[Row]:
 
 
 def ablate(duration: float, seed: int, lidar: str, bias: float) -> list[Row]:
-    """The four rows of one seed: each system without and with the drift, on one route."""
-    world = maze_world()
-    route = make_route(world, duration=duration, seed=seed)
-    pairs = list(simulate_scans(world, LIDAR_PRESETS[lidar], route, seed=seed))
-    scans = [scan for scan, _ in pairs]
-    gt = Trajectory(np.array([s.stamp for s in scans]), np.array([p for _, p in pairs]))
+    """The four rows of one seed: each system without and with the drift, on the maze's
+    tour (simulated as the loop-closure benchmark does)."""
+    scans, gt = simulate(SimCase("maze", lidar, "tour"), duration, seed)
     return run(scans, gt, 0.0) + run(scans, gt, bias)
 
 

@@ -639,15 +639,28 @@ def test_a_partial_closure_across_a_slide_found_off_the_axis_pulls_by_its_share(
         CognitiveMapConfig(partial_across_share=0.0)
 
 
+def _closed_onto_first(
+    steps: list, measured: Callable[[np.ndarray], Measurement], config: CognitiveMapConfig
+) -> CognitiveMap:
+    """A map of a place after each of ``steps`` but the last (exact odometry), and after the
+    last a closure onto the first place, measured as ``measured`` says from the true
+    relative pose."""
+    truth = integrate(np.array(steps))
+    cm = CognitiveMap(config)
+    for k, d in enumerate(steps[:-1]):
+        cm.integrate_odometry(np.array(d), stamp=float(k))
+        cm.update(k, True, PC, stamp=float(k))
+    cm.integrate_odometry(np.array(steps[-1]))
+    closure = measured(between(truth[0], truth[-1]))
+    assert cm.update(0, False, PC, stamp=99.0, refine=lambda e: closure).kind == "loop"
+    return cm
+
+
 def _loop_link_shape(measured: Measurement, share: float) -> np.ndarray:
     """The position shape (source frame) of the loop link ``measured`` makes onto the first
     of four places 0.5 m apart along x, in a map weighing partial closures at ``share``."""
-    cm = CognitiveMap(CognitiveMapConfig(partial_across_share=share))
-    for k in range(4):
-        cm.integrate_odometry(np.array((0.5, 0.0, 0.0)), stamp=float(k))
-        cm.update(k, True, PC, stamp=float(k))
-    cm.integrate_odometry(np.array((0.5, 0.0, 0.0)))
-    assert cm.update(0, False, PC, stamp=99.0, refine=lambda e: measured).kind == "loop"
+    config = CognitiveMapConfig(partial_across_share=share)
+    cm = _closed_onto_first([(0.5, 0.0, 0.0)] * 5, lambda _: measured, config)
     return cm._link_shape.view()[-1].copy()  # the robot heads along x: no turn between frames
 
 
@@ -676,17 +689,12 @@ def closure_round_a_corner(east: int, partial: bool, vouched: bool = True) -> tu
     onto the first place measured exactly, ``partial`` free along the robot's x (north).
     Returns the map and the loop link."""
     steps = [(0.5, 0.0, 0.0)] * east + [(0.0, 0.0, math.pi / 2)] + [(0.5, 0.0, 0.0)] * 4
-    truth = integrate(np.array(steps))
-    cm = CognitiveMap(CognitiveMapConfig())
-    for k, d in enumerate(steps[:-1]):
-        cm.integrate_odometry(np.array(d), stamp=float(k))
-        cm.update(k, True, PC, stamp=float(k))
-    cm.integrate_odometry(np.array(steps[-1]))
     shape = free_along(ISOTROPIC, (1.0, 0.0)) if partial else ISOTROPIC
-    measured = Measurement(
-        between(truth[0], truth[-1]), shape, partial=partial, vouched=vouched
+    cm = _closed_onto_first(
+        steps,
+        lambda relative: Measurement(relative, shape, partial=partial, vouched=vouched),
+        CognitiveMapConfig(),
     )
-    assert cm.update(0, False, PC, stamp=99.0, refine=lambda e: measured).kind == "loop"
     link = cm.links[-1]
     assert link.kind == "loop" and link.target == 0
     return cm, link
