@@ -17,6 +17,7 @@ from bioslam.evaluation import (
     off_reference,
     position_errors,
     relative_pose_errors,
+    relative_poses,
     rpe_distance,
     rpe_distance_pairs,
     rpe_time,
@@ -389,6 +390,21 @@ def test_relative_pose_errors_take_the_nearest_reference_stamp():
     far = relative_pose_errors([1.06], [9.0], [exact], ref, max_dt=0.02)
     np.testing.assert_allclose(near[0], [0.0, 0.0], atol=1e-9)
     assert np.isnan(far).all()
+
+
+def test_relative_poses_are_a_trajectory_s_own_between_two_stamps():
+    # a robot turning as it goes: the pose at 9 s in the frame of the pose at 1 s is 8 m
+    # along the first heading rotated into the robot's frame, turned by 0.8 rad
+    stamps = np.arange(0.0, 10.0, 0.1)
+    trajectory = Trajectory(stamps, np.column_stack([stamps, np.zeros_like(stamps), 0.1 * stamps]))
+    rel = relative_poses(trajectory, [1.0, 1.004, 1.0], [9.0, 8.996, 42.0], max_dt=0.02)
+    c, s = np.cos(0.1), np.sin(0.1)
+    np.testing.assert_allclose(rel[0], [8.0 * c, -8.0 * s, 0.8], atol=1e-9)
+    np.testing.assert_allclose(rel[1], rel[0], atol=1e-12)  # the nearest stamps' poses
+    assert np.isnan(rel[2]).all()  # none near 42 s
+    # judged against the trajectory itself, its own relative poses have no error
+    errors = relative_pose_errors([1.0], [9.0], rel[:1], trajectory)
+    np.testing.assert_allclose(errors[0], [0.0, 0.0], atol=1e-9)
 
 
 def test_a_partial_closure_is_judged_across_its_slide_only():

@@ -284,6 +284,8 @@ def test_every_closure_check_is_written_and_judged_against_the_reference(tmp_pat
     assert summary["loop_closures_against_reference"] == len(accepted)
     assert summary["loop_closures_off_reference"] == 0
     assert all(float(r["reference_error_m"]) < 0.1 for r in accepted)
+    assert all(float(r["odometry_reference_error_m"]) < 0.1 for r in accepted)
+    assert summary["loop_closure_odometry_reference_error_median_m"] < 0.05
     assert all(r["reason"] for r in rows if r["accepted"] == "0")
     # A reference that jumps 1 m sideways half-way: the closures across the jump now
     # disagree with it by 1 m, and are counted off it; the others still agree.
@@ -291,9 +293,15 @@ def test_every_closure_check_is_written_and_judged_against_the_reference(tmp_pat
     shifted = gt.poses.copy()
     shifted[gt.stamps >= half, 1] += 1.0
     summary = write_results(result, tmp_path / "off", Trajectory(gt.stamps, shifted), options)
+    accepted = [r for r in read_closures(tmp_path / "off" / "closures.csv") if r["accepted"] == "1"]
     across = [r for r in accepted if float(r["experience_stamp"]) < half <= float(r["stamp"])]
     assert 0 < len(across) < len(accepted)
     assert summary["loop_closures_off_reference"] == len(across)
+    # ... and so does the odometry between the same stamps: the reference is what is off
+    for row in across:
+        assert float(row["reference_error_m"]) == pytest.approx(1.0, abs=0.1)
+        assert float(row["odometry_reference_error_m"]) == pytest.approx(1.0, abs=0.1)
+    assert all(float(r["odometry_reference_error_m"]) < 0.1 for r in accepted if r not in across)
     # without a reference, or with one the run cannot be evaluated against (its stamps out
     # of order), the table has no reference columns
     backwards = Trajectory(gt.stamps[::-1].copy(), gt.poses[::-1].copy())
@@ -302,6 +310,7 @@ def test_every_closure_check_is_written_and_judged_against_the_reference(tmp_pat
         header = (tmp_path / name / "closures.csv").read_text().splitlines()[0]
         assert "reference_error_m" not in header and header.startswith("stamp,experience,")
         assert "loop_closures_off_reference" not in summary
+        assert "loop_closure_odometry_reference_error_median_m" not in summary
     assert "evaluation_error" in summary
 
 

@@ -403,16 +403,13 @@ def relative_pose_errors(
     reference has no pose within ``max_dt`` seconds of either stamp. ``free`` ((N, 2), unit,
     in the first pose's frame; NaN rows for none): a partial closure's slide, along which it
     measures nothing, so that its position error is the part across it."""
-    first = np.asarray(first_stamps, dtype=np.float64).reshape(-1)
-    second = np.asarray(second_stamps, dtype=np.float64).reshape(-1)
     poses = np.asarray(measured, dtype=np.float64).reshape(-1, 3)
     out = np.full((len(poses), 2), np.nan)
     if len(reference) == 0 or len(poses) == 0:
         return out
-    i = _nearest_reference(reference.stamps, first, max_dt)
-    j = _nearest_reference(reference.stamps, second, max_dt)
-    ok = (i >= 0) & (j >= 0)
-    truth = between(reference.poses[i[ok]], reference.poses[j[ok]])
+    truth = relative_poses(reference, first_stamps, second_stamps, max_dt)
+    ok = np.isfinite(truth[:, 0])
+    truth = truth[ok]
     err = between(truth, poses[ok]).reshape(-1, 3)
     if free is not None:
         # the slide, given in the place's frame, turned into the robot's (the error's)
@@ -422,6 +419,27 @@ def relative_pose_errors(
         err[:, :2] -= turned * np.sum(turned * err[:, :2], axis=1, keepdims=True)
     out[ok, 0] = np.hypot(err[:, 0], err[:, 1])
     out[ok, 1] = np.degrees(np.abs(wrap_angle(err[:, 2])))
+    return out
+
+
+def relative_poses(
+    trajectory: Trajectory,
+    first_stamps: ArrayLike,
+    second_stamps: ArrayLike,
+    max_dt: float = EvalConfig.max_dt,
+) -> FloatArray:
+    """(N, 3) ``trajectory``'s pose nearest each of ``second_stamps`` in the frame of its pose
+    nearest the matching one of ``first_stamps`` (the relative pose a loop closure measures
+    between the two); NaN rows where it has no pose within ``max_dt`` seconds of either."""
+    first = np.asarray(first_stamps, dtype=np.float64).reshape(-1)
+    second = np.asarray(second_stamps, dtype=np.float64).reshape(-1)
+    out = np.full((len(first), 3), np.nan)
+    if len(trajectory) == 0 or len(first) == 0:
+        return out
+    i = _nearest_reference(trajectory.stamps, first, max_dt)
+    j = _nearest_reference(trajectory.stamps, second, max_dt)
+    ok = (i >= 0) & (j >= 0)
+    out[ok] = between(trajectory.poses[i[ok]], trajectory.poses[j[ok]]).reshape(-1, 3)
     return out
 
 

@@ -8,10 +8,14 @@ proposed it (``view`` or ``proximity``), ``accepted`` (1/0), the ``reason`` for 
 points on the place's submap; empty for a check refused before it registered) and
 ``ambiguity`` (the best distinct rival's score over the best's), and the measured pose of the
 robot in the experience's frame (``x``, ``y`` in m, ``theta_deg``). With a reference
-trajectory the last two columns say how far that measurement is from the reference's
-relative pose between the two stamps (``reference_error_m``, ``reference_error_deg``; empty
-where the reference has no pose near a stamp): a closure far off it is a false one, or the
-reference's own error.
+trajectory two columns say how far that measurement is from the reference's relative pose
+between the two stamps (``reference_error_m``, ``reference_error_deg``; empty where the
+reference has no pose near a stamp): a closure far off it is a false one, or the reference's
+own error. Two more say the same of the run's odometry between the same two stamps
+(``odometry_reference_error_m``, ``odometry_reference_error_deg``), the odometry's own relative
+pose judged as the closure is: where both are off alike, it is the reference that is (a
+corrected log's poses carry their own centimetres, and a closure cannot be judged below
+them).
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ HEADER = (
     "ambiguity", "x", "y", "theta_deg",
 )  # fmt: skip
 REFERENCE_COLUMNS = ("reference_error_m", "reference_error_deg")
+ODOMETRY_COLUMNS = ("odometry_reference_error_m", "odometry_reference_error_deg")
 
 
 def _number(value: float, digits: int) -> str:
@@ -54,17 +59,25 @@ def check_row(check: Check) -> list[str]:
 
 
 def write_closures(
-    path: str | Path, checks: Sequence[Check], reference_errors: NDArray | None = None
+    path: str | Path,
+    checks: Sequence[Check],
+    reference_errors: NDArray | None = None,
+    odometry_errors: NDArray | None = None,
 ) -> None:
     """Write the table (atomically, like the trajectories); ``reference_errors`` (N, 2: m,
-    degrees, :func:`bioslam.evaluation.relative_pose_errors`) adds the reference columns."""
+    degrees, :func:`bioslam.evaluation.relative_pose_errors`) adds the reference columns, and
+    ``odometry_errors`` (the same of the odometry's relative poses between each check's two
+    stamps) the odometry's beside them."""
+    columns = [errors for errors in (reference_errors, odometry_errors) if errors is not None]
+    header = HEADER + (REFERENCE_COLUMNS if reference_errors is not None else ())
+    header += ODOMETRY_COLUMNS if odometry_errors is not None else ()
     with atomic_path(path) as tmp, open(tmp, "w", newline="") as f:
         writer = csv.writer(f)
-        writer.writerow(HEADER + (REFERENCE_COLUMNS if reference_errors is not None else ()))
+        writer.writerow(header)
         for k, check in enumerate(checks):
             row = check_row(check)
-            if reference_errors is not None:
-                metres, degrees = (float(e) for e in reference_errors[k])
+            for errors in columns:
+                metres, degrees = (float(e) for e in errors[k])
                 row += [_number(metres, 4), _number(degrees, 3)]
             writer.writerow(row)
 
