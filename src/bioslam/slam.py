@@ -27,6 +27,7 @@ from bioslam.closure import (
     Candidate,
     Check,
     ClosureConsensus,
+    SeenArea,
     SlideReturns,
     Submap,
     SubmapCache,
@@ -116,6 +117,54 @@ class _CheckPlan:
     bound: tuple[float, float]
     window: tuple[float, float]
     broke: bool
+
+
+class _ScanGeometry:
+    """A checked scan's geometry, each part computed at most once and only where read: its
+    normals, its constraint shape (:func:`bioslam.cognitive_map.registration_shape`, which
+    weighs the closure) and the weak modes of what a registration at ``pose`` matched where
+    the submap looked (``seen``, :func:`bioslam.closure.judged_shape`: which of its
+    corrections must earn their score)."""
+
+    def __init__(
+        self, points: FloatArray, ratio: float, pose: FloatArray, seen: SeenArea
+    ) -> None:
+        self.points = points
+        self._ratio = ratio
+        self._pose = pose
+        self._seen = seen
+
+    @functools.cached_property
+    def normals(self) -> FloatArray:
+        return scan_normals(self.points, NORMAL_RADIUS, NORMAL_MAX_GAP)
+
+    @functools.cached_property
+    def shape(self) -> FloatArray:
+        return registration_shape(self.points, self.normals, self._ratio)
+
+    @functools.cached_property
+    def modes(self) -> FloatArray:
+        matched = judged_shape(self.points, self.normals, self._pose, self._seen, self._ratio)
+        return weak_modes(matched)
+
+
+@dataclass(frozen=True)
+class _Registration:
+    """A check as registered (:meth:`BioSLAM._registered`): its ``verdict``, in the checked
+    experience's frame; the map's ``predicted`` pose of the robot there; the check's
+    ``plan``; the ``submap`` it was registered against, whose anchor is at
+    ``anchor_in_experience`` in the experience's frame; the pose as registered in the
+    anchor's frame before the settle took a weak correction back (``unsettled``) and after
+    (``registered``); and the scan's ``geometry``."""
+
+    verdict: Verdict
+    predicted: FloatArray
+    plan: _CheckPlan
+    submap: Submap
+    anchor_in_experience: FloatArray
+    unsettled: FloatArray
+    registered: FloatArray
+    geometry: _ScanGeometry
 
 
 def _scan_payload(points: FloatArray, spacing: float) -> NDArray[np.float32]:
@@ -901,7 +950,35 @@ class BioSLAM:
         """The robot's pose in ``experience``'s frame, from registering this scan against the
         scan stored with it, with the shape of its information (the scan's geometry,
         :func:`bioslam.cognitive_map.registration_shape`), or None to reject the
-        recognition."""
+        recognition: the check registered (:meth:`_registered`), judged
+        (:meth:`_accepted`), made a measurement (:meth:`_measurement`) and confirmed
+        (:meth:`_confirmed`)."""
+        check = self._registered(experience, points)
+        if check is None:
+            return None
+        verdict = self._accepted(experience, check)
+        if not verdict.accepted:
+            return None
+        measured = self._measurement(check, verdict)
+        # a correction only the breaks' widening of the window let in: checks that matched
+        # the same old scans share its error, and cannot vouch for one another
+        beyond = not within(between(check.predicted, verdict.pose), *check.plan.bound)
+        read = frozenset((*check.plan.members, check.plan.anchor)) if beyond else frozenset()
+        alone = self._alone(check.plan) and not verdict.needs_partner
+        if not self._confirmed(experience, measured, alone, read):
+            return None
+        if self.config.cognitive_map.learn_noise and not measured.partial:
+            unsettled = compose(check.anchor_in_experience, check.unsettled)
+            self._learn_noise(experience.id, unsettled, check.geometry.modes[:2, 2])
+        return measured
+
+    def _registered(self, experience: Experience, points: FloatArray) -> _Registration | None:
+        """This scan (``points``) registered against the submap around ``experience``
+        (:func:`bioslam.closure.verify`), polished on its lines and settled along what the
+        scan pins least (:meth:`_settled`), the verdict in the experience's frame; None
+        where no check runs (no scan to check against, a registration not yet due, the map
+        putting the robot beyond any check's reach, no submap), and a check refused before
+        its registration (the odometry broke beyond the search) is recorded so."""
         cfg = self.config.loop_closure
         if experience.payload is None or points.shape[0] < 3 or self._bent():
             return None
@@ -917,75 +994,91 @@ class BioSLAM:
             self._last_registration = self._travelled
             self._refuse(experience, predicted, "odometry broke")
             return None
-        anchor, members, trusted, broken = plan.anchor, plan.members, plan.trusted, plan.broken
-        chained, bound = plan.chained, plan.bound
-        drift, drift_angle = plan.window
-        submap = self.submaps.get(
-            self.cognitive_map.experience_poses_view, self.cognitive_map.payloads, anchor,
-            members, cfg,
-        )  # fmt: skip
+        cmap = self.cognitive_map
+        poses = cmap.experience_poses_view
+        submap = self.submaps.get(poses, cmap.payloads, plan.anchor, plan.members, cfg)
         if submap.pyramid is None:
             return None
         self._last_registration = self._travelled
         # registered in the submap anchor's frame, reported in the experience's
-        poses = self.cognitive_map.experience_poses_view
         anchor_in_experience = between(experience.pose, poses[submap.anchor])
         # Across a step the odometry doubted (blind along a corridor, a look-alike match) it
         # may have slid farther than the drift bound says: an accepted pose is challenged by
         # the best fits over the whole search window, so that a look-alike the map's error
         # put inside the bound is not taken for the place unchallenged (maze, SICK scanner:
         # a closure 0.98 m off, the true place outside a 0.4 m window).
-        mapped = between(poses[submap.anchor], self.cognitive_map.pose())
-        rival = None if trusted else self._rival_window(drift, drift_angle, broken)
+        mapped = between(poses[submap.anchor], cmap.pose())
+        drift, drift_angle = plan.window
+        rival = None if plan.trusted else self._rival_window(drift, drift_angle, plan.broken)
         # (a slide's rivals across it only across breaks: a doubted step slides along; the
         # serpentine's 20 min drift route, its partial checks challenged 3 m across without a
         # break: recall 0.42, ATE 6.33 cm; across breaks only, 0.52 and 5.34)
         verdict = verify(
             submap.points, points, mapped, (drift, drift_angle), cfg, submap.seen,
-            submap.pyramid, rival, None if broken is None else rival,
+            submap.pyramid, rival, None if plan.broken is None else rival,
         )  # fmt: skip
         pts = np.ascontiguousarray(points, dtype=np.float64)
         if verdict.accepted and cfg.polish:
             polished = polish_on_lines(submap.lines(), verdict.pose, pts, submap.seen, cfg)
             verdict = dataclasses.replace(verdict, pose=polished)
-        ratio = self.config.cognitive_map.closure_shape_ratio
         # the scan's own constraint shape, which weighs the closure, and the weak modes of
         # what the registration matched, which say which of its corrections must earn their
-        # score; each computed at most once and only where read. (The link weighed by the
-        # matched points' shape instead took intel from 8.26 to 8.84 cm against the
-        # odometry's 8.25.)
-        # as registered, before a correction along what the scan barely pins is taken back
+        # score, from the pose as registered, before a correction along what the scan barely
+        # pins is taken back (the link weighed by the matched points' shape instead took
+        # intel from 8.26 to 8.84 cm against the odometry's 8.25)
+        geometry = _ScanGeometry(
+            pts, self.config.cognitive_map.closure_shape_ratio, verdict.pose, submap.seen
+        )  # fmt: skip
         unsettled = verdict.pose
-        normals = functools.cache(lambda: scan_normals(pts, NORMAL_RADIUS, NORMAL_MAX_GAP))
-        scan_shape = functools.cache(lambda: registration_shape(pts, normals(), ratio))
-        modes = functools.cache(
-            lambda: weak_modes(judged_shape(pts, normals(), unsettled, submap.seen, ratio))
-        )
-        if verdict.accepted and cfg.weak_margin > 0.0:
-            # a correction along what the scan barely pins must earn its score
-            grids = submap.pyramid.grids
-            settled = settle_weak_direction(
-                grids[min(cfg.registration.score_level, len(grids) - 1)], verdict.pose,
-                mapped, pts, modes(), cfg, submap.seen,
-            )  # fmt: skip
-            if (
-                cfg.refuse_far_settle
-                and not verdict.partial  # which claims nothing along the free direction
-                and not within(between(verdict.pose, settled), cfg.rival_distance, cfg.rival_angle)
-            ):
-                # the map's prediction fits about as well as the registration, farther from it
-                # than a rival may be: the scan cannot say which is the place (a pillar hall
-                # seen to 3.5 m: both 0.8-1 m apart scored 0.99, the prediction the wrong one)
-                verdict = dataclasses.replace(verdict, accepted=False, reason="ambiguous")
-            else:
-                verdict = dataclasses.replace(verdict, pose=settled)
+        verdict = self._settled(verdict, mapped, geometry, submap)
         registered = verdict.pose  # in the submap anchor's frame
         verdict = dataclasses.replace(
             verdict, pose=compose(anchor_in_experience, verdict.pose),
             free=None if verdict.free is None else rotation(anchor_in_experience[2]) @ verdict.free,
         )  # fmt: skip
-        alone = trusted and cfg.consistency
-        if verdict.accepted and verdict.needs_partner and not alone:
+        return _Registration(
+            verdict, predicted, plan, submap, anchor_in_experience, unsettled, registered, geometry
+        )  # fmt: skip
+
+    def _settled(
+        self, verdict: Verdict, mapped: FloatArray, geometry: _ScanGeometry, submap: Submap
+    ) -> Verdict:
+        """An accepted ``verdict`` with its correction of the map's prediction (``mapped``,
+        in the submap anchor's frame) along what the scan barely pins taken back unless it
+        earns its score (:func:`bioslam.closure.settle_weak_direction`); refused as
+        ambiguous where the prediction fits about as well farther off than a rival may be
+        (``refuse_far_settle``)."""
+        cfg = self.config.loop_closure
+        if not (verdict.accepted and cfg.weak_margin > 0.0):
+            return verdict
+        grids = submap.pyramid.grids  # type: ignore[union-attr]
+        settled = settle_weak_direction(
+            grids[min(cfg.registration.score_level, len(grids) - 1)], verdict.pose, mapped,
+            geometry.points, geometry.modes, cfg, submap.seen,
+        )  # fmt: skip
+        if (
+            cfg.refuse_far_settle
+            and not verdict.partial  # which claims nothing along the free direction
+            and not within(between(verdict.pose, settled), cfg.rival_distance, cfg.rival_angle)
+        ):
+            # the map's prediction fits about as well as the registration, farther from it
+            # than a rival may be: the scan cannot say which is the place (a pillar hall
+            # seen to 3.5 m: both 0.8-1 m apart scored 0.99, the prediction the wrong one)
+            return dataclasses.replace(verdict, accepted=False, reason="ambiguous")
+        return dataclasses.replace(verdict, pose=settled)
+
+    def _alone(self, plan: _CheckPlan) -> bool:
+        """Whether a check may stand without a partner's agreement: the odometry vouches for
+        the map's prediction (``plan.trusted``) and partners are sought at all."""
+        return plan.trusted and self.config.loop_closure.consistency
+
+    def _accepted(self, experience: Experience, check: _Registration) -> Verdict:
+        """The registered check's verdict after the rules no registration alone decides,
+        recorded (:meth:`_note_check`): a fit only a partner may confirm where the odometry
+        cannot vouch for the prediction either, a partial one below ``min_score``, and one to
+        a place recently found ambiguous are refused."""
+        verdict = check.verdict
+        if verdict.accepted and verdict.needs_partner and not self._alone(check.plan):
             # a registration that fits less well than a place alone must, where the
             # odometry cannot vouch for the prediction either (or no partner is sought):
             # nothing says it is the place and not a look-alike the odometry's own error
@@ -1002,41 +1095,38 @@ class BioSLAM:
         # a doubt taken from a place beside is not found here: it does not arm the memory for
         # the places beyond (each refusal would arm the next, the doubt moving with the robot)
         self._note_check(experience, verdict, remember=doubted != "beside")
-        if not verdict.accepted:
-            return None
+        return verdict
+
+    def _measurement(self, check: _Registration, verdict: Verdict) -> Measurement:
+        """The accepted ``verdict`` as the loop link's measurement: within the dead band of
+        the map's prediction, the prediction itself; else the registered pose, its
+        information shaped by the scan and capped along what its score pins
+        (:meth:`_pinned_shape`), with the registration's covariance where the map weighs by
+        it."""
+        cfg = self.config.loop_closure
         partial = verdict.partial
         # the slide in the robot's frame, as the shapes are; along it the pose is the map's
         # prediction, which joins the places by a chain only where the odometry vouched for it
         free = None if not partial else rotation(-verdict.pose[2]) @ verdict.free
-        vouched = trusted or not partial
-        if within(between(predicted, verdict.pose), cfg.deadband, cfg.deadband_angle):
+        vouched = check.plan.trusted or not partial
+        chained = check.plan.chained
+        if within(between(check.predicted, verdict.pose), cfg.deadband, cfg.deadband_angle):
             # The map already agrees with the registration to within the registration's own
             # error: keep the map's estimate rather than inject that error into the map.
-            measured = Measurement(
-                np.asarray(predicted, dtype=np.float64),
-                scan_shape() if partial else ISOTROPIC.copy(), chained, partial=partial,
-                vouched=vouched, free=free,
+            return Measurement(
+                np.asarray(check.predicted, dtype=np.float64),
+                check.geometry.shape if partial else ISOTROPIC.copy(), chained,
+                partial=partial, vouched=vouched, free=free,
             )  # fmt: skip
-        else:
-            shape = self._pinned_shape(scan_shape(), registered, pts, submap)
-            covariance = (
-                place_covariance(verdict.covariance, registered, anchor_in_experience)
-                if self.config.cognitive_map.registration_covariance and not partial
-                else None  # (only that weighting reads it; a slide's says nothing)
-            )
-            measured = Measurement(
-                verdict.pose, shape, chained, covariance, partial, vouched, free
-            )  # fmt: skip
-        # a correction only the breaks' widening of the window let in: checks that matched
-        # the same old scans share its error, and cannot vouch for one another
-        beyond = not within(between(predicted, verdict.pose), *bound)
-        read = frozenset((*members, anchor)) if beyond else frozenset()
-        if not self._confirmed(experience, measured, alone and not verdict.needs_partner, read):
-            return None
-        if self.config.cognitive_map.learn_noise and not measured.partial:
-            unsettled_in_place = compose(anchor_in_experience, unsettled)
-            self._learn_noise(experience.id, unsettled_in_place, modes()[:2, 2])
-        return measured
+        shape = self._pinned_shape(
+            check.geometry.shape, check.registered, check.geometry.points, check.submap
+        )  # fmt: skip
+        covariance = (
+            place_covariance(verdict.covariance, check.registered, check.anchor_in_experience)
+            if self.config.cognitive_map.registration_covariance and not partial
+            else None  # (only that weighting reads it; a slide's says nothing)
+        )
+        return Measurement(verdict.pose, shape, chained, covariance, partial, vouched, free)
 
     def _plan_check(self, experience_id: int, predicted: FloatArray) -> _CheckPlan | None:
         """How a check to ``experience_id``, with the robot predicted at ``predicted`` in its
