@@ -848,6 +848,25 @@ def test_a_registration_slid_along_an_open_corridor_keeps_the_maps_position_alon
     np.testing.assert_array_equal(kept, slid)
 
 
+def test_a_registrations_millimetres_along_the_corridor_stand_its_centimetres_must_earn_them():
+    # The score, of hits on 10 cm cells, cannot tell a registration 8 mm along the corridor
+    # from the map's prediction: below weak_floor that correction stands (the polish's
+    # millimetres, on a scan that pins every direction, are better than the prediction's).
+    # A 3 cm slide there is judged, and taken back; with no floor, so were the millimetres.
+    from bioslam.closure import settle_weak_direction
+
+    cfg, grid, query, modes = _corridor_grid(end_wall=False)
+    predicted = np.zeros(3)
+    for along, kept in ((0.008, True), (-0.015, True), (0.03, False), (0.12, False)):
+        pose = np.array([along, 0.0, 0.0])
+        settled = settle_weak_direction(grid, pose, predicted, query, modes, cfg)
+        np.testing.assert_allclose(settled, pose if kept else predicted, atol=1e-9)
+    unfloored = dataclasses.replace(cfg, weak_floor=0.0)
+    settled = settle_weak_direction(grid, np.array([0.008, 0.0, 0.0]), predicted, query, modes,
+                                    unfloored)  # fmt: skip
+    np.testing.assert_allclose(settled, predicted, atol=1e-9)
+
+
 def test_a_registration_keeps_its_heading_correction_of_a_drifted_prediction():
     # The odometry's heading drifted 0.34 deg since the old pass, and the map's prediction
     # with it; the registration found the true place, and slid 12 cm along the corridor on
