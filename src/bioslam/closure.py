@@ -1597,7 +1597,8 @@ def settle_weak_direction(
         step = between(pose, predicted)
         step[2] = wrap_angle(step[2])
         along = float(scaled[k] @ step)
-        if along == 0.0 or (k != 1 and abs(along) <= config.weak_floor):
+        position = modes[2, k] == 0.0  # (the turn is the one mode with a heading)
+        if along == 0.0 or (position and abs(along) <= config.weak_floor):
             continue  # (a position correction too small for the score to judge stands)
         moved = compose(pose, along * modes[:, k])
         there = seen_hit_fraction(grid, moved, query, reg.hit_level, seen, config.min_seen)

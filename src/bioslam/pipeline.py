@@ -682,8 +682,7 @@ def write_results(
         if isinstance(system, BioSLAM):
             out.save("cognitive_map.json", write_json_streamed,
                      system.cognitive_map.json_fields())  # fmt: skip
-            errors = _closure_errors(system, gt, summary)
-            odometry_errors = _odometry_closure_errors(system, odometry, gt, errors, summary)
+            errors, odometry_errors = _closure_errors(system, odometry, gt, summary)
             out.save("closures.csv", write_closures, system.checks, errors, odometry_errors)
     if len(trajectory):
         _write_map_and_figures(result, out, trajectory, odometry, gt, options, summary, sent)
@@ -702,19 +701,27 @@ def write_results(
 
 
 def _closure_errors(
-    system: BioSLAM, reference: Trajectory | None, summary: dict[str, Any]
-) -> NDArray | None:
+    system: BioSLAM, odometry: Trajectory, reference: Trajectory | None, summary: dict[str, Any]
+) -> tuple[NDArray | None, NDArray | None]:
     """Each loop-closure check's measured pose against ``reference``
-    (:func:`bioslam.evaluation.relative_pose_errors`), or None without one (or with one the
-    trajectory could not be evaluated against: unsorted, non-finite); the accepted
-    closures' count off it (:func:`bioslam.evaluation.off_reference`) and their median
-    error go into ``summary``."""
+    (:func:`bioslam.evaluation.relative_pose_errors`), and the ``odometry``'s own relative
+    pose between the check's two stamps judged the same way; (None, None) without a
+    reference (or with one the trajectory could not be evaluated against: unsorted,
+    non-finite). The accepted closures' count off it
+    (:func:`bioslam.evaluation.off_reference`) and the two median errors go into
+    ``summary``. Where the two medians are alike, the reference's own error at the revisits
+    is what both measure: freiburg-079's closures are 3.2 cm from its corrected poses at the
+    median, its odometry between the same stamps 3.3 cm."""
     if reference is None:
-        return None
+        return None, None
     checks = system.checks
+    first, second = [c.experience_stamp for c in checks], [c.stamp for c in checks]
+    free = slides(checks)
     errors = relative_pose_errors(
-        [c.experience_stamp for c in checks], [c.stamp for c in checks],
-        [c.verdict.pose for c in checks], reference, free=slides(checks),
+        first, second, [c.verdict.pose for c in checks], reference, free=free
+    )  # fmt: skip
+    own = relative_pose_errors(
+        first, second, relative_poses(odometry, first, second), reference, free=free
     )  # fmt: skip
     accepted = np.array([c.verdict.accepted for c in checks], dtype=bool)
     judged = accepted & np.isfinite(errors[:, 0])
@@ -722,35 +729,12 @@ def _closure_errors(
     summary["loop_closures_off_reference"] = int((off_reference(errors) & judged).sum())
     if judged.any():
         summary["loop_closure_reference_error_median_m"] = float(np.median(errors[judged, 0]))
-    return errors
-
-
-def _odometry_closure_errors(
-    system: BioSLAM,
-    odometry: Trajectory,
-    reference: Trajectory | None,
-    errors: NDArray | None,
-    summary: dict[str, Any],
-) -> NDArray | None:
-    """The odometry's own relative pose between each check's two stamps, judged against
-    ``reference`` as the check's measurement is (:func:`_closure_errors`, whose ``errors``
-    say which the reference could judge: None, nothing); the accepted closures' median goes
-    into ``summary`` beside theirs. Where the two medians are alike, the reference's own
-    error at the revisits is what both measure: freiburg-079's closures are 3.2 cm from its
-    corrected poses at the median, its odometry between the same stamps 3.3 cm."""
-    if reference is None or errors is None:
-        return None
-    checks = system.checks
-    first, second = [c.experience_stamp for c in checks], [c.stamp for c in checks]
-    measured = relative_poses(odometry, first, second)
-    out = relative_pose_errors(first, second, measured, reference, free=slides(checks))
-    accepted = np.array([c.verdict.accepted for c in checks], dtype=bool)
-    judged = accepted & np.isfinite(errors[:, 0]) & np.isfinite(out[:, 0])
+    judged &= np.isfinite(own[:, 0])
     if judged.any():
         summary["loop_closure_odometry_reference_error_median_m"] = float(
-            np.median(out[judged, 0])
+            np.median(own[judged, 0])
         )
-    return out
+    return errors, own
 
 
 def _evaluate_into(

@@ -122,16 +122,17 @@ class _CheckPlan:
 class _ScanGeometry:
     """A checked scan's geometry, each part computed at most once and only where read: its
     normals, its constraint shape (:func:`bioslam.cognitive_map.registration_shape`, which
-    weighs the closure) and the weak modes of what a registration at ``pose`` matched where
-    the submap looked (``seen``, :func:`bioslam.closure.judged_shape`: which of its
+    weighs the closure) and the weak modes of what the registration at ``pose`` (in the
+    submap anchor's frame, before the settle took a weak correction back) matched where the
+    submap looked (``seen``, :func:`bioslam.closure.judged_shape`: which of its
     corrections must earn their score)."""
 
     def __init__(
         self, points: FloatArray, ratio: float, pose: FloatArray, seen: SeenArea
     ) -> None:
         self.points = points
+        self.pose = pose
         self._ratio = ratio
-        self._pose = pose
         self._seen = seen
 
     @functools.cached_property
@@ -144,7 +145,7 @@ class _ScanGeometry:
 
     @functools.cached_property
     def modes(self) -> FloatArray:
-        matched = judged_shape(self.points, self.normals, self._pose, self._seen, self._ratio)
+        matched = judged_shape(self.points, self.normals, self.pose, self._seen, self._ratio)
         return weak_modes(matched)
 
 
@@ -154,15 +155,14 @@ class _Registration:
     experience's frame; the map's ``predicted`` pose of the robot there; the check's
     ``plan``; the ``submap`` it was registered against, whose anchor is at
     ``anchor_in_experience`` in the experience's frame; the pose as registered in the
-    anchor's frame before the settle took a weak correction back (``unsettled``) and after
-    (``registered``); and the scan's ``geometry``."""
+    anchor's frame after the settle (``registered``; before it, ``geometry.pose``); and the
+    scan's ``geometry``."""
 
     verdict: Verdict
     predicted: FloatArray
     plan: _CheckPlan
     submap: Submap
     anchor_in_experience: FloatArray
-    unsettled: FloatArray
     registered: FloatArray
     geometry: _ScanGeometry
 
@@ -968,7 +968,7 @@ class BioSLAM:
         if not self._confirmed(experience, measured, alone, read):
             return None
         if self.config.cognitive_map.learn_noise and not measured.partial:
-            unsettled = compose(check.anchor_in_experience, check.unsettled)
+            unsettled = compose(check.anchor_in_experience, check.geometry.pose)
             self._learn_noise(experience.id, unsettled, check.geometry.modes[:2, 2])
         return measured
 
@@ -1029,7 +1029,6 @@ class BioSLAM:
         geometry = _ScanGeometry(
             pts, self.config.cognitive_map.closure_shape_ratio, verdict.pose, submap.seen
         )  # fmt: skip
-        unsettled = verdict.pose
         verdict = self._settled(verdict, mapped, geometry, submap)
         registered = verdict.pose  # in the submap anchor's frame
         verdict = dataclasses.replace(
@@ -1037,7 +1036,7 @@ class BioSLAM:
             free=None if verdict.free is None else rotation(anchor_in_experience[2]) @ verdict.free,
         )  # fmt: skip
         return _Registration(
-            verdict, predicted, plan, submap, anchor_in_experience, unsettled, registered, geometry
+            verdict, predicted, plan, submap, anchor_in_experience, registered, geometry
         )  # fmt: skip
 
     def _settled(
