@@ -17,6 +17,7 @@ from bioslam.closure import (
     SeenArea,
     SubmapCache,
     _submap_pyramid,
+    clear_of_rivals,
     fuse_submap,
     nearest_experience,
     pass_neighbours,
@@ -612,6 +613,29 @@ def test_a_unique_place_still_closes_with_rivals_sought_over_the_whole_search_wi
     assert verdict.accepted, verdict.reason
     err = between(truth, verdict.pose)
     assert math.hypot(err[0], err[1]) < 0.03 and abs(err[2]) < math.radians(0.5)
+
+
+def test_a_check_is_clear_of_rivals_only_where_no_look_alike_fits_in_its_window():
+    # In the hall every place looks different: no distinct pose in a 1 m window fits within
+    # clear_ambiguity of the true one. Along the corridor of identical doors 1.2 m apart the
+    # next door fits as well and a 1.5 m window holds it; a 0.3 m window does not.
+    config = LoopClosureConfig()
+    around = [(5.0 + 0.5 * k, 1.5, 0.0) for k in range(5)]
+    submap, _ = _submap(HALL, 2, around)
+    robot = _offset(around[2], 0.3, 0.2)
+    predicted = compose(between(around[2], robot), (0.1, -0.05, math.radians(2.0)))
+    pyramid = _submap_pyramid(submap, config.registration)
+    assert clear_of_rivals(pyramid, _points(HALL, robot), predicted, (1.0, 0.3), config)
+
+    walls = _corridor_with_doors(1.2, 12)
+    around = [(6.0 + 0.5 * k, 1.0, 0.0) for k in range(-2, 3)]
+    submap, _ = _submap(walls, 2, around)
+    robot = (7.0, 1.0, 0.0)
+    query = _points(walls, robot)
+    predicted = compose(between(around[2], robot), (0.05, 0.02, 0.01))
+    pyramid = _submap_pyramid(submap, config.registration)
+    assert not clear_of_rivals(pyramid, query, predicted, (1.5, 0.3), config)
+    assert clear_of_rivals(pyramid, query, predicted, (0.3, 0.1), config)
 
 
 def test_a_trusted_check_is_challenged_beyond_its_drift_bound():

@@ -1262,12 +1262,9 @@ def note_ambiguous(slam: BioSLAM, experience) -> None:
     return None
 
 
-def test_a_place_found_ambiguous_stays_so_for_the_next_metres(ring_drive, monkeypatch):
-    # Each place's first check is refused as ambiguous (as if a rival fitted nearly as
-    # well), and the next check to it may pass: within ``ambiguity_memory`` metres of travel
-    # that is the same doubt passing by a hair, and it is refused; farther on it may close.
-    # With the memory off, such checks a few scans on are accepted.
-    scans, _ = ring_drive
+def first_checks_ambiguous(monkeypatch) -> set[int]:
+    """Refuse each place's first check as ambiguous (as if a rival fitted nearly as well),
+    the later ones verified as usual; returns the places checked, to clear between runs."""
     checked: set[int] = set()
     real_refine = BioSLAM._refine
 
@@ -1279,29 +1276,69 @@ def test_a_place_found_ambiguous_stays_so_for_the_next_metres(ring_drive, monkey
         return real_refine(self, experience, points)
 
     monkeypatch.setattr(BioSLAM, "_refine", first_ambiguous)
+    return checked
 
-    def retried(slam: BioSLAM) -> list[float]:
-        """The metres (at the ring route's 0.4 m/s) from an ambiguous check to the accepted
-        one that directly follows it to the same place."""
-        last: dict[int, tuple[str, float]] = {}
-        gaps = []
-        for c in slam.checks:
-            reason, when = last.get(c.experience, ("", 0.0))
-            if c.verdict.accepted and reason == "ambiguous":
-                gaps.append(0.4 * (c.stamp - when))
-            last[c.experience] = (c.verdict.reason or "accepted", c.stamp)
-        return gaps
 
+def retried(slam: BioSLAM) -> list[float]:
+    """The metres (at the ring route's 0.4 m/s) from an ambiguous check to the accepted one
+    that directly follows it to the same place."""
+    last: dict[int, tuple[str, float]] = {}
+    gaps = []
+    for c in slam.checks:
+        reason, when = last.get(c.experience, ("", 0.0))
+        if c.verdict.accepted and reason == "ambiguous":
+            gaps.append(0.4 * (c.stamp - when))
+        last[c.experience] = (c.verdict.reason or "accepted", c.stamp)
+    return gaps
+
+
+def test_a_place_found_ambiguous_stays_so_for_the_next_metres(ring_drive, monkeypatch):
+    # Each place's first check is refused as ambiguous, and the next check to it may pass:
+    # within ``ambiguity_memory`` metres of travel that is the same doubt passing by a hair,
+    # and it is refused; farther on it may close. With the memory off, such checks a few
+    # scans on are accepted.
+    scans, _ = ring_drive
+    checked = first_checks_ambiguous(monkeypatch)
     # the place alone: with every place's first check ambiguous, the places beside it would
-    # be doubted too (the next test)
-    config = config_from_dict({"loop_closure": {"ambiguity_radius": 0.0}}, "t")
-    checked.clear()
+    # be doubted too (the next test); the ring's places are unique, and its checks, trusted
+    # and clear of rivals, would stand however recent the doubt (the test after it)
+    unclear = {"clear_ambiguity": 1.0}
+    config = config_from_dict({"loop_closure": {"ambiguity_radius": 0.0, **unclear}}, "t")
     kept = retried(run(scans, config))
     checked.clear()
-    off = retried(run(scans, config_from_dict({"loop_closure": {"ambiguity_memory": 0.0}}, "t")))
+    off = {"loop_closure": {"ambiguity_memory": 0.0, **unclear}}
+    off = retried(run(scans, config_from_dict(off, "t")))
     memory = config.loop_closure.ambiguity_memory
     assert sum(g < memory for g in off) >= 10
     assert all(g > 0.9 * memory for g in kept) and len(kept) >= 1
+
+
+def test_a_trusted_check_clear_of_rivals_stands_at_a_place_found_ambiguous(
+    ring_drive, monkeypatch
+):
+    # The doubt the memory keeps is the surroundings' seen from elsewhere; a check the
+    # odometry vouches for, with no distinct pose in its window fitting within
+    # ``clear_ambiguity`` of its best, sees what tells the place and stands (which poses
+    # are clear: test_closure.py). On the ring such checks close a few scans after the doubt
+    # (their windows, a few centimetres to a quarter metre from short chains of links, hold
+    # no distinct pose); where the odometry vouches for nothing, the memory holds them.
+    scans, _ = ring_drive
+    checked = first_checks_ambiguous(monkeypatch)
+    alone = {"ambiguity_radius": 0.0}
+    memory = SLAMConfig().loop_closure.ambiguity_memory
+    clear = retried(run(scans, config_from_dict({"loop_closure": alone}, "t")))
+    assert sum(g < 0.9 * memory for g in clear) >= 3
+
+    real_plan = BioSLAM._plan_check
+
+    def untrusted(self, experience_id, predicted):
+        plan = real_plan(self, experience_id, predicted)
+        return None if plan is None else dataclasses.replace(plan, trusted=False)
+
+    monkeypatch.setattr(BioSLAM, "_plan_check", untrusted)
+    checked.clear()
+    doubted = retried(run(scans, config_from_dict({"loop_closure": alone}, "t")))
+    assert all(g > 0.9 * memory for g in doubted) and len(doubted) >= 1
 
 
 def test_a_place_beside_one_found_ambiguous_is_doubted_too(ring_drive, monkeypatch):
@@ -1335,10 +1372,12 @@ def test_a_place_beside_one_found_ambiguous_is_doubted_too(ring_drive, monkeypat
                 count += c.verdict.accepted and c.experience != place and near and soon
         return count
 
+    unclear = {"clear_ambiguity": 1.0}  # (the ring's checks are clear of rivals: above)
     cfg = SLAMConfig().loop_closure
     assert cfg.ambiguity_radius > 0.0
-    kept = run(scans, SLAMConfig())
-    off = run(scans, config_from_dict({"loop_closure": {"ambiguity_radius": 0.0}}, "t"))
+    kept = run(scans, config_from_dict({"loop_closure": unclear}, "t"))
+    off = {"loop_closure": {"ambiguity_radius": 0.0, **unclear}}
+    off = run(scans, config_from_dict(off, "t"))
     assert len(kept.marked) >= 3
     assert beside(off, cfg.ambiguity_radius, cfg.ambiguity_memory) >= 3
     assert beside(kept, cfg.ambiguity_radius, 0.9 * cfg.ambiguity_memory) == 0

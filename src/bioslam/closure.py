@@ -1219,13 +1219,17 @@ def _searcher(
     return matcher
 
 
-def _window_config(window: tuple[float, float], config: LoopClosureConfig) -> WideBasinConfig:
+def _window_config(
+    window: tuple[float, float], config: LoopClosureConfig, rival_floor: float | None = None
+) -> WideBasinConfig:
+    """The search of ``window`` (m, rad), its rivals sought down to ``rival_floor`` of the
+    best (``max_ambiguity`` by default: below it no rival decides a verdict)."""
     return WideBasinConfig(
         distance=window[0],
         angle=window[1],
         rival_distance=config.rival_distance,
         rival_angle=config.rival_angle,
-        min_rival_ratio=config.max_ambiguity,
+        min_rival_ratio=config.max_ambiguity if rival_floor is None else rival_floor,
     )
 
 
@@ -1245,6 +1249,25 @@ def _wide_search(
     matcher.config = _window_config(window, config)
     found = matcher.search(query, centre, slide=slide, known=None if known is None else known.match)
     return _Found(found, matcher.resolution)
+
+
+def clear_of_rivals(
+    pyramid: MapPyramid,
+    query: FloatArray,
+    predicted: FloatArray,
+    window: tuple[float, float],
+    config: LoopClosureConfig,
+) -> bool:
+    """Whether no distinct pose within ``window`` (m, rad, capped at the search's) around
+    ``predicted`` fits ``query`` within ``clear_ambiguity`` of the window's best: a check
+    that passes the rival test clearly, not by a hair (:meth:`bioslam.slam.BioSLAM._accepted`
+    lets such a check stand at a place found ambiguous moments before). The window is
+    searched again with its rivals sought down to that share, which the check's own search
+    (down to ``max_ambiguity``) did not."""
+    searched = (min(window[0], config.search_distance), min(window[1], config.search_angle))
+    matcher = _searcher(pyramid, query, predicted, searched, config)
+    matcher.config = _window_config(searched, config, config.clear_ambiguity)
+    return matcher.search(query, predicted).rival_pose is None
 
 
 def _outside_window(

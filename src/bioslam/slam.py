@@ -35,6 +35,7 @@ from bioslam.closure import (
     break_departure,
     break_extent,
     break_thresholds,
+    clear_of_rivals,
     implausible,
     judged_shape,
     jumped,
@@ -1089,12 +1090,32 @@ class BioSLAM:
             # could check it against, so it must fit well enough to close alone
             verdict = dataclasses.replace(verdict, accepted=False, reason="degenerate")
         doubted = self._recently_ambiguous(experience.id) if verdict.accepted else None
+        if doubted is not None and self._clears_doubt(check):
+            doubted = None
         if doubted is not None:
             verdict = dataclasses.replace(verdict, accepted=False, reason="ambiguous")
         # a doubt taken from a place beside is not found here: it does not arm the memory for
         # the places beyond (each refusal would arm the next, the doubt moving with the robot)
         self._note_check(experience, verdict, remember=doubted != "beside")
         return verdict
+
+    def _clears_doubt(self, check: _Registration) -> bool:
+        """Whether an accepted check stands at a place found ambiguous moments before
+        (:meth:`_recently_ambiguous`): the odometry vouches for the map's prediction, the
+        check fits well enough to close alone and claims every direction, and no distinct
+        pose in its window fits within ``clear_ambiguity`` of it
+        (:func:`bioslam.closure.clear_of_rivals`; a window narrower than the rival distance,
+        from a short chain of links, holds none)."""
+        cfg = self.config.loop_closure
+        verdict = check.verdict
+        if cfg.clear_ambiguity >= cfg.max_ambiguity or check.submap.pyramid is None:
+            return False
+        if not check.plan.trusted or verdict.needs_partner or verdict.partial:
+            return False
+        mapped = between(check.anchor_in_experience, check.predicted)  # in the anchor's frame
+        return clear_of_rivals(
+            check.submap.pyramid, check.geometry.points, mapped, check.plan.window, cfg
+        )  # fmt: skip
 
     def _measurement(self, check: _Registration, verdict: Verdict) -> Measurement:
         """The accepted ``verdict`` as the loop link's measurement: within the dead band of
