@@ -1076,7 +1076,8 @@ class BioSLAM:
         """The registered check's verdict after the rules no registration alone decides,
         recorded (:meth:`_note_check`): a fit only a partner may confirm where the odometry
         cannot vouch for the prediction either, a partial one below ``min_score``, and one to
-        a place recently found ambiguous are refused."""
+        a place recently found ambiguous, unless it clears that doubt (:meth:`_clears_doubt`),
+        are refused."""
         verdict = check.verdict
         if verdict.accepted and verdict.needs_partner and not self._alone(check.plan):
             # a registration that fits less well than a place alone must, where the
