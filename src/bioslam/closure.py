@@ -867,8 +867,7 @@ def verify(
     the odometry's breaks only: a step the odometry merely doubted slides it along a
     corridor, which a partial closure claims nothing about)."""
     reg = config.registration
-    distance = min(window[0], config.search_distance)
-    angle = min(window[1], config.search_angle)
+    distance, angle = _searched_window(window, config)
     pyramid = pyramid or _submap_pyramid(reference, reg)
     outside = _outside_window((distance, angle), rival_window, config)
     # pooled and cropped for the widest window any search of this check reaches
@@ -1233,6 +1232,14 @@ def _window_config(
     )
 
 
+def _searched_window(
+    window: tuple[float, float], config: LoopClosureConfig
+) -> tuple[float, float]:
+    """The part of a check's ``window`` (m, rad) its registration searches: no wider than
+    ``search_distance`` and ``search_angle``."""
+    return min(window[0], config.search_distance), min(window[1], config.search_angle)
+
+
 def _wide_search(
     matcher: WideBasinMatcher,
     query: FloatArray,
@@ -1241,12 +1248,13 @@ def _wide_search(
     config: LoopClosureConfig,
     slide: FloatArray | None = None,
     known: _Found | None = None,
+    rival_floor: float | None = None,
 ) -> _Found:
     """Branch and bound over ``window`` (m, rad) around ``centre`` with ``matcher``, pooled
     for it or a wider window (:func:`_searcher`); ``slide``: its rival is sought across it;
     ``known``: its search of a window within this one, reused
-    (:meth:`WideBasinMatcher.search`)."""
-    matcher.config = _window_config(window, config)
+    (:meth:`WideBasinMatcher.search`); ``rival_floor``: as :func:`_window_config`'s."""
+    matcher.config = _window_config(window, config, rival_floor)
     found = matcher.search(query, centre, slide=slide, known=None if known is None else known.match)
     return _Found(found, matcher.resolution)
 
@@ -1264,10 +1272,12 @@ def clear_of_rivals(
     lets such a check stand at a place found ambiguous moments before). The window is
     searched again with its rivals sought down to that share, which the check's own search
     (down to ``max_ambiguity``) did not."""
-    searched = (min(window[0], config.search_distance), min(window[1], config.search_angle))
+    searched = _searched_window(window, config)
     matcher = _searcher(pyramid, query, predicted, searched, config)
-    matcher.config = _window_config(searched, config, config.clear_ambiguity)
-    return matcher.search(query, predicted).rival_pose is None
+    found = _wide_search(
+        matcher, query, predicted, searched, config, rival_floor=config.clear_ambiguity
+    )  # fmt: skip
+    return found.match.rival_pose is None
 
 
 def _outside_window(

@@ -1109,13 +1109,14 @@ class BioSLAM:
         from a short chain of links, holds none)."""
         cfg = self.config.loop_closure
         verdict = check.verdict
-        if cfg.clear_ambiguity >= cfg.max_ambiguity or check.submap.pyramid is None:
+        if cfg.clear_ambiguity >= cfg.max_ambiguity:
             return False
         if not check.plan.trusted or verdict.needs_partner or verdict.partial:
             return False
         mapped = between(check.anchor_in_experience, check.predicted)  # in the anchor's frame
+        pyramid = check.submap.pyramid  # (a check registers only on a submap with one)
         return clear_of_rivals(
-            check.submap.pyramid, check.geometry.points, mapped, check.plan.window, cfg
+            pyramid, check.geometry.points, mapped, check.plan.window, cfg  # type: ignore[arg-type]
         )  # fmt: skip
 
     def _measurement(self, check: _Registration, verdict: Verdict) -> Measurement:
