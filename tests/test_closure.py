@@ -18,6 +18,7 @@ from bioslam.closure import (
     SubmapCache,
     _submap_pyramid,
     clear_of_rivals,
+    first_marked_experience,
     fuse_submap,
     nearest_experience,
     pass_neighbours,
@@ -373,6 +374,25 @@ def test_nearest_experience_skips_places_just_left():
     assert nearest_experience(poses, travelled, np.array([0.1, 0.0]), 10.0, 0.5, 3.0) == 0
     assert nearest_experience(poses, travelled, np.array([5.0, 0.0]), 10.0, 0.5, 3.0) is None
     assert nearest_experience(poses, travelled, np.array([0.1, 0.0]), 2.5, 0.5, 3.0) is None
+
+
+def test_the_first_marked_experience_is_the_oldest_marked_in_reach():
+    # the first pass's places at 0 and 0.3 m, the second pass's copies at 0.1 and 0.2 m
+    poses = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0], [0.1, 0.0, 0.0], [0.2, 0.0, 0.0]])
+    travelled = np.array([0.0, 0.3, 8.0, 8.1])
+    marked = np.array([np.inf, 8.5, 8.6, np.inf])  # the travel each was marked at
+    here = np.array([0.15, 0.0])
+    # the nearest is a copy; the first marked within reach the older pass's place
+    assert nearest_experience(poses, travelled, here, 12.0, 0.5, 3.0) == 2
+    assert first_marked_experience(poses, travelled, here, 12.0, 0.5, 3.0, marked) == 1
+    # none marked within reach, none made or marked long enough ago, none from ``start`` on
+    assert first_marked_experience(poses, travelled, here, 12.0, 0.1, 3.0, marked) == 2
+    assert first_marked_experience(poses, travelled, here, 12.0, 0.04, 3.0, marked) is None
+    assert first_marked_experience(poses, travelled, here, 3.2, 0.5, 3.0, marked) is None
+    assert first_marked_experience(poses, travelled, here, 11.55, 0.5, 3.0, marked) == 1
+    assert first_marked_experience(poses, travelled, here, 11.45, 0.5, 3.0, marked) is None
+    assert first_marked_experience(poses, travelled, here, 12.0, 0.5, 3.0, marked, 2) == 2
+    assert first_marked_experience(poses, travelled, here, 12.0, 0.5, 3.0, marked, 3) is None
 
 
 def test_nearest_experience_passes_over_places_without_a_scan():

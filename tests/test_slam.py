@@ -1383,6 +1383,47 @@ def test_a_place_beside_one_found_ambiguous_is_doubted_too(ring_drive, monkeypat
     assert beside(kept, cfg.ambiguity_radius, 0.9 * cfg.ambiguity_memory) == 0
 
 
+def test_the_cue_goes_back_to_a_place_found_ambiguous_at_a_later_visit(monkeypatch):
+    # Three laps of the ring with heading drift; every check on the second lap is refused
+    # as ambiguous (as if a rival fitted nearly as well), so the map lays the second lap
+    # down as a copy beside the first. On the third lap the nearest places are the copy's;
+    # the proximity cue goes back to the first lap's places whose checks were refused, and
+    # closes to them at once. Only the proximity cue's checks run: the view cells' would
+    # close to the first lap anyway.
+    route = ring_route(laps=3.0)
+    drive = simulate_scans(ring_world(), LIDAR_PRESETS["urg04lx"], route, seed=3)
+    scans = [scan for scan, _ in drive]
+    start, lap = scans[0].stamp, (scans[-1].stamp - scans[0].stamp) / 3.0
+    real_refine = BioSLAM._refine
+
+    def second_lap_refused(self, experience, points):
+        if start + lap <= self._stamp < start + 2.0 * lap:
+            return note_ambiguous(self, experience)
+        if experience.id != self._proposed:
+            return None
+        return real_refine(self, experience, points)
+
+    monkeypatch.setattr(BioSLAM, "_refine", second_lap_refused)
+
+    def third_lap(revisit: bool) -> tuple[int, int, float]:
+        """Closures on the third lap to the first and to the second, and the metres (at the
+        route's 0.4 m/s) into the lap of the first to the first lap."""
+        # the memory off: the second lap's last doubts would hold the third's first checks
+        # for its 2 m either way
+        closure = {"revisit_refused": revisit, "ambiguity_memory": 0.0}
+        config = {"heading_bias": 0.002, "loop_closure": closure}
+        slam = run(scans, config_from_dict(config, "t"))
+        closed = [c for c in slam.checks if c.verdict.accepted and c.stamp >= start + 2.0 * lap]
+        first = [c for c in closed if c.experience_stamp < start + lap]
+        metres = 0.4 * (min(c.stamp for c in first) - start - 2.0 * lap)
+        return len(first), len(closed) - len(first), metres
+
+    to_first, to_copy, metres = third_lap(True)
+    assert to_first > to_copy and metres < 0.5
+    to_first, to_copy, metres = third_lap(False)
+    assert to_first < to_copy and metres > 1.5
+
+
 @pytest.mark.parametrize("far", [False, True])
 def test_a_correction_settled_back_farther_than_a_rival_is_refused_as_ambiguous(
     ring_drive, monkeypatch, far

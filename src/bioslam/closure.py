@@ -9,6 +9,9 @@ things make that fragile on real robots, and this module is where they are handl
   within the odometry's drift bound of the robot's map pose (:func:`nearest_experience`),
   beside the view cells' own candidate. Experiences the robot has just left, or that a short
   chain of links already joins to the current one, are not loops and are not proposed.
+  Where a check to a place was refused as ambiguous, the cue goes back to that place first
+  (:func:`first_marked_experience`): the map, which made the area anew, would otherwise
+  propose only the new copy.
 * **Verification that look-alikes cannot fool.** A candidate is accepted only after the
   current scan is registered against a *submap* fused from the scans of the experiences
   around the candidate on its own pass (:func:`fuse_submap`): one scan sees a corridor's
@@ -721,6 +724,38 @@ def nearest_experience(
     usable = _ALL_USABLE if verifiable is None else verifiable
     best = _nearest_within(poses, old, float(position[0]), float(position[1]), radius, usable)
     return None if best < 0 else best
+
+
+def first_marked_experience(
+    poses: FloatArray, travelled: FloatArray, position: FloatArray, now: float, radius: float,
+    min_travel: float, marked_at: FloatArray, start: int = 0,
+) -> int | None:
+    """The oldest experience from ``start`` on within ``radius`` metres of ``position`` (map
+    frame) that was made, and marked (``marked_at``: the travel it was marked at, inf for
+    none), at least ``min_travel`` metres of travel ago, or None: where the robot passes
+    again after a check to the place it came back to was refused, the map holds the area
+    twice, and the nearest experience is the new copy."""
+    old = int(np.searchsorted(travelled, now - min_travel, side="right"))
+    x, y = float(position[0]), float(position[1])
+    first = _first_within(poses, start, old, x, y, radius, marked_at, now - min_travel)
+    return None if first < 0 else first
+
+
+@njit(cache=True)
+def _first_within(
+    poses: FloatArray, start: int, count: int, x: float, y: float, radius: float,
+    marked_at: FloatArray, before: float,
+) -> int:
+    # as _nearest_within: probed at every scan between looks
+    r2 = radius * radius
+    for i in range(start, count):
+        if not marked_at[i] <= before:
+            continue
+        dx = poses[i, 0] - x
+        dy = poses[i, 1] - y
+        if dx * dx + dy * dy <= r2:
+            return i
+    return -1
 
 
 @njit(cache=True)
