@@ -543,11 +543,10 @@ class BioSLAM:
         # whether each experience keeps a scan to register against (the proximity cue
         # proposes only those)
         self._verifiable = np.empty(1024, dtype=np.bool_)
-        # the travel (m) at each place's last refused check, for the places no loop has
-        # joined to the robot since (inf for the others), which the proximity cue goes back
-        # to first (:meth:`_refused_return`), and how many there are
-        self._refused_at = np.full(1024, np.inf)
-        self._refused_count = 0
+        # the travel (m) at each place's last check refused as ambiguous, for the places no
+        # loop has joined to the robot since (inf for the others), which the proximity cue
+        # goes back to first (:meth:`_refused_return`)
+        self._refused_at = np.empty(1024)
         # the travel (m) at each place's last check refused as ambiguous, for those within
         # ``ambiguity_memory`` of the robot's travel
         self._ambiguous_at: dict[int, float] = {}
@@ -900,12 +899,10 @@ class BioSLAM:
         if experience_id >= self._made_at.size:
             for name in (
                 "_made_at", "_breaks_at", "_jumps_at", "_extent_at", "_summed_at",
-                "_odometry_at", "_doubts_at", "_heading_var_at", "_verifiable",
+                "_odometry_at", "_doubts_at", "_heading_var_at", "_verifiable", "_refused_at",
             ):  # fmt: skip
                 column = getattr(self, name)
                 setattr(self, name, np.concatenate([column, np.empty_like(column)]))
-            refused_at = self._refused_at
-            self._refused_at = np.concatenate([refused_at, np.full_like(refused_at, np.inf)])
         self._made_at[experience_id] = self._travelled
         self._odometry_at[experience_id] = self.self_motion.pose
         self._heading_var_at[experience_id] = self.self_motion.heading_var
@@ -915,6 +912,7 @@ class BioSLAM:
         self._extent_at[experience_id] = self.self_motion.break_extent
         self._summed_at[experience_id] = self.self_motion.summed_departure
         self._verifiable[experience_id] = verifiable
+        self._refused_at[experience_id] = np.inf
 
     def _nearby(self, travelled: float, pending: FloatArray | None = None) -> int | None:
         """The path-integration cue: the experience nearest the robot's map pose (the map's,
@@ -943,14 +941,21 @@ class BioSLAM:
         )  # fmt: skip
         if found is None or found == cmap.current:
             return None
-        # Between looks the map does not change, and the cue is probed at every scan while a
-        # registration is due: the chain search (0.09 ms on freiburg-079, a third of a
-        # matched scan) runs once per map state and candidate.
-        key = (cmap.current, found, cmap.num_links, len(cmap))
+        return None if self._joined(found) else found
+
+    def _joined(self, experience_id: int) -> bool:
+        """Whether a short chain of links (``chain_distance``) joins the current experience
+        to ``experience_id``: a place the map relates to the robot already, no loop. Between
+        looks the map does not change, and the cue is probed at every scan while a
+        registration is due: the chain search (0.09 ms on freiburg-079, a third of a matched
+        scan) runs once per map state and candidate."""
+        cmap = self.cognitive_map
+        key = (cmap.current, experience_id, cmap.num_links, len(cmap))
         if key != self._chain_key:
-            chained = cmap.link_distance(cmap.current, found, cfg.chain_distance) is not None
+            distance = self.config.loop_closure.chain_distance
+            chained = cmap.link_distance(cmap.current, experience_id, distance) is not None
             self._chain_key, self._chained = key, chained
-        return None if self._chained else found
+        return self._chained
 
     def _refused_return(self, pose: FloatArray, travelled: float, radius: float) -> int | None:
         """The oldest place within ``radius`` of the map pose ``pose`` whose check was
@@ -965,7 +970,7 @@ class BioSLAM:
         floor, URG-04LX thinned: a closure 3 m off), and the nearest place stands. A place
         found joined has its loop, and is no longer marked."""
         cfg = self.config.loop_closure
-        if not (cfg.revisit_refused and self._refused_count):
+        if not cfg.revisit_refused:
             return None
         cmap = self.cognitive_map
         count = len(cmap)
@@ -974,18 +979,14 @@ class BioSLAM:
             int(np.searchsorted(self._breaks_at[:count], self.self_motion.breaks)),
             int(np.searchsorted(self._jumps_at[:count], self.self_motion.jumps)),
         )
-        while self._refused_count:
+        while True:
             found = first_marked_experience(
                 cmap.experience_poses_view, self._made_at[:count], pose, travelled, radius,
                 cfg.min_loop_travel, self._refused_at[:count], start,
             )  # fmt: skip
-            if found is None:
-                return None
-            if cmap.link_distance(cmap.current, found, cfg.chain_distance) is None:
+            if found is None or not self._joined(found):
                 return found
             self._refused_at[found] = np.inf
-            self._refused_count -= 1
-        return None
 
     def _refiner(
         self, points: FloatArray
@@ -1492,7 +1493,6 @@ class BioSLAM:
         # meets the same walls again (every refusal marked: 85 runs without drift, 12
         # worse and 8 better; the serpentine floor's thinned SICK 6.35 -> 7.49 cm)
         if verdict.reason == "ambiguous":
-            self._refused_count += bool(np.isinf(self._refused_at[experience.id]))
             self._refused_at[experience.id] = self._travelled
         cue = "proximity" if experience.id == self._proposed else "view"
         self.checks.append(Check(self._stamp, experience.id, experience.stamp, cue, verdict))
