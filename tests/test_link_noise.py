@@ -134,3 +134,5 @@ def test_the_likeliest_model_keeps_the_closures_own_noise():
     noise = LinkNoise(8e-7, 2e-5, 4e-3, 2e-6, likely_var_per_m=1e-8, likely_heading_scale=1e-3)
     assert noise.likely() == LinkNoise(1e-8, 2e-5, 1e-3, 2e-6)
     assert LinkNoise(8e-7, 2e-5).likely() == LinkNoise(8e-7, 2e-5)
+    assert noise.likeliest_heading_scale == 1e-3
+    assert LinkNoise(8e-7, 2e-5, 4e-3).likeliest_heading_scale == 4e-3

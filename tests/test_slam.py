@@ -1405,12 +1405,15 @@ def test_the_cue_goes_back_to_a_place_found_ambiguous_at_a_later_visit(monkeypat
 
     monkeypatch.setattr(BioSLAM, "_refine", second_lap_refused)
 
-    def third_lap(revisit: bool) -> tuple[int, int, float]:
+    def third_lap(revisit: bool, drift_scale: float = 0.0) -> tuple[int, int, float]:
         """Closures on the third lap to the first and to the second, and the metres (at the
         route's 0.4 m/s) into the lap of the first to the first lap."""
         # the memory off: the second lap's last doubts would hold the third's first checks
         # for its 2 m either way
-        closure = {"revisit_refused": revisit, "ambiguity_memory": 0.0}
+        closure = {
+            "revisit_refused": revisit, "revisit_drift_scale": drift_scale,
+            "ambiguity_memory": 0.0,
+        }  # fmt: skip
         config = {"heading_bias": 0.002, "loop_closure": closure}
         slam = run(scans, config_from_dict(config, "t"))
         closed = [c for c in slam.checks if c.verdict.accepted and c.stamp >= start + 2.0 * lap]
@@ -1422,6 +1425,26 @@ def test_the_cue_goes_back_to_a_place_found_ambiguous_at_a_later_visit(monkeypat
     assert to_first > to_copy and metres < 0.5
     to_first, to_copy, metres = third_lap(False)
     assert to_first < to_copy and metres > 1.5
+    # on, but only for a heading drift beyond any the map's link noise learns: as off
+    to_first, to_copy, metres = third_lap(True, drift_scale=1e6)
+    assert to_first < to_copy and metres > 1.5
+
+
+def test_the_heading_drift_the_closures_teach_tells_a_drifting_odometry(ring_drive):
+    # The cue back to a place found ambiguous acts only while the map's link noise says the
+    # odometry's heading drifts (loop_closure.revisit_drift_scale): the heading variance the
+    # closures make likeliest, over what the scan matches measured. Two laps of the ring:
+    # without drift the closures teach a scale below the gate, with a gyro-like drift above.
+    scans, _ = ring_drive
+    gate = SLAMConfig().loop_closure.revisit_drift_scale
+    scales = []
+    for bias in (0.0, 0.002):
+        slam = BioSLAM(dataclasses.replace(SLAMConfig(), heading_bias=bias))
+        for scan in scans:
+            slam.process(scan)
+        assert len(slam.link_noise) >= 5  # the closures taught it
+        scales.append(slam.cognitive_map.noise.likeliest_heading_scale)
+    assert scales[0] < gate < scales[1]
 
 
 @pytest.mark.parametrize("far", [False, True])

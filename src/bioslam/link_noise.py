@@ -79,14 +79,21 @@ class LinkNoise:
     likely_heading_scale: float | None = None
     jump_scale: float = 1.0
 
+    @property
+    def likeliest_heading_scale(self) -> float:
+        """The heading scale the closures make likeliest (``heading_scale`` where that is
+        the one they show)."""
+        scale = self.likely_heading_scale
+        return self.heading_scale if scale is None else scale
+
     def likely(self) -> LinkNoise:
         """The model with the drift the closures make likeliest in place of the largest they
         do not rule out."""
-        rate, scale = self.likely_var_per_m, self.likely_heading_scale
+        rate = self.likely_var_per_m
         return replace(
             self,
             odometry_var_per_m=self.odometry_var_per_m if rate is None else rate,
-            heading_scale=self.heading_scale if scale is None else scale,
+            heading_scale=self.likeliest_heading_scale,
             likely_var_per_m=None,
             likely_heading_scale=None,
         )

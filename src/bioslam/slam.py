@@ -968,11 +968,14 @@ class BioSLAM:
         lost the check that closed its loop round the floor: 2.92 -> 27.84 cm). Across a
         break, a lost odometry's map pose may sit on a look-alike of the old place (ring
         floor, URG-04LX thinned: a closure 3 m off), and the nearest place stands. A place
-        found joined has its loop, and is no longer marked."""
+        found joined has its loop, and is no longer marked. Only while the map's link noise
+        says the heading drifts (``revisit_drift_scale``): where it holds, the copy lies on
+        the first pass, and a check to it serves as well."""
         cfg = self.config.loop_closure
-        if not cfg.revisit_refused:
-            return None
         cmap = self.cognitive_map
+        drifts = cmap.noise.likeliest_heading_scale >= cfg.revisit_drift_scale
+        if not (cfg.revisit_refused and drifts):
+            return None
         count = len(cmap)
         # breaks and jumps only grow: the places made since the last of either are a suffix
         start = max(
