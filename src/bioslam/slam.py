@@ -973,15 +973,14 @@ class BioSLAM:
         the first pass, and a check to it serves as well."""
         cfg = self.config.loop_closure
         cmap = self.cognitive_map
-        drifts = cmap.noise.likeliest_heading_scale >= cfg.revisit_drift_scale
-        if not (cfg.revisit_refused and drifts):
+        if not cfg.revisit_refused:
+            return None
+        if cmap.noise.likeliest_heading_scale < cfg.revisit_drift_scale:
             return None
         count = len(cmap)
-        # breaks and jumps only grow: the places made since the last of either are a suffix
-        start = max(
-            int(np.searchsorted(self._breaks_at[:count], self.self_motion.breaks)),
-            int(np.searchsorted(self._jumps_at[:count], self.self_motion.jumps)),
-        )
+        # every break counts as a jump too (:meth:`SelfMotion._note_jump`), and the count only
+        # grows: the places made since the last jump are a suffix
+        start = int(np.searchsorted(self._jumps_at[:count], self.self_motion.jumps))
         while True:
             found = first_marked_experience(
                 cmap.experience_poses_view, self._made_at[:count], pose, travelled, radius,
@@ -1489,14 +1488,15 @@ class BioSLAM:
     def _note_check(self, experience: Experience, verdict: Verdict, remember: bool = True) -> None:
         """Record a verification's outcome, with the cue that proposed the experience; an
         ambiguity found (``remember``) arms :meth:`_recently_ambiguous`."""
-        if remember and verdict.reason == "ambiguous":
-            self._ambiguous_at[experience.id] = self._travelled
-        # Only an ambiguity is worth a later visit: one from elsewhere may see what tells the
-        # place from its look-alikes, while a place refused for its score or as degenerate
-        # meets the same walls again (every refusal marked: 85 runs without drift, 12
-        # worse and 8 better; the serpentine floor's thinned SICK 6.35 -> 7.49 cm)
+        # Only an ambiguity is worth a later visit (:meth:`_refused_return`): one from
+        # elsewhere may see what tells the place from its look-alikes, while a place refused
+        # for its score or as degenerate meets the same walls again (every refusal marked:
+        # 85 runs without drift, 12 worse and 8 better; the serpentine floor's thinned SICK
+        # 6.35 -> 7.49 cm)
         if verdict.reason == "ambiguous":
             self._refused_at[experience.id] = self._travelled
+            if remember:
+                self._ambiguous_at[experience.id] = self._travelled
         cue = "proximity" if experience.id == self._proposed else "view"
         self.checks.append(Check(self._stamp, experience.id, experience.stamp, cue, verdict))
 
