@@ -927,6 +927,34 @@ def test_a_registration_keeps_its_heading_correction_of_a_drifted_prediction():
     assert confirmed[2] == pytest.approx(0.006)  # judged by the score, the drift stays
 
 
+def test_a_correction_the_lines_measured_along_the_corridor_stands_where_the_grid_cannot_tell():
+    # The grid's 10 cm cells score a pose 4 cm along an open corridor as the map's
+    # prediction, so the correction is taken back. Where the polish's lines pinned that
+    # direction (a door frame, an aisle's end the grid's cells blur) to 2 mm, the
+    # correction is twenty of their standard deviations: measured, it stands. Pinned only to
+    # 2 cm, it is within three of the prediction, and the grid's judgement holds.
+    from bioslam.closure import settle_weak_direction
+    from bioslam.matching.point_to_line import LineFit
+
+    cfg, grid, query, modes = _corridor_grid(end_wall=False)
+    predicted = np.zeros(3)
+    pose = np.array([0.04, 0.0, 0.0])
+
+    def lines(sigma: float) -> LineFit:
+        return LineFit(pose, 500, 0.01, np.diag([(0.01 / sigma) ** 2, 1e4, 1e4]))
+
+    assert lines(0.002).position_sigma((1.0, 0.0)) == pytest.approx(0.002)
+    pinned = dataclasses.replace(cfg, lines_pin=3.0)
+    for config, fit, kept in (
+        (cfg, lines(0.002), False),  # (lines_pin 0: the lines are not asked)
+        (pinned, None, False),
+        (pinned, lines(0.002), True),
+        (pinned, lines(0.02), False),
+    ):
+        settled = settle_weak_direction(grid, pose, predicted, query, modes, config, None, fit)
+        np.testing.assert_allclose(settled, pose if kept else predicted, atol=1e-9)
+
+
 def test_a_registration_pinned_by_the_corridors_end_keeps_its_correction_along_it():
     # The end wall scores the true place clearly better than the map's prediction 12 cm
     # short of it: that correction is measured, and stays.

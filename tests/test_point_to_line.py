@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -81,15 +82,41 @@ def test_along_a_corridor_the_lines_keep_the_start_and_correct_only_across():
     assert abs(polished[0] - start[0]) < 0.005
 
 
+def test_the_lines_pin_a_position_along_a_corridor_only_where_a_wall_crosses_it():
+    # Down a long corridor nothing pins the position along it: its standard deviation there
+    # is infinite, across it the scanner's centimetre over the square root of the points
+    # matched. A wall across the corridor (a door frame, an aisle's end) pins it too.
+    around = [(0.5 * k, 1.0, 0.0) for k in range(5)]
+    truth = np.array([0.1, 0.3, 0.0])
+    submap, _ = _submap(LONG_CORRIDOR, 2, around)
+    query = _points(LONG_CORRIDOR, compose(around[2], truth), seed=4)
+    fit = refine_point_to_line(LineMap.build(submap), truth, query, 0.1, 0.02)
+    assert fit.position_sigma((1.0, 0.0)) == math.inf
+    across = fit.position_sigma((0.0, 1.0))
+    assert 0.2 * fit.spread / math.sqrt(fit.matched) < across < 5.0 * fit.spread / math.sqrt(
+        fit.matched
+    )
+    closed = [*LONG_CORRIDOR, (4.0, 0.0, 4.0, 2.0)]
+    submap, _ = _submap(closed, 2, around)
+    query = _points(closed, compose(around[2], truth), seed=4)
+    fit = refine_point_to_line(LineMap.build(submap), truth, query, 0.1, 0.02)
+    along = fit.position_sigma((1.0, 0.0))
+    assert across < along < 0.005
+    # the same fit with no spread measured pins nothing
+    unmeasured = dataclasses.replace(fit, spread=math.inf)
+    assert unmeasured.position_sigma((0.0, 1.0)) == math.inf
+
+
 def test_a_polish_that_would_move_the_pose_beyond_its_reach_is_not_kept():
     submap, seen, truth, query = _hall_revisit(0.2, 0.1, seed=5)
     lines = LineMap.build(submap)
     config = LoopClosureConfig()
     near = compose(truth, (0.015, 0.01, 0.004))
-    polished = polish_on_lines(lines, near, query, seen, config)
+    polished, fit = polish_on_lines(lines, near, query, seen, config)
     assert _position_error(truth, polished) < 0.003
+    assert fit is not None and np.array_equal(fit.pose, polished)
     far = compose(truth, (0.07, -0.05, 0.0))
-    assert np.array_equal(polish_on_lines(lines, far, query, seen, config), far)
+    assert polish_on_lines(lines, far, query, seen, config) == (far, None)
 
 
 def test_a_box_room_polished_from_every_side_lands_on_its_walls():
@@ -113,11 +140,11 @@ def test_points_that_scatter_more_than_the_grid_blurs_are_not_polished():
     config = LoopClosureConfig()
     robot = compose(np.array([4.0, 1.5, 0.0]), truth)
     precise = _points(HALL, robot, noise=0.005, seed=7)
-    assert _position_error(truth, polish_on_lines(lines, start, precise, seen, config)) < 0.004
+    assert _position_error(truth, polish_on_lines(lines, start, precise, seen, config)[0]) < 0.004
     # a low-cost scanner's 3 cm: its lines are no better than the grid's blur
     noisy = _points(HALL, robot, noise=0.03, seed=7)
     assert refine_point_to_line(lines, start, noisy, 0.1, 0.02).spread > config.line_max_spread
-    assert np.array_equal(polish_on_lines(lines, start, noisy, seen, config), start)
+    assert polish_on_lines(lines, start, noisy, seen, config) == (start, None)
 
 
 def test_the_point_index_finds_what_a_search_of_every_point_finds():

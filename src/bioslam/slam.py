@@ -75,6 +75,7 @@ from bioslam.consistency import SharpnessComparison
 from bioslam.geometry import Pose2D, between, compose, inverse, rotation
 from bioslam.growing import GrowingArray, RowsFactory
 from bioslam.link_noise import LinkNoise, LinkNoiseEstimator
+from bioslam.matching.point_to_line import LineFit
 from bioslam.occupancy_grid import NORMAL_MAX_GAP, NORMAL_RADIUS, scan_normals, subsample_by_spacing
 from bioslam.odometry import LidarOdometry, MatchReport
 from bioslam.pose_cells import PoseCellNetwork
@@ -1070,8 +1071,9 @@ class BioSLAM:
             submap.pyramid, rival, None if plan.broken is None else rival,
         )  # fmt: skip
         pts = np.ascontiguousarray(points, dtype=np.float64)
+        lines = None
         if verdict.accepted and cfg.polish:
-            polished = polish_on_lines(submap.lines(), verdict.pose, pts, submap.seen, cfg)
+            polished, lines = polish_on_lines(submap.lines(), verdict.pose, pts, submap.seen, cfg)
             verdict = dataclasses.replace(verdict, pose=polished)
         # the scan's own constraint shape, which weighs the closure, and the weak modes of
         # what the registration matched, which say which of its corrections must earn their
@@ -1081,7 +1083,7 @@ class BioSLAM:
         geometry = _ScanGeometry(
             pts, self.config.cognitive_map.closure_shape_ratio, verdict.pose, submap.seen
         )  # fmt: skip
-        verdict = self._settled(verdict, mapped, geometry, submap)
+        verdict = self._settled(verdict, mapped, geometry, submap, lines)
         registered = verdict.pose  # in the submap anchor's frame
         verdict = dataclasses.replace(
             verdict, pose=compose(anchor_in_experience, verdict.pose),
@@ -1092,7 +1094,8 @@ class BioSLAM:
         )  # fmt: skip
 
     def _settled(
-        self, verdict: Verdict, mapped: FloatArray, geometry: _ScanGeometry, submap: Submap
+        self, verdict: Verdict, mapped: FloatArray, geometry: _ScanGeometry, submap: Submap,
+        lines: LineFit | None = None,
     ) -> Verdict:
         """An accepted ``verdict`` with its correction of the map's prediction (``mapped``,
         in the submap anchor's frame) along what the scan barely pins taken back unless it
@@ -1105,7 +1108,7 @@ class BioSLAM:
         grids = submap.pyramid.grids  # type: ignore[union-attr]
         settled = settle_weak_direction(
             grids[min(cfg.registration.score_level, len(grids) - 1)], verdict.pose, mapped,
-            geometry.points, geometry.modes, cfg, submap.seen,
+            geometry.points, geometry.modes, cfg, submap.seen, lines,
         )  # fmt: skip
         if (
             cfg.refuse_far_settle

@@ -14,7 +14,7 @@ and its caller keeps the grid's pose where the two disagree by more than that.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
@@ -38,6 +38,10 @@ LINE_RADIUS = 0.25
 #: this share of the best-constrained one (the heading scaled by ``LENGTH_SCALE``): along a
 #: corridor nothing pins the position, and noise would move it.
 MIN_CONSTRAINT = 1e-3
+#: A direction with more than this component along one the lines do not constrain is not
+#: pinned by them (:meth:`LineFit.position_sigma`); below it, the component is the free
+#: direction's tilt by the points' noise (across a corridor: 1e-3).
+UNPINNED_SHARE = 0.05
 #: Metres per radian when the heading's constraint is compared with the position's.
 LENGTH_SCALE = 1.0
 
@@ -218,11 +222,31 @@ class LineFit:
     """A :func:`refine_point_to_line` result: the pose, the points matched to a line at its
     last step, and their residuals' robust spread (m, 1.4826 times the median absolute
     distance to their lines): the scanner's noise and the walls' roughness as the lines see
-    them."""
+    them; ``information``: the matched points' Huber-weighted Gauss-Newton information
+    (x, y, and the heading times ``LENGTH_SCALE``) at the last step, per unit residual
+    variance."""
 
     pose: FloatArray
     matched: int
     spread: float
+    information: FloatArray = field(default_factory=lambda: np.zeros((3, 3)))
+
+    def position_sigma(self, direction: ArrayLike) -> float:
+        """The fit's standard deviation (m) of the position along ``direction`` (a unit
+        vector in the frame of its ``pose``'s map), the heading left free: the residuals'
+        spread over the lines' information there. Infinite where the lines do not pin it
+        (along a corridor with no wall across it: the fit moves only in the directions they
+        constrain, ``MIN_CONSTRAINT``)."""
+        if not math.isfinite(self.spread):
+            return math.inf
+        u = np.zeros(3)
+        u[:2] = np.asarray(direction, dtype=np.float64).reshape(2)
+        values, vectors = np.linalg.eigh(self.information)
+        pinned = values > MIN_CONSTRAINT * max(values[2], 1e-12)
+        along = vectors.T @ u
+        if np.any(np.abs(along[~pinned]) > UNPINNED_SHARE):
+            return math.inf
+        return self.spread * math.sqrt(float(np.sum(along[pinned] ** 2 / values[pinned])))
 
 
 def refine_point_to_line(
@@ -242,9 +266,10 @@ def refine_point_to_line(
     pose = np.asarray(start, dtype=np.float64).copy()
     pts = np.ascontiguousarray(np.asarray(query, dtype=np.float64).reshape(-1, 2))
     residual = np.zeros(0)
+    information = np.zeros((3, 3))
     lines = (line_map.points, line_map.anchors, line_map.normals, line_map.index.arrays())
     for _ in range(max_iterations):
-        step, residual = _line_step(*lines, pose, pts, max_distance, huber)
+        step, residual, information = _line_step(*lines, pose, pts, max_distance, huber)
         if residual.size < 3:
             break
         pose = pose + step
@@ -252,13 +277,14 @@ def refine_point_to_line(
         if math.hypot(step[0], step[1]) + LENGTH_SCALE * abs(step[2]) < tolerance:
             break
     spread = 1.4826 * float(np.median(np.abs(residual))) if residual.size else math.inf
-    return LineFit(pose, int(residual.size), spread)
+    return LineFit(pose, int(residual.size), spread, information)
 
 
 @njit(cache=True)
 def _line_step(points, anchors, normals, index, pose, pts, max_distance, huber):
-    """One Gauss-Newton step of :func:`refine_point_to_line` and the residuals of the
-    points it matched (m); a zero step when fewer than three points match."""
+    """One Gauss-Newton step of :func:`refine_point_to_line`, the residuals of the points it
+    matched (m) and their information (the Gauss-Newton Hessian); a zero step when fewer
+    than three points match."""
     c, s = math.cos(pose[2]), math.sin(pose[2])
     residual = np.empty(pts.shape[0])
     hessian = np.zeros((3, 3))
@@ -288,7 +314,7 @@ def _line_step(points, anchors, normals, index, pose, pts, max_distance, huber):
                 hessian[a, b] += jac[a] * weight * jac[b]
     step = np.zeros(3)
     if matched < 3:
-        return step, residual[:matched]
+        return step, residual[:matched], hessian
     values, vectors = np.linalg.eigh(hessian)
     floor = MIN_CONSTRAINT * max(values[2], 1e-12)
     for k in range(3):
@@ -298,7 +324,7 @@ def _line_step(points, anchors, normals, index, pose, pts, max_distance, huber):
             for a in range(3):
                 step[a] -= vectors[a, k] * along
     step[2] /= LENGTH_SCALE
-    return step, residual[:matched]
+    return step, residual[:matched], hessian
 
 
 __all__ = ["LineFit", "LineMap", "PointIndex", "local_lines", "refine_point_to_line"]
