@@ -1677,8 +1677,7 @@ def settle_weak_direction(
         position = modes[2, k] == 0.0  # (the turn is the one mode with a heading)
         if along == 0.0 or (position and abs(along) <= config.weak_floor):
             continue  # (a position correction too small for the score to judge stands)
-        direction = rotation(float(pose[2])) @ modes[:2, k]  # (the submap's frame)
-        if position and _lines_measured(lines, direction, along, config.lines_pin):
+        if position and _lines_measured(lines, pose, modes[:2, k], along, config.lines_pin):
             continue
         moved = compose(pose, along * modes[:, k])
         there = seen_hit_fraction(grid, moved, query, reg.hit_level, seen, config.min_seen)
@@ -1687,11 +1686,15 @@ def settle_weak_direction(
     return pose
 
 
-def _lines_measured(lines: LineFit | None, direction: FloatArray, along: float, pin: float) -> bool:
-    """Whether the line fit ``lines`` puts the position along ``direction`` (a unit vector)
-    more than ``pin`` standard deviations from a correction ``along`` metres away (0: never)."""
+def _lines_measured(
+    lines: LineFit | None, pose: FloatArray, mode: FloatArray, along: float, pin: float
+) -> bool:
+    """Whether the line fit ``lines`` puts the position along ``mode`` (a unit vector in the
+    frame of the registration ``pose``) more than ``pin`` standard deviations from a
+    correction ``along`` metres away (0: never)."""
     if lines is None or pin <= 0.0:
         return False
+    direction = rotation(float(pose[2])) @ mode  # (the submap's frame, the fit's)
     return abs(along) > pin * lines.position_sigma(direction)
 
 
