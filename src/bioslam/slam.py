@@ -970,13 +970,11 @@ class BioSLAM:
         break, a lost odometry's map pose may sit on a look-alike of the old place (ring
         floor, URG-04LX thinned: a closure 3 m off), and the nearest place stands. A place
         found joined has its loop, and is no longer marked. Only while the map's link noise
-        says the heading drifts (``revisit_drift_scale``): where it holds, the copy lies on
+        says the heading drifts (:meth:`_heading_drifts`): where it holds, the copy lies on
         the first pass, and a check to it serves as well."""
         cfg = self.config.loop_closure
         cmap = self.cognitive_map
-        if not cfg.revisit_refused:
-            return None
-        if cmap.noise.likeliest_heading_scale < cfg.revisit_drift_scale:
+        if not (cfg.revisit_refused and self._heading_drifts()):
             return None
         count = len(cmap)
         # every break counts as a jump too (:meth:`SelfMotion._note_jump`), and the count only
@@ -1093,19 +1091,30 @@ class BioSLAM:
             verdict, predicted, plan, submap, anchor_in_experience, registered, geometry
         )  # fmt: skip
 
+    def _heading_drifts(self) -> bool:
+        """Whether the map's link noise says the odometry's heading drifts: the heading
+        variance the closures make likeliest, over what the odometry's scan matches measured
+        (:attr:`bioslam.link_noise.LinkNoise.likeliest_heading_scale`), at least
+        ``drift_scale`` (the settings' model, 1, until a closure teaches one)."""
+        scale = self.cognitive_map.noise.likeliest_heading_scale
+        return scale >= self.config.loop_closure.drift_scale
+
     def _settled(
         self, verdict: Verdict, mapped: FloatArray, geometry: _ScanGeometry, submap: Submap,
         lines: LineFit | None = None,
     ) -> Verdict:
         """An accepted ``verdict`` with its correction of the map's prediction (``mapped``,
         in the submap anchor's frame) along what the scan barely pins taken back unless it
-        earns its score (:func:`bioslam.closure.settle_weak_direction`); refused as
-        ambiguous where the prediction fits about as well farther off than a rival may be
+        earns its score (:func:`bioslam.closure.settle_weak_direction`) or, while the
+        heading drifts (:meth:`_heading_drifts`), the polish's ``lines`` measured it; refused
+        as ambiguous where the prediction fits about as well farther off than a rival may be
         (``refuse_far_settle``)."""
         cfg = self.config.loop_closure
         if not (verdict.accepted and cfg.weak_margin > 0.0):
             return verdict
         grids = submap.pyramid.grids  # type: ignore[union-attr]
+        if not self._heading_drifts():
+            lines = None  # (the map's prediction holds along the scan's weak direction)
         settled = settle_weak_direction(
             grids[min(cfg.registration.score_level, len(grids) - 1)], verdict.pose, mapped,
             geometry.points, geometry.modes, cfg, submap.seen, lines,
