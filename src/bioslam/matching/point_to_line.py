@@ -242,7 +242,7 @@ class LineFit:
         u = np.zeros(3)
         u[:2] = np.asarray(direction, dtype=np.float64).reshape(2)
         values, vectors = np.linalg.eigh(self.information)
-        pinned = values > MIN_CONSTRAINT * max(values[2], 1e-12)
+        pinned = values > _constraint_floor(values)
         along = vectors.T @ u
         if np.any(np.abs(along[~pinned]) > UNPINNED_SHARE):
             return math.inf
@@ -281,6 +281,14 @@ def refine_point_to_line(
 
 
 @njit(cache=True)
+def _constraint_floor(values):
+    """The information along a direction below which the matched lines do not constrain
+    it: ``MIN_CONSTRAINT`` of the best-constrained one's (``values``: the information's
+    eigenvalues, ascending)."""
+    return MIN_CONSTRAINT * max(values[2], 1e-12)
+
+
+@njit(cache=True)
 def _line_step(points, anchors, normals, index, pose, pts, max_distance, huber):
     """One Gauss-Newton step of :func:`refine_point_to_line`, the residuals of the points it
     matched (m) and their information (the Gauss-Newton Hessian); a zero step when fewer
@@ -316,7 +324,7 @@ def _line_step(points, anchors, normals, index, pose, pts, max_distance, huber):
     if matched < 3:
         return step, residual[:matched], hessian
     values, vectors = np.linalg.eigh(hessian)
-    floor = MIN_CONSTRAINT * max(values[2], 1e-12)
+    floor = _constraint_floor(values)
     for k in range(3):
         if values[k] > floor:
             along = (vectors[0, k] * gradient[0] + vectors[1, k] * gradient[1]
